@@ -1,0 +1,258 @@
+"""Declarations: products, typed stage parameters, stages.
+
+A stage module in ``stages/`` declares one module-level ``STAGE = Stage(...)``. The engine
+finds every such module, builds the graph from the product names the stages read and
+write, and calls ``STAGE.run(inputs, frame=..., params=...)`` once per frame.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .camera import Camera
+from .errors import ParamError
+
+__all__ = [
+    "Param",
+    "Product",
+    "Stage",
+    "StageResult",
+    "FrameContext",
+    "IMAGE_DIMS",
+]
+
+IMAGE_DIMS: tuple[str, str, str] = ("frame", "y", "x")
+_PARAM_TYPES: tuple[type, ...] = (int, float, str, bool)
+
+
+@dataclass(frozen=True)
+class Param:
+    """A typed stage parameter with a default.
+
+    Parameters
+    ----------
+    name : str
+        Identifier, unique within the stage.
+    type : {int, float, str, bool}
+        Python type of the value; an int is accepted where a float is expected.
+    default : object
+        Default value; must itself be valid.
+    doc : str
+        One line for ``arroyo graph``.
+    choices : tuple, optional
+        Allowed values.
+    minimum, maximum : float, optional
+        Inclusive bounds for numbers.
+    """
+
+    name: str
+    type: type
+    default: Any
+    doc: str = ""
+    choices: tuple[Any, ...] | None = None
+    minimum: float | None = None
+    maximum: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.type not in _PARAM_TYPES:
+            raise TypeError(f"Param {self.name!r}: type must be one of int, float, str, bool")
+        self.validate(self.default, where="default")
+
+    def validate(self, value: Any, *, where: str = "") -> Any:
+        """Return ``value`` in canonical form or raise ParamError saying what was expected."""
+        label = f"parameter {self.name!r}" + (f" ({where})" if where else "")
+        expected = self.type.__name__
+        if self.type is float and isinstance(value, int) and not isinstance(value, bool):
+            value = float(value)
+        wrong_bool = self.type is not bool and isinstance(value, bool)
+        if wrong_bool or not isinstance(value, self.type):
+            raise ParamError(
+                f"{label} expects {expected}, got {type(value).__name__} {value!r}"
+            )
+        if self.type is float and not math.isfinite(value):
+            raise ParamError(f"{label} expects a finite float, got {value!r}")
+        if self.choices is not None and value not in self.choices:
+            raise ParamError(f"{label} must be one of {list(self.choices)}, got {value!r}")
+        if self.minimum is not None and value < self.minimum:
+            raise ParamError(f"{label} must be >= {self.minimum}, got {value!r}")
+        if self.maximum is not None and value > self.maximum:
+            raise ParamError(f"{label} must be <= {self.maximum}, got {value!r}")
+        return value
+
+    def parse(self, text: str) -> Any:
+        """Parse a command-line string (``--set stage.name=TEXT``) into a valid value."""
+        raw: Any
+        try:
+            if self.type is bool:
+                lowered = text.strip().lower()
+                if lowered not in ("true", "false", "1", "0", "yes", "no"):
+                    raise ValueError(text)
+                raw = lowered in ("true", "1", "yes")
+            elif self.type is int:
+                raw = int(text)
+            elif self.type is float:
+                raw = float(text)
+            else:
+                raw = text
+        except ValueError:
+            raise ParamError(
+                f"parameter {self.name!r} expects {self.type.__name__}, got {text!r}"
+            ) from None
+        return self.validate(raw)
+
+
+@dataclass(frozen=True)
+class Product:
+    """A named product a stage writes.
+
+    Parameters
+    ----------
+    name : str
+        Product name, unique in the graph (``disparity``, ``labels``, ``descriptors``...).
+    kind : {'array', 'table', 'files'}
+        ``array``: one zarr array in ``products.zarr`` with a leading ``frame`` dimension.
+        ``table``: rows appended to ``<name>.parquet`` (the engine adds archive, run_id,
+        frame_id columns). ``files``: loose files under the run directory (quicklooks).
+    dtype : str, optional
+        NumPy dtype of an array product (``'uint8'``, ``'float32'``, ``'int32'``...).
+    dims : tuple of str
+        Dimension names of an array product; ``('frame', 'y', 'x')`` for images.
+    shape : callable, optional
+        ``shape(frame_shape, params) -> tuple`` of the per-frame shape for arrays whose
+        shape is not the image's (for example the sector grid of the segmentation).
+    fill_value : scalar
+        Value of never-written cells (NaN for floats, 0 otherwise).
+    attrs : dict
+        ``units``, ``long_name`` and any other attributes recorded in zarr.
+    """
+
+    name: str
+    kind: str = "array"
+    dtype: str | None = None
+    dims: tuple[str, ...] = IMAGE_DIMS
+    shape: Callable[[tuple[int, int], Mapping[str, Any]], tuple[int, ...]] | None = None
+    fill_value: Any = None
+    attrs: Mapping[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.kind not in ("array", "table", "files"):
+            raise ValueError(f"Product {self.name!r}: kind must be array, table or files")
+        if self.kind == "array" and self.dtype is None:
+            raise ValueError(f"Product {self.name!r}: an array product needs a dtype")
+
+    def frame_shape(self, image_shape: tuple[int, int], params: Mapping[str, Any]) -> tuple:
+        """Per-frame shape of an array product."""
+        return tuple(self.shape(image_shape, params)) if self.shape else tuple(image_shape)
+
+    def resolved_fill(self) -> Any:
+        if self.fill_value is not None:
+            return self.fill_value
+        return np.nan if np.dtype(self.dtype).kind == "f" else 0
+
+
+@dataclass(frozen=True)
+class FrameContext:
+    """What a stage knows about the frame besides its input arrays.
+
+    ``left_path``/``right_path`` are only meaningful to ``ingest``.
+    """
+
+    frame_id: str
+    archive: str
+    camera: Camera
+    metadata: Mapping[str, Any] = field(default_factory=dict)
+    left_path: Path | None = None
+    right_path: Path | None = None
+    image_shape: tuple[int, int] | None = None
+
+
+@dataclass
+class StageResult:
+    """What a stage returns for one frame.
+
+    Attributes
+    ----------
+    arrays : dict of str to ndarray
+        One entry per array product the stage writes, per-frame shape and declared dtype.
+    tables : dict of str to dict of str to sequence
+        Columns (equal lengths) of each table product; the engine adds archive/run_id/frame_id.
+    figures : dict of str to number or str
+        Per-frame scalars for ``frames.parquet``; stored as ``<stage>_<name>``.
+    files : dict of str to bytes
+        Relative path under the run directory to file content (quicklooks).
+    notes : list of str
+        Human remarks recorded with the frame (``"colour converted to gray"``).
+    """
+
+    arrays: dict[str, np.ndarray] = field(default_factory=dict)
+    tables: dict[str, dict[str, Any]] = field(default_factory=dict)
+    figures: dict[str, Any] = field(default_factory=dict)
+    files: dict[str, bytes] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+
+
+StageRun = Callable[..., StageResult]
+
+
+@dataclass(frozen=True)
+class Stage:
+    """A declared processing stage.
+
+    Parameters
+    ----------
+    name : str
+        Stage name (``depth``), also the prefix of its parameters (``depth.max_disparity``).
+    version : str
+        Bump when the stage's output for the same inputs and params changes; part of the
+        cache key.
+    inputs : tuple of str
+        Product names read (the frame's arrays are passed to ``run`` under these names).
+    outputs : tuple of Product
+        Products written.
+    params : tuple of Param
+        Typed parameters with defaults.
+    run : callable
+        ``run(inputs: dict[str, ndarray], *, frame: FrameContext, params: dict) -> StageResult``.
+    doc : str
+        One line for ``arroyo graph``.
+    optional_inputs : tuple of str
+        Inputs read when present in the graph, tolerated when absent.
+    """
+
+    name: str
+    version: str
+    inputs: tuple[str, ...]
+    outputs: tuple[Product, ...]
+    params: tuple[Param, ...]
+    run: StageRun
+    doc: str = ""
+    optional_inputs: tuple[str, ...] = ()
+
+    @property
+    def output_names(self) -> tuple[str, ...]:
+        return tuple(p.name for p in self.outputs)
+
+    def param(self, name: str) -> Param:
+        for p in self.params:
+            if p.name == name:
+                return p
+        known = ", ".join(p.name for p in self.params) or "none"
+        raise ParamError(
+            f"stage {self.name!r} has no parameter {name!r}; its parameters are: {known}"
+        )
+
+    def defaults(self) -> dict[str, Any]:
+        return {p.name: p.default for p in self.params}
+
+    def resolve_params(self, overrides: Mapping[str, Any]) -> dict[str, Any]:
+        """Defaults updated with validated overrides."""
+        params = self.defaults()
+        for key, value in overrides.items():
+            params[key] = self.param(key).validate(value, where=f"{self.name}.{key}")
+        return params
