@@ -1,0 +1,1 @@
+"""Processing stages: one module per stage, each with a module-level ``STAGE = Stage(...)``."""
