@@ -130,6 +130,9 @@ class Product:
         Value of never-written cells (NaN for floats, 0 otherwise).
     attrs : dict
         ``units``, ``long_name`` and any other attributes recorded in zarr.
+    schema : pyarrow.Schema, optional
+        Column types of a table product (without archive/run_id/frame_id), so that frames
+        with zero rows still write typed columns.
     """
 
     name: str
@@ -139,6 +142,7 @@ class Product:
     shape: Callable[[tuple[int, int], Mapping[str, Any]], tuple[int, ...]] | None = None
     fill_value: Any = None
     attrs: Mapping[str, Any] = field(default_factory=dict)
+    schema: Any = None
 
     def __post_init__(self) -> None:
         if self.kind not in ("array", "table", "files"):
