@@ -1,0 +1,345 @@
+"""From thresholds to labelled objects, and the depth rules of ``sector-histogram+depth``.
+
+Intensity: a pixel is object when its gray level is below the interpolated low threshold or
+above the high one (:func:`threshold_mask`). :func:`label_objects` then fills holes (background
+pockets enclosed by object pixels), optionally splits components at depth discontinuities,
+drops specks smaller than ``min_area_px`` and numbers the objects ``1..n`` densely in raster
+order of their first pixel.
+
+Depth rules (:func:`apply_depth_rules`), each explainable on its own. ``height`` is metres
+above the fitted ground plane, smoothed first with a NaN-aware median (depth noise must not
+make objects); a pixel has *valid depth* where the smoothed height is finite.
+
+* **R1 raised** -- a pixel with valid depth and height > ``min_height_m`` is object, even
+  when its gray level equals the ground's (a rock as bright as the sand it lies on).
+* **R2 flat** -- an intensity-object pixel with valid depth and ``|height| < flat_tol_m`` is
+  background (a shadow is dark but lies on the ground; so do stains and damp patches), unless
+  it lies within ``base_px`` pixels of a raised pixel: the foot of a rock is low too.
+* **R3 no depth** -- where depth is invalid the intensity decision stands.
+* **R4 split** -- a pixel where the (median-smoothed) disparity drops by more than
+  ``split_disparity_px`` towards a 4-neighbour is a depth edge: the surface behind an
+  occluding boundary. An object made of two or more cores (pieces of at least ``min_area_px``
+  after removing its depth edges) is split into those cores; every other pixel of the object
+  goes to its nearest core. Touching rocks at different ranges thus become separate objects.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+from scipy.ndimage import distance_transform_edt
+
+__all__ = [
+    "DepthRuleStats",
+    "threshold_mask",
+    "fill_holes",
+    "smooth_height",
+    "depth_edges",
+    "apply_depth_rules",
+    "label_objects",
+    "otsu_labels",
+]
+
+
+@dataclass
+class DepthRuleStats:
+    """How many pixels each depth rule changed (for the per-frame figures)."""
+
+    raised_added_px: int = 0
+    flat_removed_px: int = 0
+    depth_valid_fraction: float = 0.0
+    notes: list[str] = field(default_factory=list)
+
+
+def _coerce_mask(mask: np.ndarray, name: str = "mask") -> np.ndarray:
+    if not isinstance(mask, np.ndarray):
+        raise TypeError(f"{name} must be a numpy array, got {type(mask).__name__}")
+    if mask.ndim != 2:
+        raise ValueError(f"{name} must be 2-D, got shape {mask.shape}")
+    if mask.dtype != bool:
+        raise TypeError(f"{name} must be a bool array, got dtype {mask.dtype}; use mask != 0")
+    return mask
+
+
+def _coerce_float_map(values: np.ndarray, shape: tuple[int, int], name: str) -> np.ndarray:
+    if not isinstance(values, np.ndarray):
+        raise TypeError(f"{name} must be a numpy array, got {type(values).__name__}")
+    if values.shape != shape:
+        raise ValueError(
+            f"{name} must have the reference image's shape {shape}, got {values.shape}"
+        )
+    if values.dtype.kind != "f":
+        raise TypeError(f"{name} must be a float array (NaN where invalid), got {values.dtype}")
+    return values.astype(np.float32, copy=False)
+
+
+def threshold_mask(image: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
+    """Object pixels: darker than ``low`` or lighter than ``high``.
+
+    Parameters
+    ----------
+    image : (M, N) ndarray of uint8
+        Reference gray image.
+    low, high : (M, N) ndarray of float
+        Interpolated thresholds (gray levels).
+
+    Returns
+    -------
+    mask : (M, N) ndarray of bool
+    """
+    if image.shape != low.shape or image.shape != high.shape:
+        raise ValueError(
+            f"image {image.shape}, low {low.shape} and high {high.shape} must have one shape"
+        )
+    gray = image.astype(np.float32)
+    return (gray < low) | (gray > high)
+
+
+def fill_holes(mask: np.ndarray) -> np.ndarray:
+    """Set background pockets not connected (4-connectivity) to the frame border to object.
+
+    Parameters
+    ----------
+    mask : (M, N) ndarray of bool
+
+    Returns
+    -------
+    filled : (M, N) ndarray of bool
+    """
+    mask = _coerce_mask(mask)
+    padded = np.zeros((mask.shape[0] + 2, mask.shape[1] + 2), np.uint8)
+    padded[1:-1, 1:-1] = mask
+    flood_mask = np.zeros((padded.shape[0] + 2, padded.shape[1] + 2), np.uint8)
+    cv2.floodFill(padded, flood_mask, (0, 0), 2, flags=4)
+    return padded[1:-1, 1:-1] != 2
+
+
+def smooth_height(height: np.ndarray, *, window: int = 5) -> np.ndarray:
+    """NaN-aware median of the height map.
+
+    Parameters
+    ----------
+    height : (M, N) ndarray of float32
+        Metres above ground, NaN where invalid.
+    window : {1, 3, 5}
+        Median window; 1 returns the input.
+
+    Returns
+    -------
+    smoothed : (M, N) ndarray of float32
+        NaN where the input is NaN; elsewhere the median of the window with invalid
+        neighbours counted as ground (0), which biases isolated spikes down, never up.
+    """
+    if window not in (1, 3, 5):
+        raise ValueError(f"window must be 1, 3 or 5 (OpenCV float median), got {window}")
+    height = np.asarray(height, dtype=np.float32)
+    if window == 1:
+        return height
+    valid = np.isfinite(height)
+    filled = np.where(valid, height, np.float32(0.0)).astype(np.float32)
+    smoothed = cv2.medianBlur(filled, window)
+    return np.where(valid, smoothed, np.float32(np.nan))
+
+
+def depth_edges(disparity: np.ndarray, *, jump_px: float) -> np.ndarray:
+    """Pixels on the far side of a disparity drop larger than ``jump_px`` (4-neighbours).
+
+    Parameters
+    ----------
+    disparity : (M, N) ndarray of float32
+        Pixels, NaN where invalid (invalid pixels are never edges).
+    jump_px : float
+        Smallest disparity difference between 4-neighbours that counts as a discontinuity.
+
+    Returns
+    -------
+    edges : (M, N) ndarray of bool
+    """
+    if jump_px <= 0:
+        raise ValueError(f"jump_px must be > 0, got {jump_px}")
+    d = np.asarray(disparity, dtype=np.float32)
+    valid = np.isfinite(d)
+    d = cv2.medianBlur(np.where(valid, d, np.float32(0.0)).astype(np.float32), 3)
+    d = np.where(valid, d, np.float32(np.nan))
+    edges = np.zeros(d.shape, dtype=bool)
+    with np.errstate(invalid="ignore"):
+        down_x = d[:, 1:] - d[:, :-1]  # > 0: right pixel nearer
+        edges[:, :-1] |= down_x > jump_px
+        edges[:, 1:] |= down_x < -jump_px
+        down_y = d[1:, :] - d[:-1, :]
+        edges[:-1, :] |= down_y > jump_px
+        edges[1:, :] |= down_y < -jump_px
+    return edges
+
+
+def apply_depth_rules(
+    mask: np.ndarray,
+    height: np.ndarray,
+    *,
+    min_height_m: float = 0.025,
+    flat_tol_m: float = 0.01,
+    base_px: int = 2,
+    smoothing_px: int = 5,
+) -> tuple[np.ndarray, DepthRuleStats]:
+    """Combine an intensity mask with height above ground (rules R1-R3 of the module doc).
+
+    Parameters
+    ----------
+    mask : (M, N) ndarray of bool
+        Intensity objects.
+    height : (M, N) ndarray of float32
+        Metres above the ground plane, NaN where invalid.
+    min_height_m : float
+        ``> 0``; R1 threshold.
+    flat_tol_m : float
+        ``>= 0``, below ``min_height_m``; R2 tolerance.
+    base_px : int
+        ``>= 0``; R2 spares flat pixels this close to a raised pixel.
+    smoothing_px : {1, 3, 5}
+        Median window of the height map.
+
+    Returns
+    -------
+    combined : (M, N) ndarray of bool
+    stats : DepthRuleStats
+    """
+    mask = _coerce_mask(mask)
+    height = _coerce_float_map(height, mask.shape, "height")
+    if not min_height_m > 0:
+        raise ValueError(f"min_height_m must be > 0, got {min_height_m}")
+    if not 0 <= flat_tol_m < min_height_m:
+        raise ValueError(
+            f"flat_tol_m must be in [0, min_height_m={min_height_m}), got {flat_tol_m}"
+        )
+    if base_px < 0:
+        raise ValueError(f"base_px must be >= 0, got {base_px}")
+    smoothed = smooth_height(height, window=smoothing_px)
+    valid = np.isfinite(smoothed)
+    with np.errstate(invalid="ignore"):
+        raised = smoothed > min_height_m
+        flat = np.abs(smoothed) < flat_tol_m
+    if base_px > 0 and raised.any():
+        size = 2 * base_px + 1
+        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
+        near_raised = cv2.dilate(raised.view(np.uint8), kernel).view(bool)
+    else:
+        near_raised = raised
+    removed = mask & flat & ~near_raised
+    combined = (mask & ~removed) | raised
+    stats = DepthRuleStats(
+        raised_added_px=int(np.count_nonzero(raised & ~mask)),
+        flat_removed_px=int(np.count_nonzero(removed)),
+        depth_valid_fraction=float(valid.mean()),
+    )
+    return combined, stats
+
+
+def _dense_components(mask: np.ndarray, min_area_px: int, connectivity: int = 8) -> np.ndarray:
+    """Connected components, specks removed, numbered 1..n."""
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(
+        mask.view(np.uint8), connectivity=connectivity, ltype=cv2.CV_32S
+    )
+    keep = stats[:, cv2.CC_STAT_AREA] >= min_area_px
+    keep[0] = False
+    lookup = np.zeros(count, dtype=np.int32)
+    lookup[keep] = np.arange(1, int(keep.sum()) + 1, dtype=np.int32)
+    return lookup[labels]
+
+
+def _split_at_edges(labels: np.ndarray, edges: np.ndarray, min_area_px: int) -> np.ndarray:
+    """Split objects holding several depth-separated cores; returns new (not dense) labels."""
+    # 4-connected cores: a one-pixel staircase of edge pixels must be a closed cut
+    cores = _dense_components((labels > 0) & ~edges, min_area_px, connectivity=4)
+    n_cores = int(cores.max())
+    if n_cores < 2:
+        return labels
+    # parent object of each core, and how many cores each object has
+    core_pixels = cores > 0
+    parent = np.zeros(n_cores + 1, dtype=np.int64)
+    parent[cores[core_pixels]] = labels[core_pixels]
+    cores_per_object = np.bincount(parent[1:], minlength=int(labels.max()) + 1)
+    split_objects = np.flatnonzero(cores_per_object >= 2)
+    if split_objects.size == 0:
+        return labels
+    in_split = np.isin(labels, split_objects)
+    _, (iy, ix) = distance_transform_edt(~core_pixels, return_indices=True)
+    nearest = cores[iy, ix]
+    same_parent = parent[nearest] == labels
+    result = labels.astype(np.int64)
+    offset = int(labels.max())
+    result[in_split & same_parent] = offset + nearest[in_split & same_parent]
+    return result
+
+
+def label_objects(
+    mask: np.ndarray,
+    *,
+    min_area_px: int = 30,
+    fill: bool = True,
+    edges: np.ndarray | None = None,
+) -> np.ndarray:
+    """Label 8-connected objects of a mask.
+
+    Parameters
+    ----------
+    mask : (M, N) ndarray of bool
+        Object pixels.
+    min_area_px : int
+        ``>= 1``; objects (and split cores) smaller than this are dropped as specks.
+    fill : bool
+        Fill holes first (:func:`fill_holes`).
+    edges : (M, N) ndarray of bool, optional
+        Depth edges (:func:`depth_edges`); when given, objects are split at them (rule R4).
+
+    Returns
+    -------
+    labels : (M, N) ndarray of int32
+        0 background, 1..n objects, dense.
+    """
+    mask = _coerce_mask(mask)
+    if not isinstance(min_area_px, int | np.integer) or min_area_px < 1:
+        raise ValueError(f"min_area_px must be an int >= 1, got {min_area_px!r}")
+    if fill:
+        mask = fill_holes(mask)
+    labels = _dense_components(mask, min_area_px)
+    if edges is not None:
+        edges = _coerce_mask(edges, "edges")
+        if edges.shape != mask.shape:
+            raise ValueError(f"edges shape {edges.shape} differs from mask shape {mask.shape}")
+        split = _split_at_edges(labels, edges, min_area_px)
+        if split is not labels:
+            labels = _renumber(split, min_area_px)
+    return labels
+
+
+def _renumber(labels: np.ndarray, min_area_px: int) -> np.ndarray:
+    """Dense 1..n in raster order of first pixel, dropping labels smaller than min_area_px."""
+    values, first, counts = np.unique(labels.ravel(), return_index=True, return_counts=True)
+    keep = (values > 0) & (counts >= min_area_px)
+    kept = values[keep][np.argsort(first[keep])]
+    remap = np.zeros(int(values.max()) + 1, dtype=np.int32)
+    remap[kept] = np.arange(1, kept.size + 1, dtype=np.int32)
+    return remap[labels]
+
+
+def otsu_labels(image: np.ndarray, *, min_area_px: int = 30) -> np.ndarray:
+    """Baseline: one global Otsu threshold, the minority class is object, then components.
+
+    Parameters
+    ----------
+    image : (M, N) ndarray of uint8
+    min_area_px : int
+        Speck size, as in :func:`label_objects`.
+
+    Returns
+    -------
+    labels : (M, N) ndarray of int32
+    """
+    if not isinstance(image, np.ndarray) or image.dtype != np.uint8 or image.ndim != 2:
+        raise TypeError("image must be a 2-D uint8 array")
+    _, binary = cv2.threshold(image, 0, 1, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
+    bright = binary.astype(bool)
+    mask = bright if bright.mean() < 0.5 else ~bright
+    return label_objects(mask, min_area_px=min_area_px, fill=True)

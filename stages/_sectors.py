@@ -1,0 +1,496 @@
+"""Sector histograms and the study's adaptive thresholds (the math of ``stages/segment.py``).
+
+The frame is split into ``S x S`` sectors. Each sector gets a 256-bin gray-level histogram,
+smoothed with a nine-point moving average. Its modes are the local maxima whose prominence
+(height above the higher of the two surrounding valleys) is at least ``prominence`` times the
+sector's highest bin and at least one pixel count.
+
+The background mode of each sector is chosen by *continuity*, never by size alone:
+
+1. **Seeds.** A sector whose histogram has one mode, or one dominant mode (every other mode
+   lower than ``seed_dominance`` times the highest), is an unambiguous seed. A seed that
+   disagrees by more than ``continuity_range`` gray levels with the median of the nearest
+   other seeds (a sector wholly covered by a large rock is unimodal too) is demoted.
+2. **Propagation.** Undecided sectors are decided in order of how many decided neighbours
+   they have (8-neighbourhood, diagonals weighted ``1/sqrt(2)``). The background is predicted
+   as the weighted mean of the decided neighbours' levels; the sector's mode nearest that
+   prediction within ``continuity_range`` becomes the background. This is what picks the
+   right mode when a rock covers most of a sector (the study's curtain case).
+3. **Phantom peaks.** When no mode lies in that range the background is a *phantom peak* at
+   the predicted level: the sector is all object, or its ground is hidden in a shoulder.
+
+Thresholds lie on both sides of the background mode, because objects may be darker or
+lighter than the ground: at the valley (lowest smoothed bin, taking the end of a flat valley
+nearest the background) between the background mode and the neighbouring mode on that side;
+where no mode lies on that side, at ``max(min_band, band_sigmas * sigma)`` from the
+background, ``sigma`` being the background peak's half width at half maximum on that side
+divided by ``sqrt(2 ln 2)``. Phantom sectors borrow the median band of their decided
+neighbours.
+
+The per-sector thresholds belong to the sector centres and are interpolated bilinearly to
+every pixel (Chow and Kaneko, 1972), clamped beyond the outermost centres, so no block edge
+appears at sector boundaries.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.ndimage import uniform_filter1d
+from scipy.signal import find_peaks
+
+__all__ = [
+    "N_LEVELS",
+    "SectorAnalysis",
+    "sector_edges",
+    "sector_histograms",
+    "smooth_histograms",
+    "find_modes",
+    "analyse_sectors",
+    "interpolate_sector_grid",
+]
+
+N_LEVELS = 256
+_SMOOTHING_WIDTH = 9  # the study's nine-point filter
+_FWHM_TO_SIGMA = 1.0 / math.sqrt(2.0 * math.log(2.0))  # half width at half max -> sigma
+
+
+@dataclass(frozen=True)
+class SectorAnalysis:
+    """Per-sector results of the continuity pass; every grid has shape ``(S, S)``.
+
+    Attributes
+    ----------
+    background : (S, S) ndarray of float32
+        Background gray level (a mode or a phantom peak).
+    low, high : (S, S) ndarray of float32
+        Thresholds: a pixel darker than ``low`` or lighter than ``high`` is object.
+    modes : (S, S) ndarray of int8
+        Number of modes found in the smoothed histogram (capped at 127).
+    phantom : (S, S) ndarray of bool
+        True where the background is a phantom peak (no mode near the predicted level).
+    seed : (S, S) ndarray of bool
+        True where the sector seeded the continuity pass.
+    """
+
+    background: np.ndarray
+    low: np.ndarray
+    high: np.ndarray
+    modes: np.ndarray
+    phantom: np.ndarray
+    seed: np.ndarray
+
+
+def _coerce_image(image: np.ndarray) -> np.ndarray:
+    if not isinstance(image, np.ndarray):
+        raise TypeError(f"image must be a numpy array, got {type(image).__name__}")
+    if image.ndim != 2:
+        raise ValueError(f"image must be 2-D (rows, columns), got shape {image.shape}")
+    if image.dtype != np.uint8:
+        raise TypeError(
+            f"image must be uint8 gray levels, got dtype {image.dtype}; "
+            "convert with np.clip(image, 0, 255).astype(np.uint8)"
+        )
+    return image
+
+
+def _check_sectors(sectors: int, shape: tuple[int, ...]) -> int:
+    if not isinstance(sectors, int | np.integer) or isinstance(sectors, bool):
+        raise TypeError(f"sectors must be an int, got {type(sectors).__name__} {sectors!r}")
+    if sectors < 1:
+        raise ValueError(f"sectors must be >= 1, got {sectors}")
+    if min(shape) < sectors:
+        raise ValueError(
+            f"cannot split an image of shape {tuple(shape)} into {sectors}x{sectors} sectors; "
+            f"use sectors <= {min(shape)}"
+        )
+    return int(sectors)
+
+
+def sector_edges(length: int, sectors: int) -> np.ndarray:
+    """Sector boundaries along one axis.
+
+    Parameters
+    ----------
+    length : int
+        Image size along the axis (rows or columns).
+    sectors : int
+        Number of sectors along the axis, ``1 <= sectors <= length``.
+
+    Returns
+    -------
+    edges : (sectors + 1,) ndarray of int64
+        ``np.round(np.linspace(0, length, sectors + 1))``; sector ``i`` is
+        ``[edges[i], edges[i + 1])``. With 500 rows and 16 or 8 sectors, row 250 is an edge,
+        so 250-row tiles hold whole sectors.
+    """
+    _check_sectors(sectors, (length,))
+    return np.round(np.linspace(0, length, sectors + 1)).astype(np.int64)
+
+
+def sector_histograms(image: np.ndarray, *, sectors: int) -> np.ndarray:
+    """256-bin gray-level histogram of each of ``sectors x sectors`` sectors.
+
+    Parameters
+    ----------
+    image : (M, N) ndarray of uint8
+        Gray image, ``M, N >= sectors``.
+    sectors : int
+        Sectors per axis; edges from :func:`sector_edges`.
+
+    Returns
+    -------
+    hist : (sectors, sectors, 256) ndarray of int64
+        ``hist[i, j, g]`` = number of pixels of gray ``g`` in sector row ``i``, column ``j``.
+    """
+    image = _coerce_image(image)
+    sectors = _check_sectors(sectors, image.shape)
+    return _histograms_between(
+        image, sector_edges(image.shape[0], sectors), sector_edges(image.shape[1], sectors)
+    )
+
+
+def _histograms_between(image: np.ndarray, row_edges: np.ndarray, col_edges: np.ndarray):
+    """Histograms of the sectors delimited by local edges (first edge 0, last the size)."""
+    n_rows, n_cols = len(row_edges) - 1, len(col_edges) - 1
+    row_sector = np.repeat(np.arange(n_rows, dtype=np.int64), np.diff(row_edges))
+    col_sector = np.repeat(np.arange(n_cols, dtype=np.int64), np.diff(col_edges))
+    sector = (row_sector[:, None] * n_cols + col_sector[None, :]) * N_LEVELS
+    counts = np.bincount((sector + image).ravel(), minlength=n_rows * n_cols * N_LEVELS)
+    return counts.reshape(n_rows, n_cols, N_LEVELS)
+
+
+def smooth_histograms(hist: np.ndarray, *, passes: int = 1) -> np.ndarray:
+    """Nine-point moving average along the gray axis, applied ``passes`` times.
+
+    Parameters
+    ----------
+    hist : (..., 256) ndarray of int or float
+        Histograms; the last axis is the gray level.
+    passes : int
+        Number of passes, ``>= 0`` (0 returns a float copy).
+
+    Returns
+    -------
+    smoothed : (..., 256) ndarray of float64
+        Same total count per histogram up to the reflected ends.
+    """
+    hist = np.asarray(hist)
+    if hist.shape[-1:] != (N_LEVELS,):
+        raise ValueError(f"histograms need {N_LEVELS} bins on the last axis, got {hist.shape}")
+    if passes < 0:
+        raise ValueError(f"passes must be >= 0, got {passes}")
+    smoothed = hist.astype(np.float64)
+    for _ in range(passes):
+        smoothed = uniform_filter1d(smoothed, _SMOOTHING_WIDTH, axis=-1, mode="reflect")
+    return smoothed
+
+
+def find_modes(smoothed: np.ndarray, *, prominence: float) -> tuple[np.ndarray, np.ndarray]:
+    """Modes of one smoothed histogram with the prominence rule.
+
+    Parameters
+    ----------
+    smoothed : (256,) ndarray of float
+        One smoothed histogram.
+    prominence : float
+        In ``[0, 1]``: a mode must rise above its higher surrounding valley by this fraction
+        of the histogram's highest bin (and by at least one count).
+
+    Returns
+    -------
+    positions : (K,) ndarray of int64
+        Gray levels of the modes, increasing; a peak at 0 or 255 counts.
+    heights : (K,) ndarray of float64
+        Smoothed counts at the modes.
+    """
+    smoothed = np.asarray(smoothed, dtype=np.float64)
+    if smoothed.shape != (N_LEVELS,):
+        raise ValueError(f"one histogram of {N_LEVELS} bins expected, got shape {smoothed.shape}")
+    if not 0.0 <= prominence <= 1.0:
+        raise ValueError(f"prominence must be in [0, 1], got {prominence}")
+    top = float(smoothed.max())
+    if top <= 0.0:
+        return np.zeros(0, np.int64), np.zeros(0)
+    padded = np.concatenate(([0.0], smoothed, [0.0]))  # let peaks at 0 and 255 count
+    peaks, _ = find_peaks(padded, prominence=max(prominence * top, 1.0))
+    positions = peaks.astype(np.int64) - 1
+    return positions, smoothed[positions]
+
+
+def _valley(smoothed: np.ndarray, background: int, other: int) -> float:
+    """Lowest bin between two modes; on a flat valley, its end nearest the background."""
+    lo, hi = (other, background) if other < background else (background, other)
+    segment = smoothed[lo : hi + 1]
+    minima = np.flatnonzero(segment <= segment.min() + 1e-12) + lo
+    return float(minima.max() if other < background else minima.min())
+
+
+def _half_width(smoothed: np.ndarray, peak: int, step: int) -> float:
+    """Distance from ``peak`` to the first bin below half its height, walking by ``step``."""
+    half = smoothed[peak] / 2.0
+    side = smoothed[peak::step] if step > 0 else smoothed[peak::-1]
+    below = np.flatnonzero(side < half)
+    return float(below[0]) if below.size else float(side.size)
+
+
+def _sector_band(smoothed, background, positions, *, band_sigmas, min_band):
+    """Low and high thresholds around a real background mode; also the width-based bands."""
+    band = []
+    for step in (-1, 1):
+        sigma = _half_width(smoothed, background, step) * _FWHM_TO_SIGMA
+        band.append(max(min_band, band_sigmas * sigma))
+    lower = positions[positions < background]
+    upper = positions[positions > background]
+    low = _valley(smoothed, background, int(lower.max())) if lower.size else background - band[0]
+    high = _valley(smoothed, background, int(upper.min())) if upper.size else background + band[1]
+    return low, high, band[0], band[1]
+
+
+_NEIGHBOURS = [(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if (dy, dx) != (0, 0)]
+
+
+def _seed_levels(modes, *, seed_dominance: float, continuity_range: float) -> np.ndarray:
+    """Background levels of the unambiguous sectors (NaN elsewhere), inconsistent ones removed."""
+    n = len(modes)
+    levels = np.full((n, n), np.nan)
+    for i in range(n):
+        for j in range(n):
+            positions, heights = modes[i][j]
+            if heights.size == 0:
+                continue
+            order = np.argsort(heights)[::-1]
+            if heights.size == 1 or heights[order[1]] < seed_dominance * heights[order[0]]:
+                levels[i, j] = positions[order[0]]
+    candidates = np.argwhere(np.isfinite(levels))
+    keep = levels.copy()
+    for i, j in candidates:
+        # compare with the nearest other seeds, widening the window until there are three
+        for radius in (2, 4, n):
+            window = levels[
+                max(i - radius, 0) : i + radius + 1, max(j - radius, 0) : j + radius + 1
+            ]
+            others = window[np.isfinite(window)]
+            if others.size >= 4:  # itself plus three others
+                break
+        if others.size >= 2:
+            reference = np.median(np.delete(others, np.flatnonzero(others == levels[i, j])[:1]))
+            if abs(levels[i, j] - reference) > continuity_range:
+                keep[i, j] = np.nan
+    return keep
+
+
+def _global_level(smoothed: np.ndarray, *, prominence: float) -> float:
+    """Highest mode of the whole-frame histogram: the fallback when no sector is a seed."""
+    total = smoothed.reshape(-1, N_LEVELS).sum(axis=0)
+    positions, heights = find_modes(total, prominence=prominence)
+    return float(positions[np.argmax(heights)]) if positions.size else float(np.argmax(total))
+
+
+def analyse_sectors(
+    hist: np.ndarray,
+    *,
+    smoothing: int = 1,
+    prominence: float = 0.1,
+    seed_dominance: float = 0.3,
+    continuity_range: float = 24.0,
+    band_sigmas: float = 3.0,
+    min_band: float = 6.0,
+) -> SectorAnalysis:
+    """Background level and thresholds per sector by the study's continuity rule.
+
+    Parameters
+    ----------
+    hist : (S, S, 256) ndarray of int
+        Sector histograms from :func:`sector_histograms`.
+    smoothing : int
+        Passes of the nine-point filter, ``>= 0``.
+    prominence : float
+        Mode prominence rule, see :func:`find_modes`; in ``[0, 1]``.
+    seed_dominance : float
+        In ``[0, 1]``: a sector seeds the continuity pass when every other mode is lower than
+        this fraction of its highest mode.
+    continuity_range : float
+        Gray levels, ``> 0``: how far from the level predicted by decided neighbours a mode
+        may lie and still be the background.
+    band_sigmas : float
+        ``> 0``: threshold distance in background-peak sigmas where no mode lies on that side.
+    min_band : float
+        ``>= 0`` gray levels: smallest distance between a width-based threshold and the
+        background.
+
+    Returns
+    -------
+    SectorAnalysis
+    """
+    hist = np.asarray(hist)
+    if hist.ndim != 3 or hist.shape[0] != hist.shape[1] or hist.shape[2] != N_LEVELS:
+        raise ValueError(f"hist must have shape (S, S, {N_LEVELS}), got {hist.shape}")
+    for name, value, lo, hi in (
+        ("prominence", prominence, 0.0, 1.0),
+        ("seed_dominance", seed_dominance, 0.0, 1.0),
+    ):
+        if not lo <= value <= hi:
+            raise ValueError(f"{name} must be in [{lo}, {hi}], got {value}")
+    if continuity_range <= 0 or band_sigmas <= 0 or min_band < 0:
+        raise ValueError(
+            "continuity_range and band_sigmas must be > 0 and min_band >= 0, got "
+            f"{continuity_range}, {band_sigmas}, {min_band}"
+        )
+    n = hist.shape[0]
+    smoothed = smooth_histograms(hist, passes=smoothing)
+    modes = [
+        [find_modes(smoothed[i, j], prominence=prominence) for j in range(n)] for i in range(n)
+    ]
+    level = _seed_levels(modes, seed_dominance=seed_dominance, continuity_range=continuity_range)
+    seed = np.isfinite(level)
+    if not seed.any():
+        _seed_from_global(level, modes, smoothed, prominence, continuity_range)
+    phantom = np.zeros((n, n), dtype=bool)
+    _propagate(level, phantom, modes, continuity_range)
+
+    low = np.empty((n, n))
+    high = np.empty((n, n))
+    band_low = np.full((n, n), np.nan)
+    band_high = np.full((n, n), np.nan)
+    for i in range(n):
+        for j in range(n):
+            if phantom[i, j]:
+                continue
+            positions = modes[i][j][0]
+            low[i, j], high[i, j], band_low[i, j], band_high[i, j] = _sector_band(
+                smoothed[i, j],
+                int(level[i, j]),
+                positions,
+                band_sigmas=band_sigmas,
+                min_band=min_band,
+            )
+    _phantom_bands(level, phantom, band_low, band_high, low, high, min_band)
+    n_modes = np.array([[min(len(modes[i][j][0]), 127) for j in range(n)] for i in range(n)])
+    return SectorAnalysis(
+        background=level.astype(np.float32),
+        low=low.astype(np.float32),
+        high=high.astype(np.float32),
+        modes=n_modes.astype(np.int8),
+        phantom=phantom,
+        seed=seed,
+    )
+
+
+def _seed_from_global(level, modes, smoothed, prominence, continuity_range) -> None:
+    """No unambiguous sector: seed those with a mode near the frame's dominant level."""
+    target = _global_level(smoothed, prominence=prominence)
+    n = len(modes)
+    for i in range(n):
+        for j in range(n):
+            positions = modes[i][j][0]
+            if positions.size:
+                nearest = positions[np.argmin(np.abs(positions - target))]
+                if abs(nearest - target) <= continuity_range:
+                    level[i, j] = nearest
+    if not np.isfinite(level).any():
+        level[n // 2, n // 2] = target
+
+
+def _predict(level: np.ndarray, i: int, j: int) -> tuple[float, float]:
+    """Weighted mean of decided neighbours' levels and the total weight."""
+    n = level.shape[0]
+    total = weight = 0.0
+    for dy, dx in _NEIGHBOURS:
+        y, x = i + dy, j + dx
+        if 0 <= y < n and 0 <= x < n and np.isfinite(level[y, x]):
+            w = 1.0 if dy == 0 or dx == 0 else 1.0 / math.sqrt(2.0)
+            total += w * level[y, x]
+            weight += w
+    return (total / weight if weight else math.nan), weight
+
+
+def _propagate(level, phantom, modes, continuity_range) -> None:
+    """Decide undecided sectors, best-supported first (in place)."""
+    while True:
+        undecided = np.argwhere(~np.isfinite(level))
+        if undecided.size == 0:
+            return
+        scored = [(_predict(level, i, j), i, j) for i, j in undecided]
+        best = max(weight for (_, weight), _, _ in scored)
+        if best == 0.0:  # cannot happen on a connected grid with one seed; guard anyway
+            level[~np.isfinite(level)] = np.nanmedian(level)
+            return
+        decided_now = []
+        for (predicted, weight), i, j in scored:
+            if weight < best:
+                continue
+            positions, heights = modes[i][j]
+            distance = np.abs(positions - predicted)
+            near = distance <= continuity_range
+            if near.any():
+                # nearest to the prediction; the higher one breaks ties
+                candidates = np.flatnonzero(near)
+                pick = candidates[np.lexsort((-heights[candidates], distance[candidates]))[0]]
+                decided_now.append((i, j, float(positions[pick]), False))
+            else:
+                decided_now.append((i, j, float(np.clip(predicted, 0, N_LEVELS - 1)), True))
+        for i, j, value, is_phantom in decided_now:
+            level[i, j] = value
+            phantom[i, j] = is_phantom
+
+
+def _phantom_bands(level, phantom, band_low, band_high, low, high, min_band) -> None:
+    """Phantom sectors take the median width-based band of their non-phantom neighbours."""
+    if not phantom.any():
+        return
+    global_low = np.nanmedian(band_low) if np.isfinite(band_low).any() else 3 * min_band
+    global_high = np.nanmedian(band_high) if np.isfinite(band_high).any() else 3 * min_band
+    for i, j in np.argwhere(phantom):
+        window = (slice(max(i - 1, 0), i + 2), slice(max(j - 1, 0), j + 2))
+        lows = band_low[window][np.isfinite(band_low[window])]
+        highs = band_high[window][np.isfinite(band_high[window])]
+        low[i, j] = level[i, j] - (np.median(lows) if lows.size else global_low)
+        high[i, j] = level[i, j] + (np.median(highs) if highs.size else global_high)
+
+
+def _interpolation_weights(length: int, edges: np.ndarray) -> np.ndarray:
+    """``(length, S)`` matrix of linear weights from sector centres to pixel centres."""
+    centres = (edges[:-1] + edges[1:]) / 2.0 - 0.5  # in pixel-index coordinates
+    pixels = np.arange(length, dtype=np.float64)
+    n = centres.size
+    weights = np.zeros((length, n))
+    if n == 1:
+        weights[:, 0] = 1.0
+        return weights
+    upper = np.clip(np.searchsorted(centres, pixels, side="right"), 1, n - 1)
+    lower = upper - 1
+    t = np.clip((pixels - centres[lower]) / (centres[upper] - centres[lower]), 0.0, 1.0)
+    weights[np.arange(length), lower] = 1.0 - t
+    weights[np.arange(length), upper] += t
+    return weights
+
+
+def interpolate_sector_grid(grid: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """Bilinear interpolation of per-sector values between sector centres (Chow and Kaneko).
+
+    Parameters
+    ----------
+    grid : (S, S) ndarray of float
+        One value per sector, finite.
+    shape : tuple of int
+        ``(M, N)`` image shape the sectors were cut from (edges from :func:`sector_edges`).
+
+    Returns
+    -------
+    field : (M, N) ndarray of float32
+        Equal to ``grid[i, j]`` at sector ``(i, j)``'s centre, linear in between, constant
+        beyond the outermost centres.
+    """
+    grid = np.asarray(grid, dtype=np.float64)
+    if grid.ndim != 2 or grid.shape[0] != grid.shape[1]:
+        raise ValueError(f"grid must be square (S, S), got shape {grid.shape}")
+    if not np.isfinite(grid).all():
+        raise ValueError("grid must be finite everywhere; decide every sector first")
+    rows, cols = (int(v) for v in shape)
+    n = grid.shape[0]
+    wy = _interpolation_weights(rows, sector_edges(rows, n))
+    wx = _interpolation_weights(cols, sector_edges(cols, n))
+    return (wy @ grid @ wx.T).astype(np.float32)

@@ -1,0 +1,385 @@
+"""Segmentation stage: the study's adaptive sector-histogram method, strengthened by depth.
+
+``method = 'sector-histogram'`` reproduces the study on the reference (right) image alone:
+sector histograms, nine-point smoothing, modes with a prominence rule, background chosen by
+continuity with phantom peaks, thresholds at the valleys on both sides interpolated between
+sector centres (Chow and Kaneko), connected components, speck removal, hole filling. The math
+is in :mod:`stages._sectors` (histograms, continuity, thresholds) and :mod:`stages._regions`
+(masks, components, depth rules), both documented rule by rule.
+
+``method = 'sector-histogram+depth'`` (default) adds the depth stage's ``height`` (metres
+above the fitted ground plane) and ``disparity``: raised pixels are object even when their
+gray equals the ground's, flat intensity objects (shadows) are background, touching objects
+split at disparity jumps, and the intensity decision stands where depth is invalid.
+
+Frames larger than ``tile_px`` on a side get their sector histograms per tile on dask
+(chunks aligned to sector edges); the continuity pass runs on the small sector grid.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import dask.array as da
+import numpy as np
+
+from pipeline.compute import compute
+from pipeline.stage import FrameContext, Param, Product, Stage, StageResult
+
+from ._regions import (
+    DepthRuleStats,
+    apply_depth_rules,
+    depth_edges,
+    label_objects,
+    threshold_mask,
+)
+from ._sectors import (
+    N_LEVELS,
+    SectorAnalysis,
+    _histograms_between,
+    analyse_sectors,
+    interpolate_sector_grid,
+    sector_edges,
+    sector_histograms,
+)
+
+__all__ = [
+    "METHODS",
+    "STAGE",
+    "Segmentation",
+    "segment_image",
+    "tiled_sector_histograms",
+    "run_segment",
+]
+
+METHODS = ("sector-histogram", "sector-histogram+depth")
+_SECTOR_DIMS = ("frame", "sector_y", "sector_x")
+
+
+@dataclass
+class Segmentation:
+    """Result of :func:`segment_image`.
+
+    Attributes
+    ----------
+    labels : (M, N) ndarray of int32
+        0 background, 1..n objects (dense).
+    sectors : SectorAnalysis
+        Per-sector background, thresholds, mode counts, phantom and seed flags.
+    depth : DepthRuleStats or None
+        What the depth rules changed; None when depth was not used.
+    notes : list of str
+    """
+
+    labels: np.ndarray
+    sectors: SectorAnalysis
+    depth: DepthRuleStats | None = None
+    notes: list[str] = field(default_factory=list)
+
+
+def _coerce_depth(values: Any, shape: tuple[int, int], name: str) -> np.ndarray | None:
+    if values is None:
+        return None
+    if not isinstance(values, np.ndarray):
+        raise TypeError(f"{name} must be a numpy array or None, got {type(values).__name__}")
+    if values.shape != shape:
+        raise ValueError(
+            f"{name} has shape {values.shape} but the reference image has {shape}; "
+            "depth products must be in reference-image geometry"
+        )
+    if values.dtype.kind != "f":
+        raise TypeError(f"{name} must be float (NaN where invalid), got dtype {values.dtype}")
+    return values.astype(np.float32, copy=False)
+
+
+def segment_image(
+    image: np.ndarray,
+    *,
+    method: str = "sector-histogram+depth",
+    height: np.ndarray | None = None,
+    disparity: np.ndarray | None = None,
+    histograms: np.ndarray | None = None,
+    sectors: int = 16,
+    smoothing: int = 1,
+    prominence: float = 0.1,
+    seed_dominance: float = 0.3,
+    continuity_range: float = 24.0,
+    band_sigmas: float = 3.0,
+    min_band: float = 6.0,
+    min_area_px: int = 30,
+    fill_holes: bool = True,
+    min_height_m: float = 0.025,
+    flat_tol_m: float = 0.01,
+    base_px: int = 2,
+    height_smoothing_px: int = 5,
+    split_disparity_px: float = 1.5,
+) -> Segmentation:
+    """Segment one reference image into background and numbered objects.
+
+    Parameters
+    ----------
+    image : (M, N) ndarray of uint8
+        Reference (right) gray image.
+    method : {'sector-histogram', 'sector-histogram+depth'}
+        Faithful study method, or with the depth rules (:mod:`stages._regions`).
+    height : (M, N) ndarray of float32, optional
+        Metres above the ground plane, NaN invalid. Ignored by the faithful method.
+    disparity : (M, N) ndarray of float32, optional
+        Pixels, NaN invalid; used to split touching objects. Ignored by the faithful method.
+    histograms : (S, S, 256) ndarray of int, optional
+        Precomputed :func:`stages._sectors.sector_histograms` (e.g. computed per tile).
+    sectors : int
+        Sectors per axis, ``2 <= sectors <= min(M, N) // 4``.
+    smoothing, prominence, seed_dominance, continuity_range, band_sigmas, min_band
+        See :func:`stages._sectors.analyse_sectors`.
+    min_area_px : int
+        ``>= 1``; smaller objects are specks.
+    fill_holes : bool
+        Fill enclosed background pockets.
+    min_height_m, flat_tol_m, base_px, height_smoothing_px
+        See :func:`stages._regions.apply_depth_rules`.
+    split_disparity_px : float
+        ``>= 0`` px; disparity jump that splits touching objects; 0 disables the split.
+
+    Returns
+    -------
+    Segmentation
+    """
+    if not isinstance(image, np.ndarray):
+        raise TypeError(f"image must be a numpy array, got {type(image).__name__}")
+    if image.ndim != 2 or image.dtype != np.uint8:
+        raise ValueError(
+            f"image must be a 2-D uint8 gray image, got shape {image.shape} dtype {image.dtype}"
+        )
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {list(METHODS)}, got {method!r}")
+    if not isinstance(sectors, int | np.integer) or isinstance(sectors, bool):
+        raise TypeError(f"sectors must be an int, got {type(sectors).__name__}")
+    if not 2 <= sectors <= min(image.shape) // 4:
+        raise ValueError(
+            f"sectors must be in [2, {min(image.shape) // 4}] for an image of shape "
+            f"{image.shape} (at least 4x4 pixels per sector), got {sectors}"
+        )
+    if split_disparity_px < 0:
+        raise ValueError(f"split_disparity_px must be >= 0 (0 disables), got {split_disparity_px}")
+    shape = image.shape
+    if histograms is None:
+        histograms = sector_histograms(image, sectors=sectors)
+    elif histograms.shape != (sectors, sectors, N_LEVELS):
+        raise ValueError(
+            f"histograms must have shape {(sectors, sectors, N_LEVELS)}, got {histograms.shape}"
+        )
+    analysis = analyse_sectors(
+        histograms,
+        smoothing=smoothing,
+        prominence=prominence,
+        seed_dominance=seed_dominance,
+        continuity_range=continuity_range,
+        band_sigmas=band_sigmas,
+        min_band=min_band,
+    )
+    low = interpolate_sector_grid(analysis.low, shape)
+    high = interpolate_sector_grid(analysis.high, shape)
+    mask = threshold_mask(image, low, high)
+
+    notes: list[str] = []
+    depth_stats = None
+    edges = None
+    if method == "sector-histogram+depth":
+        height = _coerce_depth(height, shape, "height")
+        disparity = _coerce_depth(disparity, shape, "disparity")
+        if height is not None and np.isfinite(height).any():
+            mask, depth_stats = apply_depth_rules(
+                mask,
+                height,
+                min_height_m=min_height_m,
+                flat_tol_m=flat_tol_m,
+                base_px=base_px,
+                smoothing_px=height_smoothing_px,
+            )
+        else:
+            notes.append("no valid height above ground: intensity rules only")
+        if disparity is not None and split_disparity_px > 0 and np.isfinite(disparity).any():
+            edges = depth_edges(disparity, jump_px=split_disparity_px)
+    labels = label_objects(mask, min_area_px=min_area_px, fill=fill_holes, edges=edges)
+    return Segmentation(labels=labels, sectors=analysis, depth=depth_stats, notes=notes)
+
+
+def _sector_chunks(edges: np.ndarray, tile_px: int) -> tuple[tuple[int, ...], tuple[int, ...]]:
+    """Group consecutive sectors into tiles of about ``tile_px`` pixels (at least one sector)."""
+    sizes = np.diff(edges)
+    pixel_chunks: list[int] = []
+    sector_chunks: list[int] = []
+    start = 0
+    while start < sizes.size:
+        stop = start + 1
+        while stop < sizes.size and sizes[start : stop + 1].sum() <= tile_px:
+            stop += 1
+        pixel_chunks.append(int(sizes[start:stop].sum()))
+        sector_chunks.append(stop - start)
+        start = stop
+    return tuple(pixel_chunks), tuple(sector_chunks)
+
+
+def tiled_sector_histograms(image: np.ndarray, *, sectors: int, tile_px: int) -> np.ndarray:
+    """Sector histograms computed per tile on dask; equal to ``sector_histograms``.
+
+    Parameters
+    ----------
+    image : (M, N) ndarray of uint8
+    sectors : int
+        Sectors per axis.
+    tile_px : int
+        ``>= 1``; tiles hold whole sectors and are at most this many pixels on a side unless
+        one sector is larger.
+
+    Returns
+    -------
+    hist : (sectors, sectors, 256) ndarray of int64
+    """
+    if tile_px < 1:
+        raise ValueError(f"tile_px must be >= 1, got {tile_px}")
+    sector_histograms(image[:sectors, :sectors], sectors=sectors)  # validates the arguments
+    row_edges = sector_edges(image.shape[0], sectors)
+    col_edges = sector_edges(image.shape[1], sectors)
+    row_px, row_sectors = _sector_chunks(row_edges, tile_px)
+    col_px, col_sectors = _sector_chunks(col_edges, tile_px)
+
+    def tile_histograms(block: np.ndarray, block_info: dict | None = None) -> np.ndarray:
+        (r0, r1), (c0, c1) = block_info[0]["array-location"]
+        local_rows = row_edges[(row_edges >= r0) & (row_edges <= r1)] - r0
+        local_cols = col_edges[(col_edges >= c0) & (col_edges <= c1)] - c0
+        return _histograms_between(block, local_rows, local_cols)
+
+    tiles = da.from_array(image, chunks=(row_px, col_px))
+    hist = tiles.map_blocks(
+        tile_histograms,
+        chunks=(row_sectors, col_sectors, (N_LEVELS,)),
+        new_axis=2,
+        dtype=np.int64,
+    )
+    (result,) = compute(hist)
+    return np.asarray(result)
+
+
+def run_segment(
+    inputs: Mapping[str, np.ndarray], *, frame: FrameContext, params: Mapping[str, Any]
+) -> StageResult:
+    """Stage entry point: segment the frame's ``right`` image (see :func:`segment_image`)."""
+    image = inputs["right"]
+    if image.ndim != 2 or image.dtype != np.uint8:
+        raise ValueError(
+            f"segment expects product 'right' as 2-D uint8, got {image.shape} {image.dtype}"
+        )
+    settings = {key: value for key, value in params.items() if key != "tile_px"}
+    sectors = settings["sectors"]
+    if max(image.shape) > params["tile_px"] and 2 <= sectors <= min(image.shape) // 4:
+        settings["histograms"] = tiled_sector_histograms(
+            image, sectors=sectors, tile_px=params["tile_px"]
+        )
+    result = segment_image(
+        image, height=inputs.get("height"), disparity=inputs.get("disparity"), **settings
+    )
+    notes = list(result.notes)
+    if frame.camera.reference == "left":
+        notes.append("segmented product 'right' although the catalog's reference is 'left'")
+    analysis = result.sectors
+    labels = result.labels
+    figures: dict[str, Any] = {
+        "method": params["method"],
+        "n_objects": int(labels.max()),
+        "object_fraction": float(np.count_nonzero(labels) / labels.size),
+        "n_phantom_sectors": int(analysis.phantom.sum()),
+        "n_seed_sectors": int(analysis.seed.sum()),
+        "mean_background": float(analysis.background.mean()),
+        "mean_modes": float(analysis.modes.mean()),
+        "depth_used": result.depth is not None,
+        "raised_added_px": result.depth.raised_added_px if result.depth else 0,
+        "flat_removed_px": result.depth.flat_removed_px if result.depth else 0,
+        "depth_valid_fraction": result.depth.depth_valid_fraction if result.depth else 0.0,
+    }
+    return StageResult(
+        arrays={
+            "labels": labels.astype(np.int32, copy=False),
+            "sector_background": analysis.background,
+            "sector_low": analysis.low,
+            "sector_high": analysis.high,
+            "sector_modes": analysis.modes,
+            "sector_phantom": analysis.phantom,
+        },
+        figures=figures,
+        notes=notes,
+    )
+
+
+def _sector_shape(image_shape: tuple[int, int], params: Mapping[str, Any]) -> tuple[int, int]:
+    return (params["sectors"], params["sectors"])
+
+
+def _sector_product(name: str, dtype: str, long_name: str, units: str = "") -> Product:
+    attrs = {"long_name": long_name}
+    if units:
+        attrs["units"] = units
+    return Product(name, dtype=dtype, dims=_SECTOR_DIMS, shape=_sector_shape, attrs=attrs)
+
+
+STAGE = Stage(
+    name="segment",
+    version="1",
+    inputs=("right", "disparity", "height"),
+    outputs=(
+        Product(
+            "labels",
+            dtype="int32",
+            attrs={"long_name": "object labels, 0 background, 1..n objects"},
+        ),
+        _sector_product("sector_background", "float32", "background gray level", "gray"),
+        _sector_product("sector_low", "float32", "low threshold (darker is object)", "gray"),
+        _sector_product("sector_high", "float32", "high threshold (lighter is object)", "gray"),
+        _sector_product("sector_modes", "int8", "modes found in the smoothed histogram"),
+        _sector_product("sector_phantom", "bool", "background was a phantom peak"),
+    ),
+    params=(
+        Param("method", str, "sector-histogram+depth", "faithful or with depth rules", METHODS),
+        Param("sectors", int, 16, "sectors per axis (the study: 16; 8 also works)", None, 2, 128),
+        Param("smoothing", int, 1, "passes of the nine-point histogram filter", None, 0, 10),
+        Param("prominence", float, 0.1, "mode prominence / sector's highest bin", None, 0, 1),
+        Param("seed_dominance", float, 0.3, "other modes below this x top: seed", None, 0, 1),
+        Param(
+            "continuity_range", float, 24.0, "gray levels searched around prediction", None, 1, 255
+        ),
+        Param(
+            "band_sigmas",
+            float,
+            3.0,
+            "threshold distance without a neighbour mode, sigmas",
+            None,
+            0.1,
+            50,
+        ),
+        Param("min_band", float, 6.0, "smallest threshold distance, gray levels", None, 0, 128),
+        Param("min_area_px", int, 30, "objects smaller than this are specks", None, 1),
+        Param("fill_holes", bool, True, "fill background pockets inside objects"),
+        Param("min_height_m", float, 0.025, "depth: raised above ground is object", None, 1e-4),
+        Param("flat_tol_m", float, 0.01, "depth: flat intensity objects are background", None, 0),
+        Param(
+            "base_px", int, 2, "depth: flat pixels this close to raised ones are kept", None, 0, 50
+        ),
+        Param("height_smoothing_px", int, 5, "median window of the height map", (1, 3, 5)),
+        Param(
+            "split_disparity_px", float, 1.5, "disparity jump splitting objects; 0 = off", None, 0
+        ),
+        Param(
+            "tile_px",
+            int,
+            1024,
+            "frames larger than this are histogrammed per tile on dask",
+            None,
+            16,
+        ),
+    ),
+    run=run_segment,
+    doc="adaptive sector-histogram segmentation of the reference image, with depth rules",
+)

@@ -1,0 +1,158 @@
+"""Tests of stages/segment.py: the stage contract, both methods, tiling, parameter errors."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pipeline.camera import Camera
+from pipeline.errors import ParamError
+from pipeline.stage import FrameContext
+from stages._sectors import sector_edges, sector_histograms
+from stages.segment import STAGE, segment_image, tiled_sector_histograms
+
+
+def disk(shape, cy, cx, r):
+    yy, xx = np.mgrid[: shape[0], : shape[1]]
+    return (yy - cy) ** 2 + (xx - cx) ** 2 <= r * r
+
+
+def scene(shape=(160, 160), *, ground=140.0, gradient=0.0, rocks=(), noise=4.0, seed=0):
+    """Gray ground (optionally with a left-to-right illumination ramp) plus disk rocks."""
+    rng = np.random.default_rng(seed)
+    xx = np.arange(shape[1])[None, :] / shape[1]
+    image = ground + gradient * (xx - 0.5) + rng.normal(0, noise, shape)
+    for cy, cx, r, gray in rocks:
+        inside = disk(shape, cy, cx, r)
+        image[inside] = gray + rng.normal(0, noise, inside.sum())
+    return np.clip(np.round(image), 0, 255).astype(np.uint8)
+
+
+def frame_context():
+    return FrameContext(frame_id="f0", archive="test", camera=Camera(focal_px=500, baseline_m=0.1))
+
+
+def iou(a, b):
+    return np.count_nonzero(a & b) / np.count_nonzero(a | b)
+
+
+@pytest.mark.parametrize("gray", [40, 230], ids=["dark-on-light", "light-on-dark"])
+def test_faithful_method_finds_dark_and_light_rocks(gray):
+    ground = 150 if gray < 128 else 90
+    image = scene(ground=ground, rocks=[(60, 70, 14, gray)])
+    result = segment_image(image, method="sector-histogram", sectors=8)
+    assert result.labels.max() == 1
+    assert iou(result.labels == 1, disk(image.shape, 60, 70, 14)) > 0.9
+
+
+def test_both_polarities_in_one_frame():
+    image = scene(rocks=[(40, 40, 12, 40), (110, 110, 14, 235)])
+    labels = segment_image(image, method="sector-histogram", sectors=8).labels
+    assert labels.max() == 2
+    assert labels[40, 40] != labels[110, 110]
+    assert labels[40, 40] > 0 and labels[110, 110] > 0
+
+
+def test_no_block_artifacts_on_an_illumination_gradient():
+    image = scene(gradient=80.0, rocks=[(80, 100, 15, 30)], seed=2)
+    for sectors in (8, 16):
+        result = segment_image(image, method="sector-histogram", sectors=sectors)
+        assert result.labels.max() == 1, f"{sectors}x{sectors}: spurious objects"
+        assert iou(result.labels > 0, disk(image.shape, 80, 100, 15)) > 0.85
+        # no object pixel on any sector boundary away from the rock
+        boundary = np.zeros(image.shape, bool)
+        boundary[sector_edges(160, sectors)[1:-1], :] = True
+        boundary[:, sector_edges(160, sectors)[1:-1]] = True
+        assert not (boundary & (result.labels > 0) & ~disk(image.shape, 80, 100, 18)).any()
+
+
+def test_curtain_case_a_rock_larger_than_a_sector():
+    image = scene(rocks=[(80, 80, 30, 60)], seed=5)  # covers several 20-px sectors fully
+    result = segment_image(image, method="sector-histogram", sectors=8)
+    assert result.sectors.phantom.any()
+    assert result.labels.max() == 1
+    assert iou(result.labels == 1, disk(image.shape, 80, 80, 30)) > 0.9
+
+
+def test_depth_mode_uses_height_faithful_mode_ignores_it():
+    shape = (160, 160)
+    image = scene(rocks=[(50, 50, 12, 50)], seed=3)  # a dark patch: a shadow on the ground
+    height = np.zeros(shape, np.float32)
+    height[disk(shape, 110, 110, 14)] = 0.1  # a rock exactly as gray as the ground
+    faithful = segment_image(image, method="sector-histogram", height=height, sectors=8)
+    depth = segment_image(image, method="sector-histogram+depth", height=height, sectors=8)
+    assert faithful.labels[50, 50] > 0 and faithful.labels[110, 110] == 0
+    assert depth.labels[50, 50] == 0 and depth.labels[110, 110] > 0
+    assert depth.labels.max() == 1
+    assert depth.depth.flat_removed_px > 0
+
+
+def test_depth_mode_without_depth_falls_back_on_intensity():
+    image = scene(rocks=[(60, 70, 14, 40)])
+    result = segment_image(image, sectors=8)
+    reference = segment_image(image, method="sector-histogram", sectors=8)
+    np.testing.assert_array_equal(result.labels, reference.labels)
+    assert any("intensity" in note for note in result.notes)
+
+
+def test_depth_mode_splits_touching_rocks():
+    shape = (160, 160)
+    image = scene(rocks=[(80, 60, 20, 50), (80, 95, 20, 50)], seed=4)
+    disparity = np.full(shape, 10.0, np.float32)
+    disparity[disk(shape, 80, 60, 20)] = 18.0
+    disparity[disk(shape, 80, 95, 20) & ~disk(shape, 80, 60, 20)] = 13.0
+    faithful = segment_image(image, method="sector-histogram", sectors=8)
+    depth = segment_image(image, disparity=disparity, sectors=8)
+    assert faithful.labels.max() == 1
+    assert depth.labels.max() == 2
+
+
+@pytest.mark.parametrize("shape", [(160, 160), (150, 130)])
+def test_tiled_histograms_equal_untiled(shape):
+    image = np.random.default_rng(1).integers(0, 256, shape, dtype=np.uint8)
+    for sectors, tile_px in ((16, 40), (8, 64), (16, 1)):
+        np.testing.assert_array_equal(
+            tiled_sector_histograms(image, sectors=sectors, tile_px=tile_px),
+            sector_histograms(image, sectors=sectors),
+        )
+
+
+def test_stage_run_returns_declared_shapes_and_dtypes_tiled_or_not():
+    image = scene(rocks=[(60, 70, 14, 40), (120, 30, 10, 220)])
+    height = np.zeros(image.shape, np.float32)
+    height[disk(image.shape, 60, 70, 14) | disk(image.shape, 120, 30, 10)] = 0.1
+    disparity = np.full(image.shape, 12.0, np.float32)
+    inputs = {"right": image, "height": height, "disparity": disparity}
+    outputs = {}
+    for tile_px in (1024, 48):
+        params = STAGE.resolve_params({"sectors": 8, "tile_px": tile_px})
+        result = STAGE.run(inputs, frame=frame_context(), params=params)
+        assert set(result.arrays) == set(STAGE.output_names)
+        for product in STAGE.outputs:
+            array = result.arrays[product.name]
+            assert array.shape == product.frame_shape(image.shape, params), product.name
+            assert array.dtype == np.dtype(product.dtype), product.name
+        labels = result.arrays["labels"]
+        assert sorted(np.unique(labels).tolist()) == list(range(labels.max() + 1))
+        assert result.figures["n_objects"] == labels.max() == 2
+        assert result.figures["n_phantom_sectors"] == result.arrays["sector_phantom"].sum()
+        outputs[tile_px] = labels
+    np.testing.assert_array_equal(outputs[1024], outputs[48])
+
+
+def test_bad_parameters_raise_clear_errors():
+    with pytest.raises(ParamError, match="method"):
+        STAGE.resolve_params({"method": "watershed"})
+    with pytest.raises(ParamError, match=">= 2"):
+        STAGE.resolve_params({"sectors": 1})
+    with pytest.raises(ParamError, match="height_smoothing_px"):
+        STAGE.resolve_params({"height_smoothing_px": 4})
+    image = scene(shape=(40, 40))
+    with pytest.raises(ValueError, match=r"sectors must be in \[2, 10\]"):
+        segment_image(image, sectors=16)
+    with pytest.raises(ValueError, match="method must be one of"):
+        segment_image(image, method="otsu", sectors=4)
+    with pytest.raises(ValueError, match="uint8"):
+        segment_image(image.astype(np.float32), sectors=4)
+    with pytest.raises(ValueError, match="reference image has"):
+        segment_image(image, sectors=4, height=np.zeros((10, 10), np.float32))
