@@ -1,0 +1,109 @@
+"""Where frame tasks run: in-process, a local dask.distributed cluster, or a remote one."""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import Callable, Iterable, Iterator
+from typing import Any
+
+__all__ = ["Executor", "open_executor", "describe_scheduler"]
+
+
+class Executor:
+    """Run ``fn(item)`` for each item, at most ``window`` in flight, yielding results as they
+    finish. A task whose worker died repeatedly yields ``(item, exception)``."""
+
+    name = "synchronous"
+    workers = 1
+
+    def map_unordered(
+        self, fn: Callable[[Any], Any], items: Iterable[Any]
+    ) -> Iterator[tuple[Any, Any]]:
+        for item in items:
+            yield item, fn(item)
+
+    def close(self) -> None:
+        pass
+
+
+class _DistributedExecutor(Executor):
+    def __init__(self, client: Any, cluster: Any | None, name: str) -> None:
+        self.client = client
+        self.cluster = cluster
+        self.name = name
+        info = client.scheduler_info()
+        self.workers = max(1, sum(w.get("nthreads", 1) for w in info["workers"].values()))
+
+    def map_unordered(
+        self, fn: Callable[[Any], Any], items: Iterable[Any]
+    ) -> Iterator[tuple[Any, Any]]:
+        from distributed import as_completed
+
+        pending = iter(items)
+        window = 2 * self.workers + 2  # keeps every worker busy, bounds driver memory
+        owner: dict[Any, Any] = {}
+        done = as_completed()
+        for item in pending:
+            future = self.client.submit(fn, item, pure=False)
+            owner[future.key] = item
+            done.add(future)
+            if len(owner) >= window:
+                break
+        for future in done:
+            item = owner.pop(future.key)
+            try:
+                result = future.result()
+            except Exception as exc:  # KilledWorker, lost connection... reported per item
+                result = exc
+            future.release()
+            yield item, result
+            nxt = next(pending, None)
+            if nxt is not None:
+                new = self.client.submit(fn, nxt, pure=False)
+                owner[new.key] = nxt
+                done.add(new)
+
+    def close(self) -> None:
+        self.client.close()
+        if self.cluster is not None:
+            self.cluster.close()
+
+
+def open_executor(*, scheduler: str | None, workers: int | None) -> Executor:
+    """The executor for ``--scheduler`` / ``--workers``.
+
+    Parameters
+    ----------
+    scheduler : str, optional
+        ``None`` (a local dask.distributed cluster of ``workers`` processes), ``'threads'``
+        (a local in-process cluster with ``workers`` threads), ``'synchronous'`` (no dask,
+        one frame after another; for debugging), or the address of a running scheduler
+        (``tcp://host:8786``).
+    workers : int, optional
+        Local worker count; default: the machine's cores.
+    """
+    if workers is not None and workers < 1:
+        raise ValueError(f"--workers must be >= 1, got {workers}")
+    if scheduler == "synchronous":
+        return Executor()
+    from distributed import Client, LocalCluster
+
+    if scheduler is None or scheduler == "threads":
+        n = workers or os.cpu_count() or 1
+        processes = scheduler is None and n > 1
+        cluster = LocalCluster(
+            n_workers=n if processes else 1,
+            threads_per_worker=1 if processes else n,
+            processes=processes,
+            dashboard_address=None,
+            silence_logs=logging.ERROR,
+        )
+        kind = "processes" if processes else "threads"
+        return _DistributedExecutor(Client(cluster), cluster, f"local dask cluster, {n} {kind}")
+    client = Client(scheduler, timeout="20s")
+    return _DistributedExecutor(client, None, f"dask.distributed at {scheduler}")
+
+
+def describe_scheduler(scheduler: str | None, workers: int | None) -> str:
+    return scheduler or f"local ({workers or os.cpu_count()} workers)"

@@ -1,0 +1,210 @@
+"""The stage graph: discovered from ``stages/``, ordered by the products stages exchange."""
+
+from __future__ import annotations
+
+import graphlib
+import importlib
+import pkgutil
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from .errors import (
+    DuplicateOutputError,
+    GraphCycleError,
+    GraphError,
+    MissingProductError,
+    ParamError,
+)
+from .stage import Product, Stage
+
+__all__ = [
+    "StageGraph",
+    "build_graph",
+    "discover_stages",
+    "default_graph",
+    "parse_set_overrides",
+    "describe_graph",
+    "resolve_stage_params",
+]
+
+
+@dataclass(frozen=True)
+class StageGraph:
+    """Stages in topological order, with the product each stage writes."""
+
+    stages: tuple[Stage, ...]
+    producer: Mapping[str, str]  # product name -> stage name
+
+    def stage(self, name: str) -> Stage:
+        for stage in self.stages:
+            if stage.name == name:
+                return stage
+        known = ", ".join(s.name for s in self.stages)
+        raise ParamError(f"unknown stage {name!r}; the stages are: {known}")
+
+    def product(self, name: str) -> Product:
+        owner = self.stage(self.producer[name])
+        return next(p for p in owner.outputs if p.name == name)
+
+    def upstream(self, stage: Stage) -> tuple[str, ...]:
+        """Names of the stages whose products ``stage`` reads, in graph order."""
+        wanted = {self.producer[p] for p in self.inputs_of(stage)}
+        return tuple(s.name for s in self.stages if s.name in wanted)
+
+    def inputs_of(self, stage: Stage) -> tuple[str, ...]:
+        """Required inputs plus the optional inputs some stage of the graph writes."""
+        optional = tuple(p for p in stage.optional_inputs if p in self.producer)
+        return tuple(stage.inputs) + optional
+
+    def downstream(self, names: Iterable[str]) -> set[str]:
+        """The named stages and every stage that depends on them, transitively."""
+        closed = set(names)
+        for stage in self.stages:  # topological order: one pass suffices
+            if any(up in closed for up in self.upstream(stage)):
+                closed.add(stage.name)
+        return closed
+
+    @property
+    def array_products(self) -> tuple[Product, ...]:
+        return tuple(p for s in self.stages for p in s.outputs if p.kind == "array")
+
+    @property
+    def table_products(self) -> tuple[Product, ...]:
+        return tuple(p for s in self.stages for p in s.outputs if p.kind == "table")
+
+
+def build_graph(stages: Iterable[Stage]) -> StageGraph:
+    """Order stages by the products they read and write.
+
+    Raises
+    ------
+    GraphError
+        Two stages share a name.
+    DuplicateOutputError
+        Two stages write the same product.
+    MissingProductError
+        A stage reads a product no stage writes.
+    GraphCycleError
+        The stages depend on each other in a cycle (the message lists it).
+    """
+    by_name: dict[str, Stage] = {}
+    for stage in stages:
+        if not isinstance(stage, Stage):
+            raise TypeError(f"expected a pipeline.stage.Stage, got {type(stage).__name__}")
+        if stage.name in by_name:
+            raise GraphError(f"two stages are named {stage.name!r}; stage names must be unique")
+        by_name[stage.name] = stage
+    producer: dict[str, str] = {}
+    for stage in by_name.values():
+        for name in stage.output_names:
+            if name in producer:
+                raise DuplicateOutputError(
+                    f"product {name!r} is written by both stage {producer[name]!r} and stage "
+                    f"{stage.name!r}; each product must have exactly one producer"
+                )
+            producer[name] = stage.name
+    sorter: graphlib.TopologicalSorter[str] = graphlib.TopologicalSorter()
+    for stage in by_name.values():
+        deps = []
+        for name in stage.inputs:
+            if name not in producer:
+                raise MissingProductError(
+                    f"stage {stage.name!r} reads product {name!r}, which no stage writes; "
+                    f"known products: {', '.join(sorted(producer)) or 'none'}"
+                )
+            deps.append(producer[name])
+        deps += [producer[n] for n in stage.optional_inputs if n in producer]
+        sorter.add(stage.name, *deps)
+    try:
+        order = tuple(sorter.static_order())
+    except graphlib.CycleError as exc:
+        cycle = " -> ".join(exc.args[1])
+        raise GraphCycleError(f"the stages form a cycle: {cycle}") from None
+    return StageGraph(stages=tuple(by_name[n] for n in order), producer=producer)
+
+
+def discover_stages(package: str = "stages") -> list[Stage]:
+    """Every ``STAGE`` declared by a public module of ``package``."""
+    pkg = importlib.import_module(package)
+    found = []
+    for info in sorted(pkgutil.iter_modules(pkg.__path__), key=lambda m: m.name):
+        if info.name.startswith("_"):
+            continue
+        module = importlib.import_module(f"{package}.{info.name}")
+        stage = getattr(module, "STAGE", None)
+        if isinstance(stage, Stage):
+            found.append(stage)
+    return found
+
+
+def default_graph() -> StageGraph:
+    """The graph of every stage shipped in ``stages/``."""
+    return build_graph(discover_stages())
+
+
+def parse_set_overrides(graph: StageGraph, items: Iterable[str]) -> dict[str, dict[str, Any]]:
+    """Parse ``--set stage.param=value`` items into validated per-stage overrides."""
+    parsed: dict[str, dict[str, Any]] = {}
+    for item in items:
+        key, sep, text = item.partition("=")
+        stage_name, dot, param_name = key.strip().partition(".")
+        if not sep or not dot or not stage_name or not param_name:
+            raise ParamError(
+                f"--set expects STAGE.PARAM=VALUE (for example depth.max_disparity=96), "
+                f"got {item!r}"
+            )
+        param = graph.stage(stage_name).param(param_name)
+        parsed.setdefault(stage_name, {})[param_name] = param.parse(text.strip())
+    return parsed
+
+
+def resolve_stage_params(
+    graph: StageGraph, *layers: Mapping[str, Mapping[str, Any]]
+) -> dict[str, dict[str, Any]]:
+    """Effective params per stage: defaults, then each override layer in turn."""
+    merged: dict[str, dict[str, Any]] = {s.name: {} for s in graph.stages}
+    for layer in layers:
+        for stage_name, values in layer.items():
+            stage = graph.stage(stage_name)
+            if not isinstance(values, Mapping):
+                raise ParamError(
+                    f"params for stage {stage_name!r} must be a table of name = value, "
+                    f"got {values!r}"
+                )
+            for name in values:
+                stage.param(name)
+            merged[stage.name].update(values)
+    return {s.name: s.resolve_params(merged[s.name]) for s in graph.stages}
+
+
+def describe_graph(graph: StageGraph | None = None, *, fmt: str = "text") -> str:
+    """The graph in order with each stage's inputs, outputs and params.
+
+    Parameters
+    ----------
+    fmt : {'text', 'dot'}
+    """
+    graph = graph or default_graph()
+    if fmt == "dot":
+        lines = ["digraph arroyo {", "  rankdir=LR;", "  node [shape=box];"]
+        for stage in graph.stages:
+            params = "\\n".join(f"{p.name}={p.default!r}" for p in stage.params)
+            lines.append(f'  "{stage.name}" [label="{stage.name} v{stage.version}\\n{params}"];')
+            for product in graph.inputs_of(stage):
+                lines.append(
+                    f'  "{graph.producer[product]}" -> "{stage.name}" [label="{product}"];'
+                )
+        lines.append("}")
+        return "\n".join(lines) + "\n"
+    if fmt != "text":
+        raise ValueError(f"fmt must be 'text' or 'dot', got {fmt!r}")
+    out = []
+    for i, stage in enumerate(graph.stages, 1):
+        out.append(f"{i}. {stage.name} (version {stage.version}): {stage.doc}".rstrip(": "))
+        out.append(f"   reads:  {', '.join(graph.inputs_of(stage)) or '(frame files)'}")
+        out.append(f"   writes: {', '.join(stage.output_names)}")
+        for p in stage.params:
+            extra = f" one of {list(p.choices)}" if p.choices else ""
+            out.append(f"   - {p.name} = {p.default!r} ({p.type.__name__}{extra}) {p.doc}")
+    return "\n".join(out) + "\n"

@@ -1,0 +1,137 @@
+"""What a run directory holds: per-stage counts, failures, and integrity checks."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import pyarrow.parquet as pq
+
+from .errors import RunDirError
+from .state import STATE_NAME, RunState
+from .store import file_sha256, frame_checksum, read_frame_array
+
+__all__ = ["RunStatus", "status", "format_status"]
+
+
+@dataclass
+class RunStatus:
+    rundir: Path
+    run_id: str
+    archive: str
+    run_state: str  # running | finished | stopped
+    frames: int
+    per_stage: dict[str, dict[str, int]]  # stage -> done/failed/pending
+    failures: dict[str, str]
+    damaged: list[str] = field(default_factory=list)  # what --verify found (and reset)
+    verified: bool = False
+
+
+def status(rundir: str | os.PathLike[str], *, verify: bool = False) -> RunStatus:
+    """Per-stage counts of a run directory; with ``verify``, also check every recorded
+    checksum and reset what is damaged so the next ``arroyo run`` redoes it."""
+    from .runner import load_run_json
+
+    rundir = Path(rundir)
+    meta = load_run_json(rundir)
+    if not (rundir / STATE_NAME).exists():
+        raise RunDirError(f"{rundir} has no {STATE_NAME}; the run never started")
+    frames_table = pq.read_table(rundir / "frames.parquet", columns=["frame_id", "index"])
+    frame_ids = frames_table["frame_id"].to_pylist()
+    index = dict(zip(frame_ids, frames_table["index"].to_pylist(), strict=True))
+    stages = list(meta.get("stages", {}))
+    state = RunState(rundir)
+    try:
+        damaged: list[str] = []
+        if verify:
+            damaged = _verify(rundir, state, index, stages)
+        done = state.done()
+        failed = state.failed()
+    finally:
+        state.close()
+    per_stage = {}
+    for stage in stages:
+        n_done = sum(1 for f in frame_ids if (f, stage) in done)
+        n_failed = sum(1 for f in frame_ids if f in failed and failed[f][0] == stage)
+        per_stage[stage] = {
+            "done": n_done,
+            "failed": n_failed,
+            "pending": len(frame_ids) - n_done - n_failed,
+        }
+    lock_state = meta.get("status", "?")
+    from .lock import lock_holder
+
+    if lock_state == "running" and lock_holder(rundir) is None:
+        lock_state = "interrupted"
+    return RunStatus(
+        rundir=rundir,
+        run_id=meta.get("run_id", "?"),
+        archive=meta.get("archive", "?"),
+        run_state=lock_state,
+        frames=len(frame_ids),
+        per_stage=per_stage,
+        failures={f: e for f, (_s, e) in failed.items()},
+        damaged=damaged,
+        verified=verify,
+    )
+
+
+def _verify(rundir: Path, state: RunState, index: dict[str, int], stages: list[str]) -> list[str]:
+    """Recompute checksums of recorded arrays and Parquet parts; forget damaged results."""
+    damaged: list[str] = []
+    forget: set[tuple[str, str]] = set()
+    bad_parts = set()
+    for part in state.parts():
+        path = rundir / part.path
+        if not path.is_file() or file_sha256(path) != part.sha256:
+            bad_parts.add(part.part_id)
+            damaged.append(f"table part {part.path} is missing or altered")
+    for (fid, stage), record in state.done().items():
+        if fid not in index:
+            continue
+        for name, expected in record.checksums.items():
+            try:
+                actual = frame_checksum(read_frame_array(rundir, name, index[fid]))
+            except Exception as exc:  # noqa: BLE001 - any read failure is damage
+                actual = f"unreadable: {exc}"
+            if actual != expected:
+                damaged.append(f"{name} of frame {fid} does not match its checksum")
+                forget.add((fid, stage))
+        if any(p in bad_parts for p in record.part_ids.values()):
+            forget.add((fid, stage))
+    # what depends on a damaged result is suspect too
+    order = {s: i for i, s in enumerate(stages)}
+    for fid, stage in list(forget):
+        forget.update((fid, s) for s in stages if order[s] > order.get(stage, 0))
+    state.forget(forget)
+    state.drop_parts(bad_parts)
+    for published in rundir.glob("*.parquet"):
+        if published.is_symlink() or published.is_dir():
+            for file in published.rglob("*.parquet"):
+                try:
+                    pq.read_metadata(file)
+                except Exception:  # noqa: BLE001 - truncated or garbage
+                    damaged.append(f"published file {file} is unreadable (rebuilt by next run)")
+    return damaged
+
+
+def format_status(st: RunStatus) -> str:
+    lines = [
+        f"run {st.run_id} of archive {st.archive} in {st.rundir}: {st.run_state}, "
+        f"{st.frames} frames",
+        f"{'stage':<12}{'done':>8}{'failed':>8}{'pending':>9}",
+    ]
+    for stage, row in st.per_stage.items():
+        lines.append(f"{stage:<12}{row['done']:>8}{row['failed']:>8}{row['pending']:>9}")
+    for fid, error in sorted(st.failures.items()):
+        lines.append(f"failed {fid}: {error}")
+    if st.verified:
+        if st.damaged:
+            lines.append(
+                f"verify: {len(st.damaged)} problem(s); the next `arroyo run` redoes them:"
+            )
+            lines += [f"  - {d}" for d in st.damaged]
+        else:
+            lines.append("verify: every recorded checksum matches")
+    return "\n".join(lines) + "\n"

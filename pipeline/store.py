@@ -1,0 +1,307 @@
+"""Product stores of a run directory: ``products.zarr`` and the Parquet tables.
+
+Layout under RUNDIR::
+
+    products.zarr/                 zarr v3 group; one array per array product, dims
+                                   (frame, ...); chunks: one frame x tiles; coordinate `frame`
+    .staging/<product>/<part>.parquet   table rows as frames finish (internal)
+    <product>.parquet -> .published/<product>-<generation>/   published, hive-partitioned by
+                                   archive; swapped atomically (symlink) at the end of a run
+    frames.parquet                 one row per frame
+
+Every file is written to a temporary name in its final directory, fsynced, then renamed, so
+a reader never sees half a file. Zarr arrays are created once by the driver; workers only
+write whole chunk-aligned frame slabs of existing arrays.
+"""
+
+from __future__ import annotations
+
+import errno
+import hashlib
+import math
+import os
+import shutil
+import uuid
+import warnings
+from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+import pyarrow.parquet as pq
+import zarr
+
+from .errors import RunDirError, StoreError
+from .stage import Product
+
+__all__ = [
+    "ZARR_NAME",
+    "FRAMES_NAME",
+    "tile_chunks",
+    "atomic_write_bytes",
+    "ensure_zarr",
+    "write_frame_array",
+    "read_frame_array",
+    "frame_checksum",
+    "write_part",
+    "publish_table",
+    "published_path",
+    "write_parquet_atomic",
+    "remove_orphan_temp_files",
+    "is_disk_full",
+    "file_sha256",
+    "disk_full_error",
+]
+
+ZARR_NAME = "products.zarr"
+FRAMES_NAME = "frames.parquet"
+STAGING = ".staging"
+PUBLISHED = ".published"
+_TMP_MARK = ".tmp-"
+_MAX_TILE = 256
+_DISK_FULL = {errno.ENOSPC, errno.EDQUOT, errno.EROFS}
+
+
+def is_disk_full(exc: BaseException) -> bool:
+    """True for the OSErrors that mean "no space / cannot write here", not a bad frame."""
+    return isinstance(exc, OSError) and exc.errno in _DISK_FULL
+
+
+def tile_chunks(shape: Sequence[int]) -> tuple[int, ...]:
+    """Chunk shape of one frame: tiles of at most 256 px, equal-sized, so that 500 px
+    frames split into 250 px tiles, which the 8x8 and 16x16 sector grids align with."""
+    return tuple(math.ceil(n / math.ceil(n / _MAX_TILE)) if n else 1 for n in shape)
+
+
+def file_sha256(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def frame_checksum(data: np.ndarray) -> str:
+    """sha256 of a frame slab's bytes (C order), recorded to verify the store later."""
+    return hashlib.sha256(np.ascontiguousarray(data).tobytes()).hexdigest()
+
+
+def atomic_write_bytes(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` through a fsynced temporary file and a rename."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}{_TMP_MARK}{uuid.uuid4().hex[:8]}")
+    try:
+        with open(tmp, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def write_parquet_atomic(table: pa.Table, path: Path) -> str:
+    """Write a Parquet file atomically; return its sha256."""
+    sink = pa.BufferOutputStream()
+    pq.write_table(table, sink, compression="zstd")
+    data = sink.getvalue().to_pybytes()
+    atomic_write_bytes(path, data)
+    return hashlib.sha256(data).hexdigest()
+
+
+def remove_orphan_temp_files(rundir: Path) -> int:
+    """Delete temporary files left by a killed run; returns how many."""
+    removed = 0
+    for path in Path(rundir).rglob(f"*{_TMP_MARK}*"):
+        if path.is_file():
+            path.unlink(missing_ok=True)
+            removed += 1
+    return removed
+
+
+# -- zarr ---------------------------------------------------------------------------------
+def _zarr_path(rundir: Path) -> Path:
+    return Path(rundir) / ZARR_NAME
+
+
+def ensure_zarr(
+    rundir: Path,
+    frame_ids: Sequence[str],
+    arrays: Mapping[str, tuple[Product, tuple[int, ...], Mapping[str, Any]]],
+) -> set[str]:
+    """Create or extend ``products.zarr`` for these frames and arrays.
+
+    Parameters
+    ----------
+    frame_ids : sequence of str
+        All frames of the catalog, in order (the ``frame`` coordinate).
+    arrays : mapping
+        Product name to (product, per-frame shape, attrs).
+
+    Returns
+    -------
+    recreated : set of str
+        Arrays that existed with another per-frame shape (a parameter changed it) and were
+        recreated empty; their stage must be redone for every frame.
+    """
+    path = _zarr_path(rundir)
+    group = zarr.open_group(path, mode="a")
+    n = len(frame_ids)
+    ids = np.array(list(frame_ids), dtype=str)
+    if "frame" in group:
+        old = np.array([str(v) for v in group["frame"][:]], dtype=str)
+        if len(old) > n or not np.array_equal(old, ids[: len(old)]):
+            raise RunDirError(
+                f"{path} holds frames {list(old[:3])}... that do not match the catalog's "
+                f"frame list; the catalog's frames may only be extended at the end. Use a "
+                "new --out directory for a different frame list"
+            )
+        coord = group["frame"]
+        if len(old) < n:
+            coord.resize((n,))
+            coord[:] = ids
+    else:
+        coord = group.create_array(
+            "frame", shape=(n,), dtype=str, chunks=(max(n, 1),), dimension_names=("frame",)
+        )
+        coord[:] = ids
+    recreated: set[str] = set()
+    for name, (product, frame_shape, attrs) in arrays.items():
+        full = (n, *frame_shape)
+        if name in group:
+            existing = group[name]
+            if tuple(existing.shape[1:]) != tuple(frame_shape):
+                del group[name]
+                recreated.add(name)
+            else:
+                if existing.shape[0] < n:
+                    existing.resize(full)
+                existing.attrs.update(dict(attrs))
+                continue
+        group.create_array(
+            name,
+            shape=full,
+            dtype=product.dtype,
+            chunks=(1, *tile_chunks(frame_shape)),
+            fill_value=product.resolved_fill(),
+            dimension_names=product.dims,
+            attributes=dict(attrs),
+        )
+    with warnings.catch_warnings():
+        # Consolidated metadata is what lets `xarray.open_zarr(path)` open the store without
+        # arguments; zarr warns that v3 has not standardised it yet.
+        warnings.simplefilter("ignore", zarr.errors.ZarrUserWarning)
+        zarr.consolidate_metadata(str(path))
+    return recreated
+
+
+def write_frame_array(rundir: Path, name: str, index: int, data: np.ndarray) -> str:
+    """Write one frame's slab of an array product and flush it to disk; return its checksum."""
+    array = zarr.open_array(_zarr_path(rundir) / name, mode="r+")
+    if tuple(array.shape[1:]) != data.shape or array.dtype != data.dtype:
+        raise ValueError(
+            f"product {name!r} expects per-frame shape {tuple(array.shape[1:])} and dtype "
+            f"{array.dtype}, the stage returned {data.shape} {data.dtype}"
+        )
+    array[index] = data
+    _fsync_tree(_zarr_path(rundir) / name / "c" / str(index))
+    return frame_checksum(data)
+
+
+def read_frame_array(rundir: Path, name: str, index: int) -> np.ndarray:
+    array = zarr.open_array(_zarr_path(rundir) / name, mode="r")
+    return np.asarray(array[index])
+
+
+def _fsync_tree(path: Path) -> None:
+    """Flush chunk files to disk before completion is recorded (power-loss safety)."""
+    if not path.exists():
+        return  # all-fill chunks are not stored at all
+    for root, _dirs, files in os.walk(path):
+        for name in files:
+            fd = os.open(os.path.join(root, name), os.O_RDONLY)
+            try:
+                os.fsync(fd)
+            finally:
+                os.close(fd)
+
+
+# -- tables -------------------------------------------------------------------------------
+def write_part(rundir: Path, product: str, table: pa.Table) -> tuple[str, str, str]:
+    """Stage a batch of rows as one Parquet part; return (part_id, relative path, sha256)."""
+    part_id = uuid.uuid4().hex
+    rel = Path(STAGING) / product / f"{part_id}.parquet"
+    sha = write_parquet_atomic(table, Path(rundir) / rel)
+    return part_id, str(rel), sha
+
+
+def published_path(rundir: Path, product: str) -> Path:
+    return Path(rundir) / f"{product}.parquet"
+
+
+def publish_table(
+    rundir: Path,
+    product: str,
+    archive: str,
+    live: Mapping[str, str],
+    parts: Iterable[tuple[str, str]],
+    schema: pa.Schema,
+    frame_order: Mapping[str, int],
+    *,
+    max_rows_per_file: int = 1_000_000,
+) -> Path:
+    """Compact the live rows of a table product into a new published generation.
+
+    Parameters
+    ----------
+    live : mapping of str to str
+        frame_id -> the part holding that frame's current rows.
+    parts : iterable of (part_id, relative path)
+        Every staged part that may hold live rows.
+    schema : pyarrow.Schema
+        Full schema of the published table (archive, run_id, frame_id first).
+    """
+    rundir = Path(rundir)
+    pieces = []
+    for part_id, rel in parts:
+        frames = [f for f, p in live.items() if p == part_id]
+        if not frames:
+            continue
+        table = pq.read_table(rundir / rel)
+        mask = pc.is_in(table["frame_id"], value_set=pa.array(frames, pa.string()))
+        pieces.append(table.filter(mask).cast(schema))
+    merged = pa.concat_tables(pieces) if pieces else schema.empty_table()
+    if merged.num_rows:
+        order = np.array([frame_order.get(f, 0) for f in merged["frame_id"].to_pylist()])
+        id_cols = [c for c in ("object_id", "subject_id") if c in merged.column_names]
+        keys = [merged[c].to_numpy() for c in reversed(id_cols)] + [order]
+        merged = merged.take(pa.array(np.lexsort(keys)))
+    generation = uuid.uuid4().hex[:12]
+    target = rundir / PUBLISHED / f"{product}-{generation}" / f"archive={archive}"
+    target.mkdir(parents=True, exist_ok=True)
+    # the archive column stays in the files too, so `pyarrow.dataset.dataset(path)` without
+    # partitioning options still sees it
+    body = merged
+    for k, start in enumerate(range(0, max(body.num_rows, 1), max_rows_per_file)):
+        write_parquet_atomic(body.slice(start, max_rows_per_file), target / f"part-{k}.parquet")
+    link = published_path(rundir, product)
+    tmp_link = link.with_name(f".{link.name}{_TMP_MARK}{generation}")
+    os.symlink(Path(PUBLISHED) / f"{product}-{generation}", tmp_link)
+    previous = os.readlink(link) if link.is_symlink() else None
+    os.replace(tmp_link, link)
+    # keep the previous generation for readers that listed it a moment ago; drop older ones
+    keep = {f"{product}-{generation}"} | ({Path(previous).name} if previous else set())
+    for old in (rundir / PUBLISHED).glob(f"{product}-*"):
+        if old.name not in keep:
+            shutil.rmtree(old, ignore_errors=True)
+    return link
+
+
+def disk_full_error(exc: OSError, what: Path | str) -> StoreError:
+    return StoreError(
+        f"cannot write {what}: {os.strerror(exc.errno or 0)} (errno {exc.errno}); free space "
+        "(or fix permissions) and rerun the same command: finished frames are kept"
+    )

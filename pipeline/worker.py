@@ -1,0 +1,166 @@
+"""The task a worker runs: every pending stage of one frame, products written in place.
+
+``process_frame`` never raises for a bad frame: it returns a ``FrameOutcome`` naming the stage
+that failed and why. It raises only when the run itself cannot go on (disk full), so the
+driver stops instead of failing every remaining frame.
+"""
+
+from __future__ import annotations
+
+import functools
+import time
+import traceback
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .errors import FrameError
+from .stage import FrameContext, Stage, StageResult
+from .store import atomic_write_bytes, is_disk_full, read_frame_array, write_frame_array
+
+__all__ = ["FrameJob", "StageOutcome", "FrameOutcome", "process_frame", "process_batch"]
+
+
+@dataclass(frozen=True)
+class FrameJob:
+    """Everything a worker needs for one frame (picklable; no open handles)."""
+
+    rundir: str
+    index: int
+    context: FrameContext
+    stages: tuple[tuple[str, dict[str, Any], str], ...]  # (stage, params, key) in order
+    expected: dict[str, tuple[tuple[int, ...], str]]  # array product -> (shape, dtype)
+    stage_package: str = "stages"
+
+
+@dataclass
+class StageOutcome:
+    stage: str
+    key: str
+    seconds: float
+    figures: dict[str, Any]
+    notes: list[str]
+    checksums: dict[str, str]
+    tables: dict[str, dict[str, Any]]
+
+
+@dataclass
+class FrameOutcome:
+    frame_id: str
+    index: int
+    completed: list[StageOutcome] = field(default_factory=list)
+    failed_stage: str | None = None
+    error: str | None = None
+    fatal: str | None = None
+
+
+@functools.lru_cache(maxsize=4)
+def _stages(package: str) -> dict[str, Stage]:
+    from .graph import build_graph, discover_stages
+
+    return {s.name: s for s in build_graph(discover_stages(package)).stages}
+
+
+def _limit_threads() -> None:
+    """One worker = one core: libraries must not spawn a thread per core each."""
+    try:
+        import cv2
+
+        cv2.setNumThreads(1)
+    except ImportError:  # pragma: no cover - opencv is a dependency
+        pass
+
+
+def _describe_error(exc: BaseException) -> str:
+    if isinstance(exc, FrameError | ValueError | TypeError):
+        return str(exc)
+    where = traceback.extract_tb(exc.__traceback__)[-1] if exc.__traceback__ else None
+    site = f" at {Path(where.filename).name}:{where.lineno}" if where else ""
+    return f"{type(exc).__name__}: {exc}{site}"
+
+
+def _check_arrays(job: FrameJob, stage: Stage, result: StageResult) -> None:
+    for product in stage.outputs:
+        if product.kind != "array":
+            continue
+        if product.name not in result.arrays:
+            raise ValueError(f"stage {stage.name!r} did not return array {product.name!r}")
+        data = result.arrays[product.name]
+        shape, dtype = job.expected[product.name]
+        if not isinstance(data, np.ndarray) or data.shape != shape or data.dtype != dtype:
+            got = (
+                f"{data.shape} {data.dtype}"
+                if isinstance(data, np.ndarray)
+                else type(data).__name__
+            )
+            raise ValueError(
+                f"stage {stage.name!r} returned {product.name!r} as {got}; the product is "
+                f"declared {shape} {dtype}"
+            )
+
+
+def process_frame(job: FrameJob) -> FrameOutcome:
+    """Run the job's stages on one frame, writing arrays and files as each stage finishes."""
+    _limit_threads()
+    stages = _stages(job.stage_package)
+    rundir = Path(job.rundir)
+    ctx = job.context
+    outcome = FrameOutcome(frame_id=ctx.frame_id, index=job.index)
+    produced: dict[str, np.ndarray] = {}
+    for stage_name, params, key in job.stages:
+        stage = stages[stage_name]
+        try:
+            inputs = {}
+            for name in stage.inputs + stage.optional_inputs:
+                if name in produced:
+                    inputs[name] = produced[name]
+                elif name in job.expected:
+                    inputs[name] = read_frame_array(rundir, name, job.index)
+            start = time.perf_counter()
+            result = stage.run(inputs, frame=ctx, params=dict(params))
+            seconds = time.perf_counter() - start
+            if not isinstance(result, StageResult):
+                raise TypeError(
+                    f"stage {stage.name!r} returned {type(result).__name__}, expected StageResult"
+                )
+            _check_arrays(job, stage, result)
+            checksums = {}
+            for product in stage.outputs:
+                if product.kind == "array":
+                    data = result.arrays[product.name]
+                    checksums[product.name] = write_frame_array(
+                        rundir, product.name, job.index, data
+                    )
+                    produced[product.name] = data
+            for rel, content in result.files.items():
+                atomic_write_bytes(rundir / rel, content)
+        except Exception as exc:
+            if is_disk_full(exc):
+                outcome.fatal = (
+                    f"cannot write products of frame {ctx.frame_id!r} under {rundir}: "
+                    f"{exc.strerror} (errno {exc.errno}); free space and rerun: finished "  # type: ignore[attr-defined]
+                    "frames are kept"
+                )
+                return outcome
+            outcome.failed_stage = stage.name
+            outcome.error = f"{stage.name}: {_describe_error(exc)}"
+            return outcome
+        outcome.completed.append(
+            StageOutcome(
+                stage=stage.name,
+                key=key,
+                seconds=seconds,
+                figures=dict(result.figures),
+                notes=list(result.notes),
+                checksums=checksums,
+                tables=dict(result.tables),
+            )
+        )
+    return outcome
+
+
+def process_batch(jobs: list[FrameJob]) -> list[FrameOutcome]:
+    """Several small frames in one task, so each task does enough work to be worth it."""
+    return [process_frame(job) for job in jobs]

@@ -1,0 +1,124 @@
+"""End-to-end behaviour of the engine on a fake stage package (fast, no real stages)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import duckdb
+import numpy as np
+import pyarrow.dataset as ds
+import pyarrow.parquet as pq
+import pytest
+import xarray as xr
+
+from pipeline.errors import ParamError, RunLockedError
+from pipeline.lock import RunLock
+from pipeline.runner import RunPlan, run
+
+FAKE = "arroyo_fake_stages"
+
+
+def _run(catalog: Path, out: Path, **kw):
+    kw.setdefault("scheduler", "synchronous")
+    return run(catalog, out, stage_package=FAKE, **kw)
+
+
+def test_run_writes_products_readable_by_xarray_and_duckdb(archive, tmp_path):
+    out = tmp_path / "run"
+    summary = _run(archive, out)
+    assert (summary.done, summary.failed, summary.pending) == (4, 0, 0)
+    assert summary.exit_code == 0
+    data = xr.open_zarr(out / "products.zarr")
+    assert list(data.frame.values) == ["f000", "f001", "f002", "f003"]
+    assert data.left.dtype == np.uint8 and data.left.shape == (4, 40, 48)
+    expected = (data.left.values[2] * 0.5 + data.right.values[2] * 0.5).astype(np.float32)
+    np.testing.assert_array_equal(data.blend.sel(frame="f002").values, expected)
+    assert data.blend.attrs["units"] == "gray" and data.blend.attrs["stage"] == "blend"
+    assert data.grid.dims == ("frame", "gy", "gx")
+    table = ds.dataset(out / "tallies.parquet").to_table()
+    assert table.num_rows == 12
+    assert set(table["archive"].to_pylist()) == {"testarch"}
+    count = duckdb.sql(
+        f"SELECT count(*) FROM read_parquet('{out}/tallies.parquet/**/*.parquet')"
+    ).fetchall()
+    assert count == [(12,)]
+    frames = pq.read_table(out / "frames.parquet").to_pylist()
+    assert [f["status"] for f in frames] == ["done"] * 4
+    assert frames[1]["site"] == "site1" and frames[0]["blend_max"] > 0
+    assert frames[0]["ingest_seconds"] >= 0
+    meta = json.loads((out / "run.json").read_text())
+    assert meta["status"] == "finished" and meta["stages"]["blend"]["params"] == {"weight": 0.5}
+    assert len(meta["inputs"]["f000"]["left"]["sha256"]) == 64
+    assert (out / "quicklooks" / "f001" / "note.txt").is_file()
+
+
+def test_rerun_skips_finished_work_and_param_change_reruns_downstream_only(archive, tmp_path):
+    out = tmp_path / "run"
+    _run(archive, out)
+    plan = run(archive, out, stage_package=FAKE, dry_run=True)
+    assert isinstance(plan, RunPlan)
+    assert all(not todo for todo in plan.todo.values())
+    plan = run(archive, out, stage_package=FAKE, dry_run=True, overrides=["blend.weight=0.25"])
+    assert plan.todo["f000"] == ["blend", "tally"]
+    assert plan.counts()["ingest"]["done"] == 4 and plan.counts()["blend"]["changed"] == 4
+    before = pq.read_table(out / "frames.parquet")
+    _run(archive, out, overrides=["blend.weight=0.25"])
+    after = pq.read_table(out / "frames.parquet")
+    # ingest was not redone: its timing record is the old one
+    assert before["ingest_seconds"].to_pylist() == after["ingest_seconds"].to_pylist()
+    data = xr.open_zarr(out / "products.zarr")
+    left, right = data.left.values[0].astype(np.float32), data.right.values[0].astype(np.float32)
+    np.testing.assert_allclose(data.blend.values[0], left * 0.25 + right * 0.75)
+    # the table holds exactly one generation of rows per frame
+    assert ds.dataset(out / "tallies.parquet").to_table().num_rows == 12
+
+
+def test_param_changing_array_shape_recreates_it(archive, tmp_path):
+    out = tmp_path / "run"
+    _run(archive, out)
+    _run(archive, out, overrides=["tally.grid=6"])
+    assert xr.open_zarr(out / "products.zarr").grid.shape == (4, 6, 6)
+
+
+def test_bad_frames_are_recorded_and_the_rest_complete(archive, tmp_path):
+    (archive.parent / "images" / "f001_left.png").write_bytes(b"not a png")
+    (archive.parent / "images" / "f002_right.png").unlink()
+    out = tmp_path / "run"
+    summary = _run(archive, out)
+    assert summary.exit_code == 1
+    assert (summary.done, summary.failed) == (2, 2)
+    assert "f001_left.png" in summary.failures["f001"]
+    frames = {r["frame_id"]: r for r in pq.read_table(out / "frames.parquet").to_pylist()}
+    assert frames["f001"]["status"] == "failed" and frames["f000"]["status"] == "done"
+    assert frames["f002"]["failed_stage"] == "ingest"
+    rows = ds.dataset(out / "tallies.parquet").to_table()
+    assert sorted(set(rows["frame_id"].to_pylist())) == ["f000", "f003"]
+
+
+def test_unknown_param_in_set_is_a_named_error(archive, tmp_path):
+    with pytest.raises(ParamError, match="no parameter 'nope'"):
+        _run(archive, tmp_path / "run", overrides=["blend.nope=1"])
+    with pytest.raises(ParamError, match="unknown stage 'warp'"):
+        _run(archive, tmp_path / "run", overrides=["warp.x=1"])
+    with pytest.raises(ParamError, match="expects float"):
+        _run(archive, tmp_path / "run", overrides=["blend.weight=heavy"])
+    with pytest.raises(ParamError, match="<= 1.0"):
+        _run(archive, tmp_path / "run", overrides=["blend.weight=3"])
+    assert not (tmp_path / "run").exists()
+
+
+def test_second_run_on_a_locked_directory_refuses(archive, tmp_path):
+    out = tmp_path / "run"
+    out.mkdir()
+    with RunLock(out):
+        with pytest.raises(RunLockedError, match="in use by arroyo pid"):
+            _run(archive, out)
+
+
+def test_frames_pattern_restricts_the_run(archive, tmp_path):
+    out = tmp_path / "run"
+    summary = _run(archive, out, frames="f00[01]")
+    assert summary.done == 2
+    statuses = pq.read_table(out / "frames.parquet")["status"].to_pylist()
+    assert statuses == ["done", "done", "pending", "pending"]
