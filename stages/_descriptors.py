@@ -1,0 +1,628 @@
+"""Per-object measurements of the describe stage (pure functions, arrays in, numbers out).
+
+Each function measures one thing on one object, given the object's pixels (rows, columns,
+values) or a small crop around it, so every rule can be tested on a hand-made 20x20 array.
+:func:`describe_objects` runs them over every object of a label image and returns the
+descriptor columns (see ``docs/design.md``).
+
+Ground frame
+------------
+Positions and heights are expressed in the ground frame of ``pipeline/camera.py`` (x right,
+y forward, z up, origin on the ground below the reference camera). When the camera height
+and pitch are known, ``Camera.camera_to_ground`` defines it; otherwise the depth stage's
+fitted ground plane does (:meth:`GroundFrame.from_plane`): z along the plane's unit normal,
+y along the optical axis projected on the plane, x = y cross z, origin at the foot of the
+camera on the plane.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+
+from pipeline.camera import Camera
+
+__all__ = [
+    "GroundFrame",
+    "robust_extent",
+    "second_moment_ellipse",
+    "cooccurrence_contrast",
+    "polarity_against",
+    "top_height",
+    "widest_row_width_m",
+    "classify_size",
+    "background_jump_fraction",
+    "describe_objects",
+    "frame_ground",
+    "DESCRIPTOR_COLUMNS",
+]
+
+DESCRIPTOR_COLUMNS: dict[str, str] = {
+    "object_id": "int32",
+    "area_px": "int64",
+    "centroid_x": "float64",
+    "centroid_y": "float64",
+    "bbox_x_min": "int32",
+    "bbox_x_max": "int32",
+    "bbox_y_near": "int32",
+    "bbox_y_far": "int32",
+    "range_m": "float64",
+    "range_err_m": "float64",
+    "x_m": "float64",
+    "y_m": "float64",
+    "z_m": "float64",
+    "width_m": "float64",
+    "length_m": "float64",
+    "height_m": "float64",
+    "height_max_m": "float64",
+    "height_err_m": "float64",
+    "width_err_m": "float64",
+    "depth_valid_fraction": "float64",
+    "mean_gray": "float64",
+    "polarity": "str",
+    "texture_std": "float64",
+    "texture_contrast": "float64",
+    "ellipse_major_px": "float64",
+    "ellipse_minor_px": "float64",
+    "ellipse_angle_deg": "float64",
+    "size_class": "str",
+    "touches_border": "bool",
+    "occluded": "bool",
+    "depth_unreliable": "bool",
+}
+"""Descriptor column names and NumPy dtypes (``'str'``: Python/NumPy unicode strings)."""
+
+
+@dataclass(frozen=True)
+class GroundFrame:
+    """A ground-aligned frame expressed in reference-camera coordinates.
+
+    Attributes
+    ----------
+    origin : (3,) ndarray of float64
+        Ground-frame origin (on the ground below the camera), camera frame, metres.
+    right, forward, up : (3,) ndarray of float64
+        Unit axes x, y, z of the ground frame in the camera frame (right = forward x up).
+    source : {'camera', 'plane'}
+        Whether the camera pose or the fitted ground plane defined the frame.
+    """
+
+    origin: np.ndarray
+    right: np.ndarray
+    forward: np.ndarray
+    up: np.ndarray
+    source: str
+
+    @classmethod
+    def from_camera(cls, camera: Camera) -> GroundFrame:
+        """The frame ``Camera.camera_to_ground`` uses (needs height_m and pitch_deg)."""
+        if not camera.has_pose:
+            raise ValueError(
+                "GroundFrame.from_camera needs camera height_m and pitch_deg; got "
+                f"height_m={camera.height_m!r}, pitch_deg={camera.pitch_deg!r}; "
+                "use GroundFrame.from_plane with a fitted ground plane instead"
+            )
+        assert camera.pitch_deg is not None and camera.height_m is not None
+        theta = math.radians(camera.pitch_deg)
+        up = np.array([0.0, -math.cos(theta), -math.sin(theta)])
+        forward = np.array([0.0, -math.sin(theta), math.cos(theta)])
+        return cls(-camera.height_m * up, np.cross(forward, up), forward, up, "camera")
+
+    @classmethod
+    def from_plane(cls, plane: np.ndarray) -> GroundFrame:
+        """Frame from a plane ``a X + b Y + c Z + d = 0`` (camera frame, normal pointing up).
+
+        Parameters
+        ----------
+        plane : (4,) array_like of float
+            Plane coefficients; ``(a, b, c)`` is normalised here, ``d > 0`` puts the camera
+            above the ground.
+        """
+        coef = np.asarray(plane, dtype=np.float64).reshape(-1)
+        if coef.shape != (4,) or not np.all(np.isfinite(coef)):
+            raise ValueError(
+                f"ground plane must be 4 finite numbers (a, b, c, d), got {coef.tolist()}"
+            )
+        norm = float(np.linalg.norm(coef[:3]))
+        if norm == 0.0:
+            raise ValueError("ground plane normal (a, b, c) must not be zero")
+        up, d = coef[:3] / norm, coef[3] / norm
+        if d <= 0:
+            raise ValueError(
+                f"ground plane must have the camera above it (d > 0 with the normal up), got "
+                f"d={d:.4g}; flip the sign of all four coefficients if the normal points down"
+            )
+        axis = np.array([0.0, 0.0, 1.0])
+        forward = axis - (axis @ up) * up
+        if np.linalg.norm(forward) < 1e-9:  # looking straight down: image up is forward
+            axis = np.array([0.0, -1.0, 0.0])
+            forward = axis - (axis @ up) * up
+        forward /= np.linalg.norm(forward)
+        return cls(-d * up, np.cross(forward, up), forward, up, "plane")
+
+    def to_ground(self, points: np.ndarray) -> np.ndarray:
+        """Camera-frame points ``(..., 3)`` to ground-frame points ``(..., 3)``."""
+        rel = np.asarray(points, dtype=np.float64) - self.origin
+        return np.stack([rel @ self.right, rel @ self.forward, rel @ self.up], axis=-1)
+
+
+def robust_extent(values: np.ndarray, *, low: float = 2.0, high: float = 98.0) -> float:
+    """Spread between two percentiles of the finite values (NaN when fewer than two).
+
+    Parameters
+    ----------
+    values : (K,) ndarray of float
+    low, high : float
+        Percentiles in [0, 100], ``low < high``; the defaults ignore a 2 % tail of outliers.
+    """
+    v = np.asarray(values, dtype=np.float64)
+    v = v[np.isfinite(v)]
+    if v.size < 2:
+        return math.nan
+    lo, hi = np.percentile(v, [low, high])
+    return float(hi - lo)
+
+
+def second_moment_ellipse(rows: np.ndarray, cols: np.ndarray) -> tuple[float, float, float]:
+    """Ellipse with the same second moments as a pixel set.
+
+    Each pixel counts as a unit square (its own variance 1/12 is added), so a filled disk
+    of diameter D gives axes D.
+
+    Parameters
+    ----------
+    rows, cols : (K,) ndarray of int
+        Pixel coordinates of the object, K >= 1.
+
+    Returns
+    -------
+    major_px, minor_px : float
+        Full axis lengths, pixels (4 x the square root of the inertia eigenvalues).
+    angle_deg : float
+        Direction of the major axis in (-90, 90], degrees from the +x (column) axis towards
+        +y (down the image), i.e. clockwise on screen.
+    """
+    r = np.asarray(rows, dtype=np.float64)
+    c = np.asarray(cols, dtype=np.float64)
+    if r.size == 0 or r.shape != c.shape:
+        raise ValueError(
+            f"rows and cols must be equal non-empty 1-D arrays, got {r.shape}, {c.shape}"
+        )
+    mu20 = c.var() + 1.0 / 12.0
+    mu02 = r.var() + 1.0 / 12.0
+    mu11 = float(np.mean((c - c.mean()) * (r - r.mean())))
+    half_sum = (mu20 + mu02) / 2.0
+    root = math.sqrt(((mu20 - mu02) / 2.0) ** 2 + mu11**2)
+    major = 4.0 * math.sqrt(half_sum + root)
+    minor = 4.0 * math.sqrt(max(half_sum - root, 0.0))
+    angle = math.degrees(0.5 * math.atan2(2.0 * mu11, mu20 - mu02))
+    if angle <= -90.0:
+        angle += 180.0
+    return major, minor, angle
+
+
+def cooccurrence_contrast(gray: np.ndarray, mask: np.ndarray) -> float:
+    """Gray-level co-occurrence contrast at distance 1, horizontal and vertical pairs pooled.
+
+    Contrast = sum over (i, j) of P(i, j) (i - j)^2 for the symmetric, normalised
+    co-occurrence matrix P of pixel pairs (right and down neighbours) that both lie in the
+    object; this equals the mean squared gray difference of those pairs (no quantisation).
+
+    Parameters
+    ----------
+    gray : (M, N) ndarray of uint8 or float
+    mask : (M, N) ndarray of bool
+        The object's pixels.
+
+    Returns
+    -------
+    float
+        Contrast in gray levels squared; NaN when the object has no neighbour pair.
+    """
+    g = np.asarray(gray, dtype=np.float64)
+    m = np.asarray(mask, dtype=bool)
+    horizontal = m[:, 1:] & m[:, :-1]
+    vertical = m[1:, :] & m[:-1, :]
+    dh = (g[:, 1:] - g[:, :-1])[horizontal]
+    dv = (g[1:, :] - g[:-1, :])[vertical]
+    n = dh.size + dv.size
+    if n == 0:
+        return math.nan
+    return float((np.sum(dh**2) + np.sum(dv**2)) / n)
+
+
+def polarity_against(mean_inside: float, background: np.ndarray) -> str:
+    """``'darker'`` when the object's mean gray is below the background's median, else
+    ``'lighter'``.
+
+    Parameters
+    ----------
+    mean_inside : float
+        Mean gray of the object.
+    background : (K,) ndarray
+        Gray levels of the background ring around the object (may be empty: ``'lighter'``
+        is then returned only if the object is above mid-gray 127.5).
+    """
+    bg = np.asarray(background, dtype=np.float64)
+    level = float(np.median(bg)) if bg.size else 127.5
+    return "darker" if mean_inside < level else "lighter"
+
+
+def top_height(
+    rows: np.ndarray, heights: np.ndarray, *, top_fraction: float = 0.05, min_pixels: int = 3
+) -> tuple[float, int]:
+    """Height of the farthest perceivable point: median height of the topmost pixels.
+
+    The study defines a rock's height as that of its farthest perceivable point, the top
+    of its silhouette (``bbox_y_far``). A single pixel there is noisy and often carries the
+    disparity of the ground behind it, so the median over the topmost valid pixels is used.
+
+    Parameters
+    ----------
+    rows : (K,) ndarray of int
+        Image rows of the object's pixels.
+    heights : (K,) ndarray of float
+        Height above ground of those pixels, NaN where unknown.
+    top_fraction : float
+        Share of the valid pixels taken from the top, in (0, 1].
+    min_pixels : int
+        At least this many pixels are used (when available).
+
+    Returns
+    -------
+    height : float
+        Metres; NaN when no pixel has a height.
+    row : int
+        Median image row of the pixels used (-1 when none).
+    """
+    h = np.asarray(heights, dtype=np.float64)
+    r = np.asarray(rows)
+    valid = np.isfinite(h)
+    if not valid.any():
+        return math.nan, -1
+    h, r = h[valid], r[valid]
+    order = np.argsort(r, kind="stable")
+    n = max(min_pixels, math.ceil(top_fraction * h.size))
+    take = order[:n]
+    return float(np.median(h[take])), int(np.median(r[take]))
+
+
+def widest_row_width_m(
+    rows: np.ndarray, cols: np.ndarray, depth: np.ndarray, *, focal_px: float, fallback_z: float
+) -> float:
+    """Largest width across the view, metres: max over image rows of span x Z / f.
+
+    The span of a row is ``max col - min col + 1`` pixels (the visible extremities); Z is the
+    median valid depth of that row's pixels, or ``fallback_z`` where the row has none.
+
+    Parameters
+    ----------
+    rows, cols : (K,) ndarray of int
+        The object's pixels (any order).
+    depth : (K,) ndarray of float
+        Range Z of those pixels, NaN where invalid.
+    focal_px : float
+    fallback_z : float
+        Depth used for rows without a valid pixel (the object's median range).
+    """
+    r = np.asarray(rows, dtype=np.int64)
+    c = np.asarray(cols, dtype=np.int64)
+    z = np.asarray(depth, dtype=np.float64)
+    if r.size == 0:
+        return math.nan
+    uniq, inverse = np.unique(r, return_inverse=True)
+    span = np.full(uniq.size, 0, dtype=np.int64)
+    cmin = np.full(uniq.size, np.iinfo(np.int64).max)
+    cmax = np.full(uniq.size, np.iinfo(np.int64).min)
+    np.minimum.at(cmin, inverse, c)
+    np.maximum.at(cmax, inverse, c)
+    span = cmax - cmin + 1
+    row_z = np.full(uniq.size, fallback_z, dtype=np.float64)
+    valid = np.isfinite(z)
+    if valid.any():
+        vi, vz = inverse[valid], z[valid]
+        order = np.lexsort((vz, vi))
+        vi, vz = vi[order], vz[order]
+        starts = np.searchsorted(vi, np.arange(uniq.size), side="left")
+        counts = np.searchsorted(vi, np.arange(uniq.size), side="right") - starts
+        has = counts > 0
+        lower = vz[starts[has] + (counts[has] - 1) // 2]
+        upper = vz[starts[has] + counts[has] // 2]
+        row_z[has] = (lower + upper) / 2.0
+    widths = span * row_z / focal_px
+    if not np.isfinite(widths).any():
+        return math.nan
+    return float(np.nanmax(widths))
+
+
+def classify_size(
+    largest_m: float, height_m: float, *, sample_max_m: float, rover_clearance_m: float
+) -> str:
+    """``'sample'`` or ``'obstacle'``.
+
+    A sample is small enough to pick up (largest cross-section <= ``sample_max_m``) and low
+    enough to drive over (height < ``rover_clearance_m``). Unknown sizes (NaN, no depth)
+    give ``'obstacle'``: a rover must not assume it can drive over what it cannot measure.
+    """
+    if not (math.isfinite(largest_m) and math.isfinite(height_m)):
+        return "obstacle"
+    if largest_m <= sample_max_m and height_m < rover_clearance_m:
+        return "sample"
+    return "obstacle"
+
+
+def background_jump_fraction(
+    mask: np.ndarray, labels: np.ndarray, disparity: np.ndarray, *, jump_px: float
+) -> float:
+    """Share of the object's boundary where the background just outside is nearer.
+
+    For every 4-neighbour pair (inside pixel, outside background pixel) with both
+    disparities valid, the pair counts as a depth discontinuity hiding the object when the
+    outside disparity exceeds the inside one by more than ``jump_px`` (something nearer,
+    not segmented, covers the object there).
+
+    Parameters
+    ----------
+    mask : (M, N) ndarray of bool
+        The object.
+    labels : (M, N) ndarray of int
+        Label image of the same crop (0 = background).
+    disparity : (M, N) ndarray of float
+        Disparity, NaN where invalid.
+    jump_px : float
+        Disparity jump threshold in pixels, > 0.
+
+    Returns
+    -------
+    float
+        Fraction in [0, 1]; 0 when no valid boundary pair exists.
+    """
+    m = np.asarray(mask, dtype=bool)
+    bg = np.asarray(labels) == 0
+    d = np.asarray(disparity, dtype=np.float64)
+    total = 0
+    hidden = 0
+    for axis in (0, 1):
+        for step in (1, -1):
+            inside = m
+            outside = np.roll(bg, -step, axis=axis)
+            d_out = np.roll(d, -step, axis=axis)
+            pair = inside & outside
+            # np.roll wraps around: drop pairs that crossed the crop edge
+            if step == 1:
+                edge = (slice(None), slice(-1, None)) if axis == 1 else (slice(-1, None),)
+            else:
+                edge = (slice(None), slice(0, 1)) if axis == 1 else (slice(0, 1),)
+            pair[edge] = False
+            ok = pair & np.isfinite(d) & np.isfinite(d_out)
+            total += int(ok.sum())
+            hidden += int(np.sum((d_out - d)[ok] > jump_px))
+    return hidden / total if total else 0.0
+
+
+def _coerce_frame_inputs(
+    labels: np.ndarray,
+    gray: np.ndarray,
+    disparity: np.ndarray,
+    range_m: np.ndarray,
+    height: np.ndarray,
+) -> tuple[np.ndarray, ...]:
+    lab = np.asarray(labels)
+    if lab.ndim != 2:
+        raise ValueError(f"labels must be a 2-D (M, N) array, got shape {lab.shape}")
+    if not np.issubdtype(lab.dtype, np.integer):
+        raise TypeError(f"labels must hold integers (int32 object ids), got dtype {lab.dtype}")
+    out = [lab]
+    for name, arr in (
+        ("gray", gray),
+        ("disparity", disparity),
+        ("range", range_m),
+        ("height", height),
+    ):
+        a = np.asarray(arr)
+        if a.shape != lab.shape:
+            raise ValueError(
+                f"{name} must have the labels' shape {lab.shape}, got {a.shape}; pass arrays "
+                "of the same frame in reference-image geometry"
+            )
+        out.append(a.astype(np.float64, copy=False))
+    return tuple(out)
+
+
+def _coerce_plane(ground_plane: np.ndarray | None) -> np.ndarray | None:
+    if ground_plane is None:
+        return None
+    coef = np.asarray(ground_plane, dtype=np.float64).reshape(-1)
+    if coef.shape != (4,):
+        raise ValueError(f"ground_plane must hold 4 coefficients, got shape {coef.shape}")
+    return coef if np.all(np.isfinite(coef)) else None
+
+
+def frame_ground(camera: Camera, ground_plane: np.ndarray | None) -> GroundFrame | None:
+    """The ground frame of a frame: camera pose first, else fitted plane, else None."""
+    if camera.has_pose:
+        return GroundFrame.from_camera(camera)
+    plane = _coerce_plane(ground_plane)
+    return GroundFrame.from_plane(plane) if plane is not None else None
+
+
+def _empty_columns() -> dict[str, np.ndarray]:
+    return {
+        name: np.array([], dtype=str if kind == "str" else kind)
+        for name, kind in DESCRIPTOR_COLUMNS.items()
+    }
+
+
+def describe_objects(
+    labels: np.ndarray,
+    gray: np.ndarray,
+    disparity: np.ndarray,
+    range_m: np.ndarray,
+    height: np.ndarray,
+    *,
+    camera: Camera,
+    ground_plane: np.ndarray | None = None,
+    sample_max_m: float = 0.10,
+    rover_clearance_m: float = 0.10,
+    min_valid_fraction: float = 0.5,
+    occlusion_jump_px: float = 1.0,
+    disparity_error_px: float = 0.5,
+    ring_px: int = 3,
+) -> dict[str, np.ndarray]:
+    """Descriptor columns of every object of a label image.
+
+    Parameters
+    ----------
+    labels : (M, N) ndarray of int32
+        0 = background, k = object k.
+    gray : (M, N) ndarray of uint8
+        Reference image.
+    disparity : (M, N) ndarray of float32
+        Pixels, NaN (or <= 0) where invalid.
+    range_m : (M, N) ndarray of float32
+        Z = f b / d, metres, NaN where invalid.
+    height : (M, N) ndarray of float32
+        Height above the ground plane, metres, NaN where unknown. When it has no finite
+        value at all, heights come from the ground frame's z instead.
+    camera : Camera
+    ground_plane : (4,) ndarray of float64, optional
+        Fitted plane (camera frame, normal up); used when the camera pose is unknown.
+    sample_max_m, rover_clearance_m : float
+        Size classes, see :func:`classify_size`.
+    min_valid_fraction : float
+        ``depth_unreliable`` when less than this share of the object has valid disparity.
+    occlusion_jump_px : float
+        Disparity jump (pixels) that counts as a depth discontinuity.
+    disparity_error_px : float
+        Disparity uncertainty behind ``range_err_m`` (0.5 px: half a pixel of matching).
+    ring_px : int
+        Width of the background ring for polarity.
+
+    Returns
+    -------
+    dict of str to (K,) ndarray
+        :data:`DESCRIPTOR_COLUMNS`, one row per object in increasing id order; ``occluded``
+        here only reflects background discontinuities (describe adds occluding objects).
+    """
+    lab, g, disp, rng, hgt = _coerce_frame_inputs(labels, gray, disparity, range_m, height)
+    if not isinstance(camera, Camera):
+        raise TypeError(f"camera must be a pipeline.camera.Camera, got {type(camera).__name__}")
+    ground = frame_ground(camera, ground_plane)
+    disp = np.where(disp > 0, disp, np.nan)
+    points = camera.camera_points(disp)
+    ground_pts = ground.to_ground(points) if ground is not None else None
+    if not np.isfinite(hgt).any() and ground_pts is not None:
+        hgt = ground_pts[..., 2]
+    slices = ndimage.find_objects(np.where(lab > 0, lab, 0))
+    rows_out: list[dict[str, object]] = []
+    h_img, w_img = lab.shape
+    cx, cy = camera.principal_point(lab.shape)
+    f = camera.focal_px
+    kb = camera.k_m_px
+    for index, sl in enumerate(slices, start=1):
+        if sl is None:
+            continue
+        y0 = max(sl[0].start - ring_px, 0)
+        y1 = min(sl[0].stop + ring_px, h_img)
+        x0 = max(sl[1].start - ring_px, 0)
+        x1 = min(sl[1].stop + ring_px, w_img)
+        crop = (slice(y0, y1), slice(x0, x1))
+        lab_c = lab[crop]
+        mask = lab_c == index
+        rr, cc = np.nonzero(mask)
+        rows, cols = rr + y0, cc + x0
+        gray_px = g[crop][mask]
+        disp_px = disp[crop][mask]
+        range_px = rng[crop][mask]
+        valid = np.isfinite(disp_px) & np.isfinite(range_px)
+        valid_fraction = float(valid.mean())
+        z_med = float(np.median(range_px[valid])) if valid.any() else math.nan
+        range_err = z_med**2 / kb * disparity_error_px
+        heights = hgt[crop][mask]
+        h_top, top_row = top_height(rows, heights)
+        finite_h = heights[np.isfinite(heights)]
+        h_max = float(np.percentile(finite_h, 98)) if finite_h.size else math.nan
+        width = widest_row_width_m(
+            rows, cols, np.where(valid, range_px, np.nan), focal_px=f, fallback_z=z_med
+        )
+        width_err = math.hypot(width * range_err / z_med, z_med / f) if valid.any() else math.nan
+        x_m = y_m = z_m = length = height_err = math.nan
+        if ground_pts is not None and valid.any():
+            gp = ground_pts[crop][mask][valid]
+            x_m, y_m = float(np.median(gp[:, 0])), float(np.median(gp[:, 1]))
+            ground_level = gp[:, 2] - heights[valid]
+            ground_level = ground_level[np.isfinite(ground_level)]
+            z_m = float(np.median(ground_level)) if ground_level.size else 0.0
+            length = robust_extent(gp[:, 1])
+        if ground is not None and top_row >= 0 and math.isfinite(h_top):
+            top = rows == top_row
+            z_top = (
+                np.nanmedian(np.where(valid[top], range_px[top], np.nan))
+                if (valid[top].any())
+                else z_med
+            )
+            ray = np.array([(np.mean(cols[top]) - cx) / f, (top_row - cy) / f, 1.0])
+            height_err = abs(float(ray @ ground.up)) * z_top**2 / kb * disparity_error_px
+        mean_gray = float(gray_px.mean())
+        ring = ndimage.binary_dilation(mask, iterations=ring_px) & (lab_c == 0)
+        major, minor, angle = second_moment_ellipse(rows, cols)
+        largest = np.nanmax([width, length]) if np.isfinite([width, length]).any() else math.nan
+        jump = background_jump_fraction(mask, lab_c, disp[crop], jump_px=occlusion_jump_px)
+        rows_out.append(
+            {
+                "object_id": index,
+                "area_px": rows.size,
+                "centroid_x": float(cols.mean()),
+                "centroid_y": float(rows.mean()),
+                "bbox_x_min": int(cols.min()),
+                "bbox_x_max": int(cols.max()),
+                "bbox_y_near": int(rows.max()),
+                "bbox_y_far": int(rows.min()),
+                "range_m": z_med,
+                "range_err_m": range_err,
+                "x_m": x_m,
+                "y_m": y_m,
+                "z_m": z_m,
+                "width_m": width,
+                "length_m": length,
+                "height_m": h_top,
+                "height_max_m": h_max,
+                "height_err_m": height_err,
+                "width_err_m": width_err,
+                "depth_valid_fraction": valid_fraction,
+                "mean_gray": mean_gray,
+                "polarity": polarity_against(mean_gray, g[crop][ring]),
+                "texture_std": float(gray_px.std()),
+                "texture_contrast": cooccurrence_contrast(g[crop], mask),
+                "ellipse_major_px": major,
+                "ellipse_minor_px": minor,
+                "ellipse_angle_deg": angle,
+                "size_class": classify_size(
+                    float(largest),
+                    h_max,
+                    sample_max_m=sample_max_m,
+                    rover_clearance_m=rover_clearance_m,
+                ),
+                "touches_border": bool(
+                    rows.min() == 0
+                    or cols.min() == 0
+                    or rows.max() == h_img - 1
+                    or cols.max() == w_img - 1
+                ),
+                "occluded": jump > _BACKGROUND_OCCLUSION_SHARE,
+                "depth_unreliable": valid_fraction < min_valid_fraction,
+            }
+        )
+    if not rows_out:
+        return _empty_columns()
+    return {
+        name: np.array([row[name] for row in rows_out], dtype=str if kind == "str" else kind)
+        for name, kind in DESCRIPTOR_COLUMNS.items()
+    }
+
+
+_BACKGROUND_OCCLUSION_SHARE = 0.1
+"""Share of boundary pairs with a nearer background above which an object is occluded."""

@@ -1,0 +1,314 @@
+"""The relational scene graph of a frame as an edge table (pure functions).
+
+Every edge reads "subject RELATION object". Definitions:
+
+``left_of`` / ``right_of``
+    From ground-frame positions (``x_m``, ``y_m`` of the descriptors): subject left_of object
+    when ``x_subject < x_object - margin_m``; right_of when ``x_subject > x_object + margin_m``.
+``in_front_of`` / ``behind``
+    subject in_front_of object (nearer the camera along the ground's forward axis) when
+    ``y_subject < y_object - margin_m``; behind when ``y_subject > y_object + margin_m``.
+    Pairs closer than ``margin_m`` along an axis get no edge on that axis (near-ties are not
+    facts). Both directions of each fact are emitted: if A left_of B then also B right_of A,
+    so a query never has to look at both columns. Objects without a position (no depth) get
+    no ordering edge.
+``adjacent``
+    The two regions touch or lie within ``gap_px`` pixels of each other in the image
+    (chessboard distance between the pixel sets <= ``gap_px + 1``, a dilation test).
+    Symmetric: emitted in both directions.
+``occludes``
+    Subject and object are adjacent and, along their shared boundary, the subject is
+    nearer: the median disparity of the subject's pixels within ``band_px`` of the object
+    exceeds that of the object's pixels within ``band_px`` of the subject by more than
+    ``occlusion_jump_px``. Emitted once, from the nearer object.
+
+Attributes of every edge:
+
+``distance_m``
+    Ground distance between the two positions, ``hypot(dx, dy)``, metres; NaN without
+    positions.
+``overlap``
+    Horizontal image overlap of the two enclosing rectangles: length of the intersection of
+    the column intervals ``[bbox_x_min, bbox_x_max]`` divided by the narrower interval, in
+    [0, 1]. With ``behind`` it says how much of the subject is in line with the object
+    (1: fully behind it as seen from the camera).
+``shared_boundary``
+    Share of the subject's boundary pixels lying within ``gap_px + 1`` pixels of the object
+    (0 for non-adjacent pairs).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import ndimage
+
+__all__ = [
+    "RELATION_COLUMNS",
+    "RELATIONS",
+    "ordering_matrices",
+    "horizontal_overlap",
+    "region_neighbours",
+    "boundary_disparity_difference",
+    "relate_objects",
+]
+
+RELATIONS: tuple[str, ...] = (
+    "left_of",
+    "right_of",
+    "in_front_of",
+    "behind",
+    "adjacent",
+    "occludes",
+)
+
+RELATION_COLUMNS: dict[str, str] = {
+    "subject_id": "int32",
+    "relation": "str",
+    "object_id": "int32",
+    "distance_m": "float64",
+    "overlap": "float64",
+    "shared_boundary": "float64",
+}
+"""Relation column names and NumPy dtypes (``'str'``: unicode strings)."""
+
+_SQUARE = np.ones((3, 3), dtype=bool)
+
+
+def ordering_matrices(
+    x_m: np.ndarray, y_m: np.ndarray, *, margin_m: float
+) -> dict[str, np.ndarray]:
+    """Boolean (K, K) matrices ``M[i, j]``: object i RELATION object j, for the four
+    ordering relations.
+
+    Parameters
+    ----------
+    x_m, y_m : (K,) ndarray of float
+        Ground positions, NaN where unknown (no edge).
+    margin_m : float
+        Near-tie margin, metres, >= 0.
+    """
+    if margin_m < 0:
+        raise ValueError(f"margin_m must be >= 0, got {margin_m!r}")
+    x = np.asarray(x_m, dtype=np.float64)
+    y = np.asarray(y_m, dtype=np.float64)
+    dx = x[:, None] - x[None, :]
+    dy = y[:, None] - y[None, :]
+    with np.errstate(invalid="ignore"):
+        return {
+            "left_of": dx < -margin_m,
+            "right_of": dx > margin_m,
+            "in_front_of": dy < -margin_m,
+            "behind": dy > margin_m,
+        }
+
+
+def horizontal_overlap(
+    a_min: np.ndarray, a_max: np.ndarray, b_min: np.ndarray, b_max: np.ndarray
+) -> np.ndarray:
+    """Intersection of column intervals over the narrower interval (inclusive pixel ends).
+
+    Parameters
+    ----------
+    a_min, a_max, b_min, b_max : ndarray of int
+        Broadcastable interval ends, ``min <= max``.
+
+    Returns
+    -------
+    ndarray of float64
+        In [0, 1].
+    """
+    a0, a1 = np.asarray(a_min, np.float64), np.asarray(a_max, np.float64)
+    b0, b1 = np.asarray(b_min, np.float64), np.asarray(b_max, np.float64)
+    inter = np.clip(np.minimum(a1, b1) - np.maximum(a0, b0) + 1.0, 0.0, None)
+    narrower = np.minimum(a1 - a0, b1 - b0) + 1.0
+    return inter / narrower
+
+
+def _boundary(mask: np.ndarray) -> np.ndarray:
+    return mask & ~ndimage.binary_erosion(mask, border_value=0)
+
+
+def region_neighbours(labels: np.ndarray, object_id: int, *, gap_px: int) -> dict[int, float]:
+    """Objects adjacent to ``object_id`` and the share of its boundary they line.
+
+    Parameters
+    ----------
+    labels : (M, N) ndarray of int
+        Label image (a crop is fine as long as it extends ``gap_px + 1`` beyond the object).
+    object_id : int
+    gap_px : int
+        Largest gap (pixels of background) between two regions still called adjacent, >= 0.
+
+    Returns
+    -------
+    dict of int to float
+        Neighbour id -> share of the object's boundary pixels within ``gap_px + 1`` pixels
+        (chessboard) of the neighbour.
+    """
+    if gap_px < 0:
+        raise ValueError(f"gap_px must be >= 0, got {gap_px!r}")
+    mask = labels == object_id
+    if not mask.any():
+        return {}
+    reach = ndimage.binary_dilation(mask, _SQUARE, iterations=gap_px + 1)
+    others = np.unique(labels[reach & ~mask])
+    others = others[(others > 0) & (others != object_id)]
+    boundary = _boundary(mask)
+    n_boundary = max(int(boundary.sum()), 1)
+    result: dict[int, float] = {}
+    for other in others:
+        near_other = ndimage.binary_dilation(labels == other, _SQUARE, iterations=gap_px + 1)
+        result[int(other)] = float(np.sum(boundary & near_other)) / n_boundary
+    return result
+
+
+def boundary_disparity_difference(
+    disparity: np.ndarray, mask_a: np.ndarray, mask_b: np.ndarray, *, band_px: int
+) -> float:
+    """Median disparity of A near B minus median disparity of B near A (pixels).
+
+    Positive: A is nearer than B along their shared boundary. NaN when either band has no
+    valid disparity.
+
+    Parameters
+    ----------
+    disparity : (M, N) ndarray of float
+        NaN where invalid.
+    mask_a, mask_b : (M, N) ndarray of bool
+        The two regions (disjoint).
+    band_px : int
+        Width of the band on each side of the shared boundary, >= 1.
+    """
+    if band_px < 1:
+        raise ValueError(f"band_px must be >= 1, got {band_px!r}")
+    d = np.asarray(disparity, dtype=np.float64)
+    near_b = ndimage.binary_dilation(mask_b, _SQUARE, iterations=band_px)
+    near_a = ndimage.binary_dilation(mask_a, _SQUARE, iterations=band_px)
+    side_a = d[mask_a & near_b]
+    side_b = d[mask_b & near_a]
+    side_a, side_b = side_a[np.isfinite(side_a)], side_b[np.isfinite(side_b)]
+    if side_a.size == 0 or side_b.size == 0:
+        return float("nan")
+    return float(np.median(side_a) - np.median(side_b))
+
+
+def _empty_columns() -> dict[str, np.ndarray]:
+    return {
+        name: np.array([], dtype=str if kind == "str" else kind)
+        for name, kind in RELATION_COLUMNS.items()
+    }
+
+
+def relate_objects(
+    labels: np.ndarray,
+    disparity: np.ndarray,
+    *,
+    object_ids: np.ndarray,
+    x_m: np.ndarray,
+    y_m: np.ndarray,
+    bbox_x_min: np.ndarray,
+    bbox_x_max: np.ndarray,
+    margin_m: float = 0.05,
+    gap_px: int = 2,
+    band_px: int = 3,
+    occlusion_jump_px: float = 1.0,
+) -> dict[str, np.ndarray]:
+    """Edge table of one frame.
+
+    Parameters
+    ----------
+    labels : (M, N) ndarray of int32
+        0 = background.
+    disparity : (M, N) ndarray of float
+        Pixels, NaN where invalid.
+    object_ids, x_m, y_m, bbox_x_min, bbox_x_max : (K,) ndarray
+        Descriptor columns of the frame's objects.
+    margin_m : float
+        Near-tie margin of the ordering relations, metres.
+    gap_px : int
+        Adjacency gap, pixels.
+    band_px : int
+        Band width for the occlusion test, pixels.
+    occlusion_jump_px : float
+        Disparity difference (pixels) above which the nearer region occludes the other.
+
+    Returns
+    -------
+    dict of str to (E,) ndarray
+        :data:`RELATION_COLUMNS`, sorted by subject, relation (in :data:`RELATIONS` order)
+        and object.
+    """
+    lab = np.asarray(labels)
+    disp = np.asarray(disparity, dtype=np.float64)
+    if lab.ndim != 2 or disp.shape != lab.shape:
+        raise ValueError(
+            f"labels and disparity must be 2-D arrays of one shape, got {lab.shape} and "
+            f"{disp.shape}"
+        )
+    ids = np.asarray(object_ids, dtype=np.int64)
+    k = ids.size
+    x = np.asarray(x_m, dtype=np.float64)
+    y = np.asarray(y_m, dtype=np.float64)
+    bx0 = np.asarray(bbox_x_min, dtype=np.int64)
+    bx1 = np.asarray(bbox_x_max, dtype=np.int64)
+    for name, col in (("x_m", x), ("y_m", y), ("bbox_x_min", bx0), ("bbox_x_max", bx1)):
+        if col.shape != (k,):
+            raise ValueError(f"{name} must have one value per object ({k}), got {col.shape}")
+    if k < 2:
+        return _empty_columns()
+    distance = np.hypot(x[:, None] - x[None, :], y[:, None] - y[None, :])
+    overlap = horizontal_overlap(bx0[:, None], bx1[:, None], bx0[None, :], bx1[None, :])
+    shared = np.zeros((k, k), dtype=np.float64)
+    matrices = ordering_matrices(x, y, margin_m=margin_m)
+    adjacent = np.zeros((k, k), dtype=bool)
+    occludes = np.zeros((k, k), dtype=bool)
+    position = {int(obj): i for i, obj in enumerate(ids)}
+    slices = ndimage.find_objects(np.where(lab > 0, lab, 0))
+    pad = gap_px + 1 + band_px
+    h, w = lab.shape
+    for i, obj in enumerate(ids):
+        if obj < 1 or obj > len(slices) or slices[obj - 1] is None:
+            continue
+        sl = slices[obj - 1]
+        crop = (
+            slice(max(sl[0].start - pad, 0), min(sl[0].stop + pad, h)),
+            slice(max(sl[1].start - pad, 0), min(sl[1].stop + pad, w)),
+        )
+        lab_c = lab[crop]
+        for other, share in region_neighbours(lab_c, int(obj), gap_px=gap_px).items():
+            j = position.get(other)
+            if j is None:
+                continue
+            adjacent[i, j] = True
+            shared[i, j] = share
+            if j < i:
+                continue  # each unordered pair is tested for occlusion once
+            diff = boundary_disparity_difference(
+                disp[crop], lab_c == obj, lab_c == other, band_px=band_px
+            )
+            if diff > occlusion_jump_px:
+                occludes[i, j] = True
+            elif -diff > occlusion_jump_px:
+                occludes[j, i] = True
+    # adjacency seen from either side counts (crops may clip the far side of big regions)
+    adjacent |= adjacent.T
+    matrices["adjacent"] = adjacent
+    matrices["occludes"] = occludes
+    parts: list[tuple[np.ndarray, int, np.ndarray]] = []
+    for rel_index, name in enumerate(RELATIONS):
+        si, oi = np.nonzero(matrices[name] & ~np.eye(k, dtype=bool))
+        parts.append((si, rel_index, oi))
+    subj = np.concatenate([p[0] for p in parts])
+    rel = np.concatenate([np.full(p[0].size, p[1]) for p in parts])
+    objc = np.concatenate([p[2] for p in parts])
+    order = np.lexsort((objc, rel, subj))
+    subj, rel, objc = subj[order], rel[order], objc[order]
+    names = np.array(RELATIONS, dtype=str)
+    return {
+        "subject_id": ids[subj].astype(np.int32),
+        "relation": names[rel] if rel.size else np.array([], dtype=str),
+        "object_id": ids[objc].astype(np.int32),
+        "distance_m": distance[subj, objc].astype(np.float64),
+        "overlap": overlap[subj, objc].astype(np.float64),
+        "shared_boundary": shared[subj, objc],
+    }

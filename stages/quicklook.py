@@ -1,0 +1,260 @@
+"""Quicklook PNGs per frame, drawn with OpenCV (a few milliseconds per image).
+
+``quicklooks/<frame_id>/objects.png``
+    Reference (right) image with each object's outline and id (the study's Fig. 10).
+``quicklooks/<frame_id>/range_contours.png``
+    Lines of equal range every ``range_step_m`` metres, labelled in metres, over the
+    reference image (Fig. 14 and 17). Range is smoothed by a NaN-aware Gaussian (sigma
+    1.5 px) and quantised to ``floor(range / step)``; the line pixels are where the quantised
+    level changes between 4-neighbours, so no contour runs along the image border.
+``quicklooks/<frame_id>/residual.png``
+    Left minus right beside left minus pseudo-left (Fig. 15 and 18), both on the same gray
+    scale (mid-gray = 0); undefined residual pixels are dark blue.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import cv2
+import numpy as np
+from scipy import ndimage
+
+from pipeline.stage import FrameContext, Param, Product, Stage, StageResult
+
+__all__ = [
+    "STAGE",
+    "objects_image",
+    "range_contours_image",
+    "residual_image",
+    "encode_png",
+    "run_quicklook",
+]
+
+_FONT = cv2.FONT_HERSHEY_SIMPLEX
+_MAX_LEVELS = 30
+_PANEL_GAP_PX = 4
+_UNDEFINED_BGR = (90, 20, 0)
+# Tableau-like palette (BGR), cycled by object id so neighbours usually differ
+_PALETTE = (
+    (180, 119, 31),
+    (14, 127, 255),
+    (44, 160, 44),
+    (40, 39, 214),
+    (189, 103, 148),
+    (75, 86, 140),
+    (194, 119, 227),
+    (34, 189, 188),
+    (207, 190, 23),
+)
+
+
+def _coerce_image(name: str, image: np.ndarray) -> np.ndarray:
+    a = np.asarray(image)
+    if a.ndim != 2:
+        raise ValueError(f"{name} must be a 2-D (M, N) gray image, got shape {a.shape}")
+    if a.dtype != np.uint8:
+        a = np.clip(np.nan_to_num(a.astype(np.float64)), 0, 255).astype(np.uint8)
+    return a
+
+
+def _check_shape(name: str, array: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    a = np.asarray(array)
+    if a.shape != shape:
+        raise ValueError(
+            f"{name} must have the reference image's shape {shape}, got {a.shape}; pass the "
+            "same frame's products"
+        )
+    return a
+
+
+def _text(img: np.ndarray, text: str, org: tuple[int, int], color: tuple[int, ...]) -> None:
+    scale = 0.35 if min(img.shape[:2]) < 300 else 0.45
+    cv2.putText(img, text, org, _FONT, scale, (0, 0, 0), 3, cv2.LINE_AA)
+    cv2.putText(img, text, org, _FONT, scale, color, 1, cv2.LINE_AA)
+
+
+def objects_image(gray: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """Reference image with object outlines and ids.
+
+    Parameters
+    ----------
+    gray : (M, N) ndarray of uint8
+    labels : (M, N) ndarray of int32
+        0 = background.
+
+    Returns
+    -------
+    (M, N, 3) ndarray of uint8
+        BGR image.
+    """
+    g = _coerce_image("gray", gray)
+    lab = _check_shape("labels", labels, g.shape)
+    out = cv2.cvtColor(g, cv2.COLOR_GRAY2BGR)
+    slices = ndimage.find_objects(np.where(lab > 0, lab, 0).astype(np.int64))
+    for index, sl in enumerate(slices, start=1):
+        if sl is None:
+            continue
+        mask = (lab[sl] == index).astype(np.uint8)
+        contours, _ = cv2.findContours(
+            mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE, offset=(sl[1].start, sl[0].start)
+        )
+        color = _PALETTE[index % len(_PALETTE)]
+        cv2.drawContours(out, contours, -1, color, 1, cv2.LINE_8)
+        # the most interior pixel stays inside concave or wrapped-around objects
+        inner = cv2.distanceTransform(np.pad(mask, 1), cv2.DIST_L2, 3)[1:-1, 1:-1]
+        row, col = np.unravel_index(int(np.argmax(inner)), inner.shape)
+        org = (int(col) + sl[1].start - 3, int(row) + sl[0].start + 4)
+        _text(out, str(index), org, color)
+    return out
+
+
+def _smooth_nan(values: np.ndarray, sigma: float) -> np.ndarray:
+    v = np.asarray(values, dtype=np.float32)
+    valid = np.isfinite(v).astype(np.float32)
+    num = cv2.GaussianBlur(np.where(valid > 0, v, 0).astype(np.float32), (0, 0), sigma)
+    den = cv2.GaussianBlur(valid, (0, 0), sigma)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(den > 0.5, num / den, np.nan)
+
+
+def range_contours_image(
+    gray: np.ndarray, range_m: np.ndarray, *, step_m: float = 0.25
+) -> np.ndarray:
+    """Lines of equal range, labelled in metres, over the reference image.
+
+    Parameters
+    ----------
+    gray : (M, N) ndarray of uint8
+    range_m : (M, N) ndarray of float32
+        Metres, NaN where invalid.
+    step_m : float
+        Spacing of the levels, metres, > 0 (widened to keep at most 30 lines).
+
+    Returns
+    -------
+    (M, N, 3) ndarray of uint8
+        BGR image.
+    """
+    if not (isinstance(step_m, int | float) and math.isfinite(step_m) and step_m > 0):
+        raise ValueError(f"step_m must be a finite number > 0, got {step_m!r}")
+    g = _coerce_image("gray", gray)
+    rng = _check_shape("range", range_m, g.shape).astype(np.float64)
+    out = cv2.cvtColor(g, cv2.COLOR_GRAY2BGR)
+    smooth = _smooth_nan(rng, 1.5)
+    finite = smooth[np.isfinite(smooth)]
+    if finite.size == 0:
+        return out
+    lo, hi = float(finite.min()), float(finite.max())
+    step = float(step_m) * max(1, math.ceil((hi - lo) / step_m / _MAX_LEVELS))
+    level = np.full(smooth.shape, -1, dtype=np.int64)
+    ok = np.isfinite(smooth)
+    level[ok] = np.floor(smooth[ok] / step).astype(np.int64)
+    # a crossing lies between 4-neighbours of different valid levels; mark the nearer pixel
+    cross = np.zeros(level.shape, dtype=np.int64)  # level index crossed (upper side), 0 none
+    for a, b in (
+        ((slice(None), slice(None, -1)), (slice(None), slice(1, None))),
+        ((slice(None, -1), slice(None)), (slice(1, None), slice(None))),
+    ):
+        la, lb = level[a], level[b]
+        change = (la >= 0) & (lb >= 0) & (la != lb)
+        upper = np.maximum(la, lb)
+        cross[a] = np.where(change & (upper > cross[a]), upper, cross[a])
+    levels = np.unique(cross[cross > 0])
+    if levels.size == 0:
+        return out
+    span = max(int(levels.max() - levels.min()), 1)
+    hues = ((levels - levels.min()) * 200 // span).astype(np.uint8)
+    colors = cv2.applyColorMap(hues.reshape(-1, 1), cv2.COLORMAP_JET).reshape(-1, 3)
+    center_x = g.shape[1] / 2.0
+    for lvl, color in zip(levels, colors, strict=True):
+        rows, cols = np.nonzero(cross == lvl)
+        bgr = tuple(int(c) for c in color)
+        out[rows, cols] = bgr
+        pick = int(np.argmin(np.abs(cols - center_x) + 0.01 * rows))
+        org = (max(int(cols[pick]) - 12, 0), max(int(rows[pick]) - 2, 8))
+        _text(out, f"{lvl * step:.2f} m", org, bgr)
+    return out
+
+
+def _diff_panel(diff: np.ndarray, scale: float) -> np.ndarray:
+    d = np.asarray(diff, dtype=np.float64)
+    undefined = ~np.isfinite(d)
+    gray = np.clip(128.0 + scale * np.where(undefined, 0.0, d), 0, 255).astype(np.uint8)
+    panel = cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR)
+    panel[undefined] = _UNDEFINED_BGR
+    return panel
+
+
+def residual_image(left: np.ndarray, right: np.ndarray, residual: np.ndarray) -> np.ndarray:
+    """Left minus right beside left minus pseudo-left, on one gray scale.
+
+    Parameters
+    ----------
+    left, right : (M, N) ndarray of uint8
+    residual : (M, N) ndarray of float32
+        Left minus pseudo-left, NaN where undefined.
+
+    Returns
+    -------
+    (M, 2 N + 4, 3) ndarray of uint8
+        BGR: left panel ``left - right``, right panel ``left - pseudo-left``; mid-gray is 0,
+        the scale maps the 99th percentile of ``|left - right|`` to full contrast.
+    """
+    lf = _coerce_image("left", left).astype(np.float64)
+    rt = _coerce_image("right", right).astype(np.float64)
+    _check_shape("right", rt, lf.shape)
+    res = _check_shape("residual", residual, lf.shape).astype(np.float64)
+    raw = lf - rt
+    spread = float(np.percentile(np.abs(raw), 99)) if raw.size else 0.0
+    scale = 127.0 / max(spread, 1.0)
+    h, w = lf.shape
+    out = np.full((h, 2 * w + _PANEL_GAP_PX, 3), 255, dtype=np.uint8)
+    out[:, :w] = _diff_panel(raw, scale)
+    out[:, w + _PANEL_GAP_PX :] = _diff_panel(res, scale)
+    _text(out, "left - right", (3, 12), (255, 255, 255))
+    _text(out, "left - pseudo-left", (w + _PANEL_GAP_PX + 3, 12), (255, 255, 255))
+    return out
+
+
+def encode_png(image: np.ndarray) -> bytes:
+    """PNG bytes of an 8-bit gray or BGR image."""
+    ok, buffer = cv2.imencode(".png", np.ascontiguousarray(image))
+    if not ok:
+        raise ValueError(f"cv2.imencode could not encode an image of shape {image.shape}")
+    return buffer.tobytes()
+
+
+def run_quicklook(
+    inputs: dict[str, np.ndarray], *, frame: FrameContext, params: dict[str, Any]
+) -> StageResult:
+    """Stage entry point: three PNGs under ``quicklooks/<frame_id>/``."""
+    if not params.get("enabled", True):
+        return StageResult(notes=["quicklooks disabled"])
+    prefix = f"quicklooks/{frame.frame_id}"
+    right = inputs["right"]
+    files = {
+        f"{prefix}/objects.png": encode_png(objects_image(right, inputs["labels"])),
+        f"{prefix}/range_contours.png": encode_png(
+            range_contours_image(right, inputs["range"], step_m=params.get("range_step_m", 0.25))
+        ),
+        f"{prefix}/residual.png": encode_png(
+            residual_image(inputs["left"], right, inputs["residual"])
+        ),
+    }
+    return StageResult(files=files)
+
+
+STAGE = Stage(
+    name="quicklook",
+    version="1",
+    inputs=("left", "right", "labels", "range", "residual"),
+    outputs=(Product("quicklooks", kind="files"),),
+    params=(
+        Param("enabled", bool, True, "write quicklook PNGs"),
+        Param("range_step_m", float, 0.25, "spacing of the range contours, m", minimum=0.001),
+    ),
+    run=run_quicklook,
+    doc="quicklook PNGs: object outlines, range contours, stereo residuals",
+)
