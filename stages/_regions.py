@@ -39,7 +39,6 @@ __all__ = [
     "depth_edges",
     "apply_depth_rules",
     "label_objects",
-    "otsu_labels",
 ]
 
 
@@ -322,24 +321,3 @@ def _renumber(labels: np.ndarray, min_area_px: int) -> np.ndarray:
     remap = np.zeros(int(values.max()) + 1, dtype=np.int32)
     remap[kept] = np.arange(1, kept.size + 1, dtype=np.int32)
     return remap[labels]
-
-
-def otsu_labels(image: np.ndarray, *, min_area_px: int = 30) -> np.ndarray:
-    """Baseline: one global Otsu threshold, the minority class is object, then components.
-
-    Parameters
-    ----------
-    image : (M, N) ndarray of uint8
-    min_area_px : int
-        Speck size, as in :func:`label_objects`.
-
-    Returns
-    -------
-    labels : (M, N) ndarray of int32
-    """
-    if not isinstance(image, np.ndarray) or image.dtype != np.uint8 or image.ndim != 2:
-        raise TypeError("image must be a 2-D uint8 array")
-    _, binary = cv2.threshold(image, 0, 1, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
-    bright = binary.astype(bool)
-    mask = bright if bright.mean() < 0.5 else ~bright
-    return label_objects(mask, min_area_px=min_area_px, fill=True)

@@ -10,7 +10,6 @@ from stages._regions import (
     depth_edges,
     fill_holes,
     label_objects,
-    otsu_labels,
     smooth_height,
     threshold_mask,
 )
@@ -130,11 +129,3 @@ def test_depth_edges_inside_one_object_do_not_fragment_it():
     disparity[20, 20] = 30.0  # an isolated outlier: median filtered away
     labels = label_objects(mask, edges=depth_edges(disparity, jump_px=1.5))
     assert labels.max() == 1
-
-
-def test_otsu_baseline_finds_a_dark_disk():
-    rng = np.random.default_rng(0)
-    image = rng.normal(160, 5, (80, 80))
-    image[disk((80, 80), 40, 40, 12)] = 50
-    labels = otsu_labels(np.clip(image, 0, 255).astype(np.uint8))
-    assert labels.max() == 1 and labels[40, 40] == 1

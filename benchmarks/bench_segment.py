@@ -1,0 +1,181 @@
+"""Segmentation benchmark: speed per 500x500 frame and object F1 per archetype.
+
+Usage (from the repository root)::
+
+    PYTHONPATH=. .venv/bin/python benchmarks/bench_segment.py              # speed + scores
+    PYTHONPATH=. .venv/bin/python benchmarks/bench_segment.py --frames 4 --archetypes lab lava
+    PYTHONPATH=. .venv/bin/python benchmarks/bench_segment.py --depth stage   # depth stage input
+    PYTHONPATH=. .venv/bin/python benchmarks/bench_segment.py --speed-only
+
+Speed: milliseconds per frame of :func:`stages.segment.segment_image` on one core (OpenCV
+single-threaded), median of ``--repeats`` runs, for both methods.
+
+Scores: object precision / recall / F1 at IoU >= 0.5 over truth rocks of at least 30 visible
+pixels (``pipeline.metrics``, the scorer of ``arroyo evaluate``), pooled over the frames of
+each archetype rendered by ``pipeline.synth.render_pair``, for the faithful method, the depth
+method and the global Otsu baseline. ``--depth truth`` feeds the true height and disparity
+(plus ``--depth-noise`` px of Gaussian disparity noise) to isolate the segmentation from the
+depth stage; ``--depth stage`` runs ``stages.depth`` first.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from collections.abc import Callable
+
+import cv2
+import numpy as np
+
+from pipeline.metrics import pool_segmentation_scores, segmentation_scores
+from stages.segment import segment_image
+
+ARCHETYPES = ("lab", "mojave", "lava", "dunes")
+
+
+def _handmade_frame(size: int = 500, seed: int = 0) -> np.ndarray:
+    """A 500x500 gradient-lit ground with dark and light disks, when no renderer exists."""
+    rng = np.random.default_rng(seed)
+    yy, xx = np.mgrid[:size, :size]
+    image = 120 + 50 * xx / size + rng.normal(0, 6, (size, size))
+    for _ in range(25):
+        cy, cx, r = rng.integers(0, size), rng.integers(0, size), rng.integers(5, 30)
+        image[(yy - cy) ** 2 + (xx - cx) ** 2 < r * r] = rng.choice([40, 230])
+    return np.clip(image, 0, 255).astype(np.uint8)
+
+
+def _render(archetype: str, seed: int, size: int):
+    from pipeline.synth import render_pair
+
+    rendered = render_pair(archetype, seed=seed, size=size)
+    left, right, truth = rendered[0], rendered[1], rendered[2]
+    camera = rendered[4] if len(rendered) > 4 else None
+    return left, right, truth, camera
+
+
+def _time_ms(fn: Callable[[], object], repeats: int) -> float:
+    fn()  # warm-up (imports, caches)
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - start)
+    return 1e3 * float(np.median(times))
+
+
+def speed(repeats: int, size: int) -> None:
+    cv2.setNumThreads(1)
+    try:
+        _, right, truth, _ = _render("mojave", 0, size)
+        height, disparity = truth["height"], truth["disparity"]
+        source = "pipeline.synth mojave seed 0"
+    except ImportError:
+        right = _handmade_frame(size)
+        height = np.zeros(right.shape, np.float32)
+        disparity = np.full(right.shape, 20.0, np.float32)
+        source = "hand-made frame (pipeline.synth not available)"
+    print(f"speed on a {size}x{size} frame ({source}), one core, median of {repeats}:")
+    for method in ("sector-histogram", "sector-histogram+depth"):
+        for sectors in (16, 8):
+            ms = _time_ms(
+                lambda m=method, s=sectors: segment_image(
+                    right, method=m, sectors=s, height=height, disparity=disparity
+                ),
+                repeats,
+            )
+            print(f"  {method:24s} {sectors:2d}x{sectors:<2d} {ms:7.1f} ms/frame")
+
+
+def _depth_inputs(kind: str, left, right, truth, camera, noise_px: float, rng):
+    if kind == "truth":
+        disparity = truth["disparity"].astype(np.float32)
+        height = truth["height"].astype(np.float32)
+        if noise_px > 0:
+            # perturb height consistently with a disparity error: dh ~ dZ ~ Z * dd / d
+            error = rng.normal(0, noise_px, disparity.shape).astype(np.float32)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                range_m = camera.k_m_px / disparity if camera is not None else 2.0
+                height = height + (range_m * error / disparity).astype(np.float32) * 0.5
+            disparity = disparity + error
+        return height, disparity
+    from stages import depth as depth_stage
+
+    params = depth_stage.STAGE.defaults()
+    from pipeline.stage import FrameContext
+
+    frame = FrameContext(frame_id="bench", archive="bench", camera=camera)
+    result = depth_stage.STAGE.run({"left": left, "right": right}, frame=frame, params=params)
+    return result.arrays.get("height"), result.arrays.get("disparity")
+
+
+def scores(archetypes, frames: int, size: int, depth: str, noise_px: float, overrides) -> None:
+    from pipeline._baselines import otsu_labels
+
+    rng = np.random.default_rng(0)
+    header = f"{'archetype':9s} {'method':24s} {'prec':>6s} {'recall':>6s} {'F1':>6s} {'mIoU':>6s}"
+    print(f"object scores at IoU >= 0.5, {frames} frames each, depth input: {depth}")
+    print(header)
+    for archetype in archetypes:
+        per_method: dict[str, list] = {"sector-histogram": [], "sector-histogram+depth": []}
+        per_method["otsu"] = []
+        for seed in range(frames):
+            left, right, truth, camera = _render(archetype, seed, size)
+            true_labels = truth["labels"]
+            height, disparity = _depth_inputs(depth, left, right, truth, camera, noise_px, rng)
+            for method in ("sector-histogram", "sector-histogram+depth"):
+                labels = segment_image(
+                    right, method=method, height=height, disparity=disparity, **overrides
+                ).labels
+                per_method[method].append(segmentation_scores(labels, true_labels))
+            per_method["otsu"].append(segmentation_scores(otsu_labels(right), true_labels))
+        for method, results in per_method.items():
+            pooled = pool_segmentation_scores(results)
+            print(
+                f"{archetype:9s} {method:24s} {pooled['precision']:6.3f} {pooled['recall']:6.3f} "
+                f"{pooled['f1']:6.3f} {pooled['mean_iou']:6.3f}"
+                f"   (tp {pooled['tp']:.0f} fp {pooled['fp']:.0f} fn {pooled['fn']:.0f})"
+            )
+
+
+def _parse_overrides(items: list[str]) -> dict:
+    overrides = {}
+    for item in items:
+        key, _, text = item.partition("=")
+        for cast in (int, float):
+            try:
+                overrides[key] = cast(text)
+                break
+            except ValueError:
+                continue
+        else:
+            overrides[key] = {"true": True, "false": False}.get(text.lower(), text)
+    return overrides
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--archetypes", nargs="+", default=list(ARCHETYPES))
+    parser.add_argument("--frames", type=int, default=3)
+    parser.add_argument("--size", type=int, default=500)
+    parser.add_argument("--repeats", type=int, default=10)
+    parser.add_argument("--depth", choices=("truth", "stage"), default="truth")
+    parser.add_argument("--depth-noise", type=float, default=0.0, help="px, truth depth only")
+    parser.add_argument("--speed-only", action="store_true")
+    parser.add_argument("--scores-only", action="store_true")
+    parser.add_argument("--set", nargs="*", default=[], help="segment_image overrides k=v")
+    args = parser.parse_args()
+    if not args.scores_only:
+        speed(args.repeats, args.size)
+    if not args.speed_only:
+        scores(
+            args.archetypes,
+            args.frames,
+            args.size,
+            args.depth,
+            args.depth_noise,
+            _parse_overrides(args.set),
+        )
+
+
+if __name__ == "__main__":
+    main()
