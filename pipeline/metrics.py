@@ -198,6 +198,10 @@ class ObjectMatches:
     def fn(self) -> int:
         return self.n_true - self.tp
 
+    def scores(self) -> dict[str, float]:
+        """The scores of :func:`segmentation_scores` for these matches."""
+        return _segmentation_rates(self.tp, self.fp, self.fn, float(self.iou.sum()))
+
 
 def _present_ids(labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Ids > 0 present in ``labels`` and a dense index image (0 = background, 1..n = ids)."""
@@ -309,10 +313,9 @@ def segmentation_scores(
         matched pairs), and the counts ``tp``, ``fp``, ``fn``, ``iou_sum``. A rate whose
         denominator is 0 is NaN (no predictions: precision undefined, and fp = 0 says so).
     """
-    m = match_objects(
+    return match_objects(
         pred_labels, true_labels, iou_threshold=iou_threshold, min_true_px=min_true_px
-    )
-    return _segmentation_rates(m.tp, m.fp, m.fn, float(m.iou.sum()))
+    ).scores()
 
 
 def _segmentation_rates(tp: float, fp: float, fn: float, iou_sum: float) -> dict[str, float]:

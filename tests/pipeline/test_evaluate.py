@@ -1,0 +1,279 @@
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+import xarray as xr
+
+from pipeline._baselines import otsu_labels, sgbm_disparity
+from pipeline.errors import RunDirError
+from pipeline.evaluate import AGGREGATE, EVALUATION_SCHEMA, evaluate_run, format_evaluation
+
+H, W, D = 64, 96, 6  # frame size and the constant ground disparity of the fixture
+ROCKS = [(10, 30, 10, 30), (30, 50, 50, 80)]  # (y0, y1, x0, x1) of rocks 1 and 2
+
+
+def _scene(seed: int) -> dict[str, np.ndarray]:
+    """A fronto-parallel textured scene with two dark rocks, and its exact left image."""
+    rng = np.random.default_rng(seed)
+    right = rng.integers(140, 220, size=(H, W)).astype(np.uint8)
+    labels = np.zeros((H, W), dtype=np.int32)
+    for k, (y0, y1, x0, x1) in enumerate(ROCKS, start=1):
+        labels[y0:y1, x0:x1] = k
+        right[y0:y1, x0:x1] = rng.integers(20, 70, size=(y1 - y0, x1 - x0))
+    left = rng.integers(140, 220, size=(H, W)).astype(np.uint8)
+    left[:, D:] = right[:, :-D]  # left(x + d) = right(x)
+    disparity = np.full((H, W), D, dtype=np.float32)
+    occluded = np.zeros((H, W), dtype=bool)
+    occluded[:, W - D :] = True  # seen by the right camera only
+    rng_m = (430.0 * 0.1 / disparity).astype(np.float32)
+    rng_m[labels == 1] -= 0.2  # rock 1 is nearer
+    return {
+        "left": left,
+        "right": right,
+        "disparity": disparity,
+        "range": rng_m,
+        "height": np.zeros((H, W), dtype=np.float32),
+        "labels": labels,
+        "occluded": occluded,
+    }
+
+
+def _rocks(frame_id: str) -> list[dict]:
+    return [
+        {
+            "frame_id": frame_id,
+            "rock_id": 1,
+            "x_m": -0.3,
+            "y_m": 1.5,
+            "z_m": 0.0,
+            "width_m": 0.12,
+            "length_m": 0.1,
+            "height_m": 0.05,
+            "range_m": 1.6,
+            "albedo": 0.1,
+            "polarity": "darker",
+            "visible_px": 400,
+            "size_class": "sample",
+            "buried_fraction": 0.2,
+        },
+        {
+            "frame_id": frame_id,
+            "rock_id": 2,
+            "x_m": 0.4,
+            "y_m": 2.5,
+            "z_m": 0.0,
+            "width_m": 0.3,
+            "length_m": 0.25,
+            "height_m": 0.2,
+            "range_m": 2.6,
+            "albedo": 0.1,
+            "polarity": "darker",
+            "visible_px": 600,
+            "size_class": "obstacle",
+            "buried_fraction": 0.1,
+        },
+    ]
+
+
+def _descriptor_rows(frame_id: str) -> list[dict]:
+    rows = []
+    for rock in _rocks(frame_id):
+        rows.append(
+            {
+                "archive": "fixture",
+                "run_id": "r1",
+                "frame_id": frame_id,
+                "object_id": rock["rock_id"],
+                "height_m": rock["height_m"] - 0.01,
+                "height_max_m": rock["height_m"] + 0.01,
+                "width_m": rock["width_m"] * 1.1,
+                "range_m": rock["range_m"],
+                "size_class": rock["size_class"],
+            }
+        )
+    return rows
+
+
+def _relation_rows(frame_id: str) -> list[dict]:
+    base = {"archive": "fixture", "run_id": "r1", "frame_id": frame_id}
+    return [
+        {**base, "subject_id": 1, "relation": "left_of", "object_id": 2, "distance_m": 1.0},
+        {**base, "subject_id": 1, "relation": "in_front_of", "object_id": 2, "distance_m": 1.0},
+        {**base, "subject_id": 2, "relation": "left_of", "object_id": 1, "distance_m": 1.0},
+        {**base, "subject_id": 1, "relation": "adjacent", "object_id": 2, "distance_m": 1.0},
+    ]
+
+
+@pytest.fixture
+def rundir(tmp_path: Path) -> Path:
+    """A run of three frames: f0 perfect, f1 with a depth error, f2 failed; f3 has no truth."""
+    truth_dir = tmp_path / "archive" / "truth"
+    truth_dir.mkdir(parents=True)
+    run = tmp_path / "run"
+    run.mkdir()
+    frame_ids = ["f0", "f1", "f2", "f3"]
+    scenes = [_scene(i) for i in range(4)]
+    rocks = []
+    for fid, scene in zip(frame_ids[:3], scenes, strict=False):
+        np.savez(
+            truth_dir / f"{fid}.npz",
+            **{k: scene[k] for k in ("disparity", "range", "height", "labels", "occluded")},
+        )
+        rocks += _rocks(fid)
+    pq.write_table(pa.Table.from_pylist(rocks), truth_dir / "rocks.parquet")
+
+    disparity = np.stack([s["disparity"] for s in scenes])
+    disparity[1, : H // 2, : W // 2] += 1.5  # a quarter of frame f1 off by 1.5 px
+    disparity[2] = np.nan
+    stack = {k: np.stack([s[k] for s in scenes]) for k in ("left", "right", "labels")}
+    ds = xr.Dataset(
+        {
+            "left": (("frame", "y", "x"), stack["left"]),
+            "right": (("frame", "y", "x"), stack["right"]),
+            "labels": (("frame", "y", "x"), stack["labels"]),
+            "disparity": (("frame", "y", "x"), disparity),
+        },
+        coords={"frame": np.array(frame_ids, dtype=object)},
+    )
+    ds.to_zarr(run / "products.zarr", zarr_format=3, consolidated=False)
+    frames = pa.Table.from_pylist(
+        [
+            {"frame_id": "f0", "status": "done", "error": None, "depth_seconds": 0.1},
+            {"frame_id": "f1", "status": "done", "error": None, "depth_seconds": 0.3},
+            {"frame_id": "f2", "status": "failed", "error": "boom", "depth_seconds": None},
+            {"frame_id": "f3", "status": "done", "error": None, "depth_seconds": 0.1},
+        ]
+    )
+    pq.write_table(frames, run / "frames.parquet")
+    for name, rows in (("descriptors", _descriptor_rows), ("relations", _relation_rows)):
+        (run / f"{name}.parquet").mkdir()
+        table = pa.Table.from_pylist(rows("f0") + rows("f1") + rows("f3"))
+        pq.write_table(table, run / f"{name}.parquet" / "part-0.parquet")
+    meta = {
+        "run_id": "r1",
+        "archive": "fixture",
+        "catalog": {
+            "source": "fixture.toml",
+            "path": str(tmp_path / "archive" / "catalog.toml"),
+            "sha256": "0" * 64,
+            "truth_dir": str(truth_dir),
+        },
+        "camera": {"focal_px": 430.0, "baseline_m": 0.1, "reference": "right"},
+        "stages": {"depth": {"version": "1", "params": {"max_disparity": 15}}},
+    }
+    (run / "run.json").write_text(json.dumps(meta))
+    return run
+
+
+def _value(table: pa.Table, *, frame_id, product, method, metric) -> float:
+    hits = [
+        r["value"]
+        for r in table.to_pylist()
+        if (r["frame_id"], r["product"], r["method"], r["metric"])
+        == (frame_id, product, method, metric)
+    ]
+    assert len(hits) == 1, (frame_id, product, method, metric, hits)
+    return hits[0]
+
+
+def test_evaluate_run_scores_fixture(rundir: Path):
+    table = evaluate_run(rundir)
+    assert table.schema == EVALUATION_SCHEMA
+    written = pq.read_table(rundir / "evaluation.parquet")
+    assert written.equals(table)
+    assert set(table.column("frame_id").to_pylist()) == {"f0", "f1", AGGREGATE}
+
+    def v(frame_id, product, method, metric):
+        return _value(table, frame_id=frame_id, product=product, method=method, metric=metric)
+
+    assert v("f0", "depth", "arroyo", "bad1") == 0.0
+    # a quarter of the frame off by 1.5 px, scored on the non-occluded columns only
+    n_noc = H * (W - D)
+    assert v("f1", "depth", "arroyo", "bad1") == pytest.approx((H // 2) * (W // 2) / n_noc)
+    assert v("f1", "depth", "arroyo", "bad2") == 0.0
+    assert v(AGGREGATE, "depth", "arroyo", "bad1") == pytest.approx(
+        (H // 2) * (W // 2) / (2 * n_noc)
+    )
+    assert v(AGGREGATE, "depth", "arroyo", "n_frames") == 2
+    assert v(AGGREGATE, "depth", "arroyo", "seconds_per_frame") == pytest.approx(0.2)
+    # SGBM on an exactly shifted texture is good but not perfect (borders, rock edges)
+    assert v(AGGREGATE, "depth", "opencv-sgbm", "bad2") < 0.3
+    assert v(AGGREGATE, "depth", "opencv-sgbm", "n_frames") == 2
+
+    assert v(AGGREGATE, "segmentation", "arroyo", "f1") == 1.0
+    assert v(AGGREGATE, "segmentation", "arroyo", "mean_iou") == 1.0
+    assert v(AGGREGATE, "segmentation", "otsu", "f1") == 1.0  # dark rocks on light ground
+
+    assert v(AGGREGATE, "descriptors", "arroyo", "n_rocks") == 4
+    assert v(AGGREGATE, "descriptors", "arroyo", "height_abs_err_median_m") == pytest.approx(0.01)
+    assert v(AGGREGATE, "descriptors", "arroyo", "width_rel_err_median") == pytest.approx(0.1)
+    assert v(AGGREGATE, "descriptors", "arroyo", "range_rel_err_p90") == 0.0
+    assert v(AGGREGATE, "descriptors", "arroyo", "class_accuracy") == 1.0
+    assert v(AGGREGATE, "descriptors", "arroyo", "near_n_rocks") == 2  # rock 1 at 1.6 m
+
+    # per frame: left_of 1->2 ok, in_front_of ok, left_of 2->1 wrong, adjacent unchecked;
+    assert v("f0", "relations", "arroyo", "agreement") == pytest.approx(2 / 3)
+    assert v(AGGREGATE, "relations", "arroyo", "n_checked") == 6
+    assert v(AGGREGATE, "relations", "arroyo", "n_unchecked") == 2
+
+    text = format_evaluation(table)
+    assert "fixture: 2 frames scored" in text
+    assert "opencv-sgbm" in text and "otsu" in text and "bad-2" in text
+
+
+def test_evaluate_without_optional_products(rundir: Path):
+    """Only ingest has run: baselines are still scored on every ingested frame with truth."""
+    ds = xr.open_zarr(rundir / "products.zarr", consolidated=False)
+    only_images = ds[["left", "right"]].load()
+    ds.close()
+    only_images.to_zarr(rundir / "images.zarr", zarr_format=3, consolidated=False)
+    (rundir / "products.zarr").rename(rundir / "full.zarr")
+    (rundir / "images.zarr").rename(rundir / "products.zarr")
+    for name in ("descriptors", "relations"):
+        (rundir / f"{name}.parquet" / "part-0.parquet").unlink()
+        (rundir / f"{name}.parquet").rmdir()
+    table = evaluate_run(rundir)
+    methods = {(r["product"], r["method"]) for r in table.to_pylist()}
+    assert methods == {("depth", "opencv-sgbm"), ("segmentation", "otsu")}
+
+
+def test_missing_rundir_and_run_json(tmp_path: Path):
+    with pytest.raises(RunDirError, match="does not exist"):
+        evaluate_run(tmp_path / "nope")
+    with pytest.raises(RunDirError, match="run.json is missing"):
+        evaluate_run(tmp_path)
+    with pytest.raises(TypeError, match="path"):
+        evaluate_run(42)
+
+
+def test_catalog_without_truth(rundir: Path):
+    meta = json.loads((rundir / "run.json").read_text())
+    meta["catalog"]["truth_dir"] = None
+    (rundir / "run.json").write_text(json.dumps(meta))
+    with pytest.raises(RunDirError, match="no ground truth"):
+        evaluate_run(rundir)
+    assert not (rundir / "evaluation.parquet").exists()
+
+
+def test_sgbm_baseline_recovers_a_shift_in_right_geometry():
+    scene = _scene(7)
+    disparity = sgbm_disparity(scene["left"], scene["right"], min_disparity=0, max_disparity=15)
+    inner = disparity[8:-8, 8 : W - 16]
+    assert np.nanmedian(inner) == pytest.approx(D)
+    assert np.isfinite(inner).mean() > 0.9
+
+
+@pytest.mark.parametrize("dark_objects", [True, False])
+def test_otsu_baseline_takes_the_minority_side(dark_objects):
+    image = np.full((40, 40), 180 if dark_objects else 60, dtype=np.uint8)
+    image[5:15, 5:15] = 40 if dark_objects else 220
+    image[25:35, 20:30] = 40 if dark_objects else 220
+    image[0, 39] = image[5, 5]  # a speck below the minimum area
+    labels = otsu_labels(image, min_area_px=30)
+    assert labels.max() == 2 and labels[0, 39] == 0
+    assert set(np.unique(labels[5:15, 5:15])) == {1}
