@@ -1,0 +1,67 @@
+"""Graph construction: order from product names, and its named errors."""
+
+from __future__ import annotations
+
+import pytest
+
+from pipeline.errors import DuplicateOutputError, GraphCycleError, MissingProductError, ParamError
+from pipeline.graph import build_graph, describe_graph, discover_stages, parse_set_overrides
+from pipeline.stage import Param, Product, Stage, StageResult
+
+
+def _stage(name, inputs, outputs, optional=()):
+    return Stage(
+        name=name, version="1", inputs=tuple(inputs),
+        outputs=tuple(Product(o, dtype="float32") for o in outputs),
+        params=(Param("k", int, 1, "a knob", minimum=0),),
+        run=lambda inputs, *, frame, params: StageResult(), optional_inputs=tuple(optional),
+    )
+
+
+def test_order_follows_products_not_declaration_order():
+    graph = build_graph([_stage("c", ["b"], ["c"]), _stage("a", [], ["a"]), _stage("b", ["a"], ["b"])])
+    assert [s.name for s in graph.stages] == ["a", "b", "c"]
+    assert graph.downstream(["b"]) == {"b", "c"}
+    assert graph.upstream(graph.stage("c")) == ("b",)
+
+
+def test_optional_inputs_order_only_when_present():
+    graph = build_graph([_stage("b", [], ["b"], optional=["a", "zzz"]), _stage("a", [], ["a"])])
+    assert [s.name for s in graph.stages] == ["a", "b"]
+    assert graph.inputs_of(graph.stage("b")) == ("a",)
+
+
+def test_cycle_is_a_named_error():
+    with pytest.raises(GraphCycleError, match="cycle"):
+        build_graph([_stage("a", ["y"], ["x"]), _stage("b", ["x"], ["y"])])
+
+
+def test_duplicate_output_names_both_stages():
+    with pytest.raises(DuplicateOutputError, match="'a'.*'b'"):
+        build_graph([_stage("a", [], ["x"]), _stage("b", [], ["x"])])
+
+
+def test_missing_product_is_named():
+    with pytest.raises(MissingProductError, match="reads product 'ghost'"):
+        build_graph([_stage("a", ["ghost"], ["x"])])
+
+
+def test_set_overrides_are_parsed_and_validated():
+    graph = build_graph([_stage("a", [], ["x"])])
+    assert parse_set_overrides(graph, ["a.k=4"]) == {"a": {"k": 4}}
+    with pytest.raises(ParamError, match="STAGE.PARAM=VALUE"):
+        parse_set_overrides(graph, ["k=4"])
+    with pytest.raises(ParamError, match=">= 0"):
+        parse_set_overrides(graph, ["a.k=-1"])
+
+
+def test_shipped_graph_is_ordered_and_describable():
+    graph = build_graph(discover_stages())
+    names = [s.name for s in graph.stages]
+    assert names[0] == "ingest"
+    text = describe_graph(graph)
+    assert "1. ingest" in text
+    dot = describe_graph(graph, fmt="dot")
+    assert dot.startswith("digraph arroyo")
+    with pytest.raises(ValueError, match="'text' or 'dot'"):
+        describe_graph(graph, fmt="svg")
