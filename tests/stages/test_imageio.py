@@ -1,0 +1,374 @@
+"""Image decoding: formats, content conversions, every bad file, fuzzing."""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import struct
+import zlib
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from pipeline.errors import FrameError
+from stages import _imageio
+from stages._imageio import DecodedImage, decode_gray, read_gray, read_header, to_gray_uint8
+
+EXTENSIONS = (".png", ".jpg", ".tif", ".pgm", ".bmp")
+
+
+@pytest.fixture(scope="module")
+def gray() -> np.ndarray:
+    rng = np.random.default_rng(7)
+    return rng.integers(0, 256, size=(48, 64), dtype=np.uint8)
+
+
+@pytest.fixture(scope="module")
+def colour() -> np.ndarray:
+    rng = np.random.default_rng(8)
+    return rng.integers(0, 256, size=(48, 64, 3), dtype=np.uint8)
+
+
+def write(path: Path, image: np.ndarray, *params: int) -> Path:
+    assert cv2.imwrite(str(path), image, list(params)), path
+    return path
+
+
+def encoded(extension: str, image: np.ndarray) -> bytes:
+    ok, buffer = cv2.imencode(extension, image)
+    assert ok
+    return buffer.tobytes()
+
+
+def assert_frame_error(path: Path, *fragments: str, **kwargs: int) -> str:
+    with pytest.raises(FrameError) as info:
+        read_gray(path, **kwargs)
+    message = str(info.value)
+    assert str(path) in message
+    for fragment in fragments:
+        assert fragment in message, f"{fragment!r} not in {message!r}"
+    return message
+
+
+# --- good files ---------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("extension", [".png", ".tif", ".tiff", ".pgm", ".bmp"])
+def test_lossless_gray_roundtrip(tmp_path: Path, gray: np.ndarray, extension: str) -> None:
+    path = write(tmp_path / f"f{extension}", gray)
+    decoded = read_gray(path)
+    assert isinstance(decoded, DecodedImage)
+    np.testing.assert_array_equal(decoded.image, gray)
+    assert decoded.image.dtype == np.uint8 and decoded.image.flags.c_contiguous
+    assert decoded.notes == []
+    assert decoded.nbytes == path.stat().st_size
+    assert decoded.sha256 == hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def test_ascii_pgm_and_jpeg(tmp_path: Path, gray: np.ndarray) -> None:
+    ascii_pgm = write(tmp_path / "a.pgm", gray, cv2.IMWRITE_PXM_BINARY, 0)
+    assert ascii_pgm.read_bytes().startswith(b"P2")
+    np.testing.assert_array_equal(read_gray(ascii_pgm).image, gray)
+    smooth = cv2.GaussianBlur(gray, (0, 0), 3)
+    jpeg = read_gray(write(tmp_path / "a.jpg", smooth, cv2.IMWRITE_JPEG_QUALITY, 95))
+    assert jpeg.format == "JPEG" and jpeg.image.shape == gray.shape
+    assert np.abs(jpeg.image.astype(int) - smooth).mean() < 2
+
+
+@pytest.mark.parametrize("extension", [".png", ".jpg", ".tif", ".ppm", ".bmp"])
+def test_colour_converted_to_gray_with_note(
+    tmp_path: Path, colour: np.ndarray, extension: str
+) -> None:
+    decoded = read_gray(write(tmp_path / f"c{extension}", colour))
+    assert decoded.image.shape == colour.shape[:2]
+    assert any("converted to gray" in note for note in decoded.notes)
+    if extension != ".jpg":
+        np.testing.assert_array_equal(decoded.image, cv2.cvtColor(colour, cv2.COLOR_BGR2GRAY))
+
+
+def test_identical_channels_and_alpha(tmp_path: Path, gray: np.ndarray) -> None:
+    decoded = read_gray(write(tmp_path / "g3.png", np.dstack([gray] * 3)))
+    np.testing.assert_array_equal(decoded.image, gray)
+    assert decoded.notes == ["3 identical colour channels reduced to one"]
+    bgra = np.dstack([gray, gray, gray, np.full_like(gray, 9)])
+    decoded = read_gray(write(tmp_path / "g4.png", bgra))
+    np.testing.assert_array_equal(decoded.image, gray)
+    assert "alpha channel ignored" in decoded.notes
+
+
+@pytest.mark.parametrize("extension", [".png", ".tif", ".pgm"])
+def test_16bit_scaled_by_shift(tmp_path: Path, gray: np.ndarray, extension: str) -> None:
+    wide = gray.astype(np.uint16) * 257 + 3
+    decoded = read_gray(write(tmp_path / f"w{extension}", wide))
+    np.testing.assert_array_equal(decoded.image, (wide >> 8).astype(np.uint8))
+    assert any("16-bit samples scaled to 8 bits by >> 8" in note for note in decoded.notes)
+    assert not any("dark" in note for note in decoded.notes)
+
+
+def test_12bit_data_in_16bit_file_gets_dark_note(tmp_path: Path, gray: np.ndarray) -> None:
+    twelve = gray.astype(np.uint16) * 16
+    decoded = read_gray(write(tmp_path / "t.png", twelve))
+    np.testing.assert_array_equal(decoded.image, (twelve >> 8).astype(np.uint8))
+    assert any("only 12 bits" in note and "dark" in note for note in decoded.notes)
+
+
+def test_float_tiff_unit_and_255_ranges(tmp_path: Path, gray: np.ndarray) -> None:
+    unit = gray.astype(np.float32) / 255.0
+    decoded = read_gray(write(tmp_path / "u.tif", unit))
+    np.testing.assert_array_equal(decoded.image, gray)
+    assert any("[0, 1] scaled by 255" in note for note in decoded.notes)
+    levels = np.minimum(gray.astype(np.float32) + 0.25, 255)
+    decoded = read_gray(write(tmp_path / "l.tif", levels))
+    np.testing.assert_array_equal(decoded.image, gray)
+    assert any("[0, 255] rounded" in note for note in decoded.notes)
+
+
+@pytest.mark.parametrize(
+    ("bad_value", "fragments"),
+    [
+        (np.nan, ("1 NaN and 0 infinite pixels",)),
+        (np.inf, ("0 NaN and 1 infinite pixels",)),
+        (-np.inf, ("infinite",)),
+        (-3.0, ("span [-3", "expected [0, 1] or [0, 255]")),
+        (300.0, ("300]",)),
+    ],
+)
+def test_float_tiff_bad_values_fail_the_frame(
+    tmp_path: Path, gray: np.ndarray, bad_value: float, fragments: tuple[str, ...]
+) -> None:
+    image = gray.astype(np.float32)
+    image[5, 7] = bad_value
+    assert_frame_error(write(tmp_path / "bad.tif", image), *fragments)
+
+
+@pytest.mark.parametrize("value", [0, 128, 255])
+def test_constant_and_saturated_frames_decode(tmp_path: Path, value: int) -> None:
+    image = np.full((40, 50), value, dtype=np.uint8)
+    decoded = read_gray(write(tmp_path / "k.png", image))
+    np.testing.assert_array_equal(decoded.image, image)
+    assert decoded.notes == [f"constant frame: every pixel is {value}"]
+
+
+def test_extension_mismatch_is_noted(tmp_path: Path, gray: np.ndarray) -> None:
+    path = tmp_path / "really_png.jpg"
+    path.write_bytes(encoded(".png", gray))
+    decoded = read_gray(path)
+    np.testing.assert_array_equal(decoded.image, gray)
+    assert decoded.format == "PNG"
+    assert "content is PNG although the file name ends in .jpg" in decoded.notes
+
+
+# --- bad files ----------------------------------------------------------------------------
+
+
+def test_missing_file_and_directory(tmp_path: Path) -> None:
+    assert_frame_error(tmp_path / "absent.png", "missing file")
+    assert_frame_error(tmp_path, "is a directory")
+
+
+def test_zero_bytes_and_too_short(tmp_path: Path) -> None:
+    empty = tmp_path / "empty.png"
+    empty.write_bytes(b"")
+    assert_frame_error(empty, "empty (zero bytes)")
+    short = tmp_path / "short.tif"
+    short.write_bytes(b"II*")
+    assert_frame_error(short, "only 3 bytes long")
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="needs os.mkfifo")
+def test_fifo_is_refused_without_blocking(tmp_path: Path) -> None:
+    fifo = tmp_path / "pipe.png"
+    os.mkfifo(fifo)
+    assert_frame_error(fifo, "not a regular file")
+
+
+@pytest.mark.skipif(
+    not hasattr(os, "geteuid") or os.geteuid() == 0,
+    reason="running as root: root reads files whatever their permissions",
+)
+def test_unreadable_permissions(tmp_path: Path, gray: np.ndarray) -> None:
+    path = write(tmp_path / "locked.png", gray)
+    path.chmod(0)
+    assert_frame_error(path, "permission denied")
+
+
+@pytest.mark.parametrize("extension", EXTENSIONS)
+@pytest.mark.parametrize("fraction", [0.1, 0.5, 0.9, 0.999])
+def test_truncated_files_are_refused(
+    tmp_path: Path, gray: np.ndarray, extension: str, fraction: float
+) -> None:
+    data = encoded(extension, gray)
+    path = tmp_path / f"cut{extension}"
+    cut = min(int(len(data) * fraction), len(data) - 2)
+    path.write_bytes(data[:cut])
+    message = assert_frame_error(path)
+    assert "truncated" in message or "corrupt" in message or "too short" in message
+
+
+def test_truncated_png_jpeg_tiff_messages(tmp_path: Path, gray: np.ndarray) -> None:
+    for extension, fragment in [
+        (".png", "truncated PNG file"),
+        (".jpg", "no end-of-image marker"),
+        (".tif", "truncated TIFF file"),
+    ]:
+        data = encoded(extension, gray)
+        path = tmp_path / f"t{extension}"
+        path.write_bytes(data[: len(data) * 2 // 3])
+        assert_frame_error(path, fragment, "cut short")
+
+
+@pytest.mark.parametrize(
+    ("content", "fragment"),
+    [
+        (b"GIF89a\x10\x00\x10\x00\x00\x00\x00;", "GIF is not a supported image format"),
+        (b"RIFF\x00\x00\x00\x00WEBPVP8 ", "WebP is not a supported"),
+        (b"P4\n8 8\n" + bytes(8), "PBM bitmap is not a supported"),
+        (b"frame_id,left,right\nf1,a.png,b.png\n", "the file is text, not an image"),
+        (bytes(range(200, 256)) * 4, "unrecognised content (first bytes c8 c9"),
+    ],
+)
+def test_unsupported_formats(tmp_path: Path, content: bytes, fragment: str) -> None:
+    path = tmp_path / "wrong.png"
+    path.write_bytes(content)
+    assert_frame_error(path, fragment, "PNG, JPEG, TIFF, PGM/PPM or BMP")
+
+
+@pytest.mark.parametrize("extension", EXTENSIONS)
+def test_random_bytes_with_image_extension(tmp_path: Path, extension: str) -> None:
+    path = tmp_path / f"noise{extension}"
+    path.write_bytes(np.random.default_rng(3).integers(0, 256, 4096, dtype=np.uint8).tobytes())
+    assert_frame_error(path)
+
+
+def _png_claiming(width: int, height: int) -> bytes:
+    def chunk(kind: bytes, body: bytes) -> bytes:
+        crc = zlib.crc32(kind + body)
+        return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", crc)
+
+    ihdr = struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0)
+    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IEND", b"")
+
+
+def test_huge_image_rejected_from_header_without_decoding(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    def no_decoding(*args: object) -> None:
+        raise AssertionError("cv2.imdecode must not be called for an oversized image")
+
+    monkeypatch.setattr(_imageio.cv2, "imdecode", no_decoding)
+    path = tmp_path / "huge.png"
+    path.write_bytes(_png_claiming(100_000, 100_000))
+    assert_frame_error(path, "100000x100000", "more than the limit of 67108864", "max_pixels")
+    assert read_header(path.read_bytes()).width == 100_000
+
+
+@pytest.mark.parametrize("extension", [".png", ".jpg", ".tif", ".pgm", ".ppm", ".bmp"])
+def test_pixel_limit_applies_to_every_format(
+    tmp_path: Path, colour: np.ndarray, extension: str
+) -> None:
+    image = colour[:, :, 0] if extension == ".pgm" else colour
+    path = write(tmp_path / f"big{extension}", image)
+    header = read_header(path.read_bytes())
+    assert (header.height, header.width) == (48, 64)
+    assert_frame_error(path, "48 = 3072 pixels", max_pixels=3071)
+    assert read_gray(path, max_pixels=3072).image.shape == (48, 64)
+
+
+def test_file_much_larger_than_the_limit_is_not_read(tmp_path: Path) -> None:
+    path = tmp_path / "sparse.tif"
+    with open(path, "wb") as stream:
+        stream.truncate(100_000_000)  # sparse: costs no disk
+    assert_frame_error(path, "100000000 bytes", "more than an image", max_pixels=10)
+
+
+def test_settings_are_validated(tmp_path: Path) -> None:
+    with pytest.raises(TypeError, match="max_pixels must be an int"):
+        read_gray(tmp_path / "x.png", max_pixels=1.5)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="max_pixels must be >= 1"):
+        read_gray(tmp_path / "x.png", max_pixels=0)
+    with pytest.raises(TypeError, match="path must be a str"):
+        read_gray(3)  # type: ignore[arg-type]
+    assert_frame_error(Path("nul\x00byte.png"), "cannot be read")
+
+
+# --- to_gray_uint8 on arrays ----------------------------------------------------------------
+
+
+def test_to_gray_rejects_unsupported_sample_types() -> None:
+    with pytest.raises(ValueError, match="int16 samples are not supported"):
+        to_gray_uint8(np.zeros((4, 4), dtype=np.int16))
+    with pytest.raises(ValueError, match="uint32 samples are not supported"):
+        to_gray_uint8(np.zeros((4, 4, 3), dtype=np.uint32))  # before any colour conversion
+    with pytest.raises(ValueError, match="5 channels"):
+        to_gray_uint8(np.zeros((4, 4, 5), dtype=np.uint8))
+    with pytest.raises(ValueError, match="2-D image"):
+        to_gray_uint8(np.zeros((4,), dtype=np.uint8))
+    image, notes = to_gray_uint8(np.full((3, 3, 2), 200, dtype=np.uint8))
+    assert image.shape == (3, 3) and notes[0] == "alpha channel ignored"
+
+
+# --- fuzzing: nothing but FrameError ----------------------------------------------------------
+
+FUZZ = settings(
+    max_examples=200, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+
+
+def _decode_or_frame_error(data: bytes, name: str) -> None:
+    try:
+        decoded = decode_gray(data, name=name, max_pixels=1 << 20)
+    except FrameError as exc:
+        assert name in str(exc)
+        return
+    assert decoded.image.dtype == np.uint8 and decoded.image.ndim == 2
+
+
+@FUZZ
+@given(data=st.binary(max_size=512), extension=st.sampled_from([*EXTENSIONS, ".ppm", ".x"]))
+def test_fuzz_random_bytes(data: bytes, extension: str) -> None:
+    _decode_or_frame_error(data, f"fuzz{extension}")
+
+
+_MAGIC = st.sampled_from(
+    [b"\x89PNG\r\n\x1a\n", b"\xff\xd8\xff", b"II*\x00", b"MM\x00*", b"P5\n", b"P2 ", b"P6\n",
+     b"BM", b"P3\n"]
+)  # fmt: skip
+
+
+@FUZZ
+@given(magic=_MAGIC, tail=st.binary(max_size=512))
+def test_fuzz_magic_then_random_bytes(magic: bytes, tail: bytes) -> None:
+    _decode_or_frame_error(magic + tail, "fuzz.img")
+
+
+@pytest.fixture(scope="module")
+def valid_files() -> dict[str, bytes]:
+    rng = np.random.default_rng(11)
+    image = rng.integers(0, 256, size=(16, 20, 3), dtype=np.uint8)
+    files = {ext: encoded(ext, image) for ext in (".png", ".jpg", ".tif", ".ppm", ".bmp")}
+    files[".pgm"] = encoded(".pgm", image[:, :, 0])
+    files[".tiff"] = encoded(".tif", image.astype(np.float32))
+    files[".pnm"] = encoded(".png", image.astype(np.uint16) * 200)
+    return files
+
+
+@FUZZ
+@given(
+    extension=st.sampled_from([".png", ".jpg", ".tif", ".ppm", ".bmp", ".pgm", ".tiff", ".pnm"]),
+    cut=st.floats(0, 1),
+    flips=st.lists(st.tuples(st.floats(0, 1), st.integers(0, 255)), max_size=4),
+)
+def test_fuzz_truncated_and_corrupted_valid_files(
+    valid_files: dict[str, bytes],
+    extension: str,
+    cut: float,
+    flips: list[tuple[float, int]],
+) -> None:
+    data = bytearray(valid_files[extension])
+    for where, value in flips:
+        data[int(where * (len(data) - 1))] = value
+    _decode_or_frame_error(bytes(data[: max(1, int(cut * len(data)))]), f"fuzz{extension}")
