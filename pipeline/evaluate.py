@@ -30,6 +30,7 @@ import tempfile
 import time
 import warnings
 from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -40,6 +41,7 @@ import pyarrow.parquet as pq
 
 from . import metrics
 from ._baselines import otsu_labels, sgbm_disparity
+from ._evaluation_display import evaluation_tables, format_evaluation
 from .errors import RunDirError
 
 __all__ = [
@@ -66,7 +68,6 @@ EVALUATION_SCHEMA = pa.schema(
 )
 
 _DISPARITY_MARGIN_PX = 8
-_METHOD_ORDER = ("arroyo", "opencv-sgbm", "otsu")
 
 
 # ------------------------------------------------------------------------------ run reading
@@ -194,6 +195,8 @@ class _Collector:
         self.rows: list[dict[str, Any]] = []
         self.frames: dict[tuple[str, str], list[dict[str, float]]] = {}
         self.seconds: dict[tuple[str, str], list[float]] = {}
+        self.pooled_pairs: tuple[list[dict[str, Any]], list[dict[str, Any]]] = ([], [])
+        self.pooled_edges: dict[str, list[Any]] = {}
 
     def add(self, frame_id: str, product: str, method: str, values: Mapping[str, float]) -> None:
         self.frames.setdefault((product, method), []).append(dict(values))
@@ -298,108 +301,109 @@ def evaluate_run(rundir: str | os.PathLike[str]) -> pa.Table:
     truth_dir = _truth_dir(run, path)
     frames = _read_frames(path)
     products = _open_products(path)
-    run_id, archive = str(run.get("run_id", "")), str(run.get("archive", ""))
-    reference = str((run.get("camera") or {}).get("reference", "right"))
     rocks_path = truth_dir / "rocks.parquet"
-    truth_rocks = _rows_by_frame(pq.read_table(rocks_path) if rocks_path.exists() else None)
-    descriptors = _rows_by_frame(_read_table(path / "descriptors.parquet"))
-    relations = _rows_by_frame(_read_table(path / "relations.parquet"))
-    variables = set(products.data_vars) if products is not None else set()
+    ctx = _RunData(
+        run=run,
+        reference=str((run.get("camera") or {}).get("reference", "right")),
+        variables=set(products.data_vars) if products is not None else set(),
+        truth_rocks=_rows_by_frame(pq.read_table(rocks_path) if rocks_path.exists() else None),
+        descriptors=_rows_by_frame(_read_table(path / "descriptors.parquet")),
+        relations=_rows_by_frame(_read_table(path / "relations.parquet")),
+    )
     stored = set(map(str, products["frame"].values)) if products is not None else set()
-
-    out = _Collector(run_id, archive)
-    pooled_pairs: tuple[list[dict[str, Any]], list[dict[str, Any]]] = ([], [])
-    pooled_edges: dict[str, list[Any]] = {}
+    out = _Collector(str(run.get("run_id", "")), str(run.get("archive", "")))
     for frame_id in sorted(frames):
-        row = frames[frame_id]
         truth_file = truth_dir / f"{frame_id}.npz"
         if frame_id not in stored or not truth_file.is_file():
             continue
         with np.load(truth_file) as npz:
             truth = {k: npz[k] for k in npz.files}
         frame = products.sel(frame=frame_id)
-        has_images = {"left", "right"} <= variables and _stage_done(row, "ingest")
+        _score_depth(ctx, out, frame_id, frames[frame_id], frame, truth)
+        _score_objects(ctx, out, frame_id, frames[frame_id], frame, truth)
 
-        depth_done = "disparity" in variables and _stage_done(row, "depth")
-        if depth_done or ("disparity" not in variables and has_images):
-            valid = ~truth["occluded"].astype(bool)
-            if depth_done:
-                pred = np.asarray(frame["disparity"].values, dtype=np.float32)
-                out.add(
-                    frame_id,
-                    "depth",
-                    "arroyo",
-                    metrics.disparity_errors(pred, truth["disparity"], valid_truth=valid),
-                )
-                seconds = row.get("depth_seconds")
-                if seconds is not None:
-                    out.seconds.setdefault(("depth", "arroyo"), []).append(float(seconds))
-            if has_images:
-                lo, hi = _depth_range(run, truth["disparity"])
-                start = time.perf_counter()
-                sgbm = sgbm_disparity(
-                    np.asarray(frame["left"].values),
-                    np.asarray(frame["right"].values),
-                    min_disparity=lo,
-                    max_disparity=hi,
-                    reference=reference,
-                )
-                out.seconds.setdefault(("depth", "opencv-sgbm"), []).append(
-                    time.perf_counter() - start
-                )
-                out.add(
-                    frame_id,
-                    "depth",
-                    "opencv-sgbm",
-                    metrics.disparity_errors(sgbm, truth["disparity"], valid_truth=valid),
-                )
-
-        labels_done = "labels" in variables and _stage_done(row, "segment")
-        truth_labels = truth["labels"].astype(np.int32, copy=False)
-        if labels_done or ("labels" not in variables and has_images):
-            if has_images:
-                image = np.asarray(frame[reference].values)
-                out.add(
-                    frame_id,
-                    "segmentation",
-                    "otsu",
-                    metrics.segmentation_scores(otsu_labels(image), truth_labels),
-                )
-            if labels_done:
-                pred_labels = np.asarray(frame["labels"].values).astype(np.int32, copy=False)
-                matches = metrics.match_objects(pred_labels, truth_labels)
-                out.add(frame_id, "segmentation", "arroyo", matches.scores())
-                if _stage_done(row, "describe") and frame_id in descriptors:
-                    rocks = {int(r["rock_id"]): r for r in truth_rocks.get(frame_id, [])}
-                    p_rows, t_rows = _pair_columns(matches, descriptors[frame_id], rocks)
-                    out.extend(
-                        frame_id,
-                        "descriptors",
-                        "arroyo",
-                        metrics.descriptor_errors(
-                            _columns(p_rows, _PRED_COLUMNS), _columns(t_rows, _TRUE_COLUMNS)
-                        ),
-                    )
-                    pooled_pairs[0].extend(p_rows)
-                    pooled_pairs[1].extend(t_rows)
-                    if frame_id in relations:
-                        occl = metrics.true_occlusions(truth_labels, truth["range"])
-                        edges = _edges(relations[frame_id], matches, rocks, occl)
-                        out.extend(frame_id, "relations", "arroyo", _relation_scores(edges))
-                        for k, v in edges.items():
-                            pooled_edges.setdefault(k, []).extend(v)
-
-    _add_aggregates(out, pooled_pairs, pooled_edges)
+    _add_aggregates(out)
     table = pa.Table.from_pylist(out.rows, schema=EVALUATION_SCHEMA)
     _write_atomic(table, path / "evaluation.parquet")
     return table
 
 
-def _add_aggregates(
-    out: _Collector,
-    pooled_pairs: tuple[list[dict[str, Any]], list[dict[str, Any]]],
-    pooled_edges: Mapping[str, list[Any]],
-) -> None:
+@dataclass
+class _RunData:
+    """What every frame's scoring needs from the run, read once."""
+
+    run: Mapping[str, Any]
+    reference: str
+    variables: set[str]
+    truth_rocks: dict[str, list[dict[str, Any]]]
+    descriptors: dict[str, list[dict[str, Any]]]
+    relations: dict[str, list[dict[str, Any]]]
+
+
+def _has_images(ctx: _RunData, row: Mapping[str, Any]) -> bool:
+    return {"left", "right"} <= ctx.variables and _stage_done(row, "ingest")
+
+
+def _score_depth(ctx: _RunData, out: _Collector, frame_id: str, row, frame, truth) -> None:
+    done = "disparity" in ctx.variables and _stage_done(row, "depth")
+    has_images = _has_images(ctx, row)
+    if not (done or ("disparity" not in ctx.variables and has_images)):
+        return  # arroyo's depth exists but not for this frame: no baseline either
+    valid = ~truth["occluded"].astype(bool)
+    if done:
+        pred = np.asarray(frame["disparity"].values, dtype=np.float32)
+        scores = metrics.disparity_errors(pred, truth["disparity"], valid_truth=valid)
+        out.add(frame_id, "depth", "arroyo", scores)
+        seconds = row.get("depth_seconds")
+        if seconds is not None:
+            out.seconds.setdefault(("depth", "arroyo"), []).append(float(seconds))
+    if has_images:
+        lo, hi = _depth_range(ctx.run, truth["disparity"])
+        left, right = np.asarray(frame["left"].values), np.asarray(frame["right"].values)
+        start = time.perf_counter()
+        sgbm = sgbm_disparity(
+            left, right, min_disparity=lo, max_disparity=hi, reference=ctx.reference
+        )
+        out.seconds.setdefault(("depth", "opencv-sgbm"), []).append(time.perf_counter() - start)
+        scores = metrics.disparity_errors(sgbm, truth["disparity"], valid_truth=valid)
+        out.add(frame_id, "depth", "opencv-sgbm", scores)
+
+
+def _score_objects(ctx: _RunData, out: _Collector, frame_id: str, row, frame, truth) -> None:
+    done = "labels" in ctx.variables and _stage_done(row, "segment")
+    has_images = _has_images(ctx, row)
+    if not (done or ("labels" not in ctx.variables and has_images)):
+        return
+    truth_labels = truth["labels"].astype(np.int32, copy=False)
+    if has_images:
+        baseline = otsu_labels(np.asarray(frame[ctx.reference].values))
+        out.add(
+            frame_id, "segmentation", "otsu", metrics.segmentation_scores(baseline, truth_labels)
+        )
+    if not done:
+        return
+    pred_labels = np.asarray(frame["labels"].values).astype(np.int32, copy=False)
+    matches = metrics.match_objects(pred_labels, truth_labels)
+    out.add(frame_id, "segmentation", "arroyo", matches.scores())
+    if not _stage_done(row, "describe") or frame_id not in ctx.descriptors:
+        return
+    rocks = {int(r["rock_id"]): r for r in ctx.truth_rocks.get(frame_id, [])}
+    p_rows, t_rows = _pair_columns(matches, ctx.descriptors[frame_id], rocks)
+    errors = metrics.descriptor_errors(
+        _columns(p_rows, _PRED_COLUMNS), _columns(t_rows, _TRUE_COLUMNS)
+    )
+    out.extend(frame_id, "descriptors", "arroyo", errors)
+    out.pooled_pairs[0].extend(p_rows)
+    out.pooled_pairs[1].extend(t_rows)
+    if frame_id in ctx.relations:
+        occlusions = metrics.true_occlusions(truth_labels, truth["range"])
+        edges = _edges(ctx.relations[frame_id], matches, rocks, occlusions)
+        out.extend(frame_id, "relations", "arroyo", _relation_scores(edges))
+        for k, v in edges.items():
+            out.pooled_edges.setdefault(k, []).extend(v)
+
+
+def _add_aggregates(out: _Collector) -> None:
     pool = {
         "depth": metrics.pool_disparity_errors,
         "segmentation": metrics.pool_segmentation_scores,
@@ -411,6 +415,7 @@ def _add_aggregates(
         if seconds:
             values["seconds_per_frame"] = float(np.mean(seconds))
         out.extend(AGGREGATE, product, method, values)
+    pooled_pairs, pooled_edges = out.pooled_pairs, out.pooled_edges
     if pooled_pairs[0] or pooled_pairs[1]:
         out.extend(
             AGGREGATE,
@@ -433,140 +438,3 @@ def _write_atomic(table: pa.Table, target: Path) -> None:
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
-
-
-# ------------------------------------------------------------------------------- display
-#: (product, metric, label, kind): what the terminal table shows, in order.
-_DISPLAY: tuple[tuple[str, str, str, str], ...] = (
-    ("depth", "bad1", "bad-1 (% px off > 1 px)", "pct"),
-    ("depth", "bad2", "bad-2 (% px off > 2 px)", "pct"),
-    ("depth", "epe", "end-point error (px)", "f3"),
-    ("depth", "density", "density (% valid)", "pct"),
-    ("depth", "seconds_per_frame", "seconds per frame", "f3"),
-    ("segmentation", "precision", "precision (IoU >= 0.5)", "f3"),
-    ("segmentation", "recall", "recall", "f3"),
-    ("segmentation", "f1", "F1", "f3"),
-    ("segmentation", "mean_iou", "mean IoU of matches", "f3"),
-    ("segmentation", "fp", "false positives", "int"),
-    ("descriptors", "n_rocks", "matched rocks", "int"),
-    ("descriptors", "height_abs_err_median_m", "|height err| median (cm)", "cm"),
-    ("descriptors", "height_abs_err_p90_m", "|height err| p90 (cm)", "cm"),
-    ("descriptors", "width_rel_err_median", "width err median (%)", "pct"),
-    ("descriptors", "width_rel_err_p90", "width err p90 (%)", "pct"),
-    ("descriptors", "range_rel_err_median", "range err median (%)", "pct"),
-    ("descriptors", "range_rel_err_p90", "range err p90 (%)", "pct"),
-    ("descriptors", "class_accuracy", "sample/obstacle accuracy (%)", "pct"),
-    ("descriptors", "near_n_rocks", "rocks within 2 m", "int"),
-    ("descriptors", "near_height_abs_err_median_m", "  |height err| median (cm)", "cm"),
-    ("descriptors", "near_width_rel_err_median", "  width err median (%)", "pct"),
-    ("descriptors", "near_range_rel_err_median", "  range err median (%)", "pct"),
-    ("descriptors", "near_class_accuracy", "  sample/obstacle accuracy (%)", "pct"),
-    ("relations", "agreement", "edges agreeing with truth (%)", "pct"),
-    ("relations", "n_checked", "edges checked", "int"),
-)
-
-
-def _format_value(value: float | None, kind: str) -> str:
-    if value is None or not math.isfinite(value):
-        return "—"
-    if kind == "pct":
-        return f"{100 * value:.1f}"
-    if kind == "cm":
-        return f"{100 * value:.2f}"
-    if kind == "int":
-        return f"{value:.0f}"
-    return f"{value:.3f}"
-
-
-def evaluation_tables(table: pa.Table) -> list[Any]:
-    """Rich tables of the aggregate rows, one per archive, methods side by side.
-
-    Parameters
-    ----------
-    table : pyarrow.Table
-        The result of :func:`evaluate_run` (or ``evaluation.parquet`` read back).
-
-    Returns
-    -------
-    tables : list of rich.table.Table
-        One per archive: rows = metrics, columns = arroyo and the baseline of each product
-        (named in the product column).
-    """
-    from rich.table import Table
-
-    if not isinstance(table, pa.Table):
-        raise TypeError(f"table must be a pyarrow.Table, got {type(table).__name__}")
-    missing = set(EVALUATION_SCHEMA.names) - set(table.column_names)
-    if missing:
-        raise ValueError(f"table lacks evaluation columns {sorted(missing)}; pass evaluate_run's")
-    values: dict[str, dict[tuple[str, str, str], float]] = {}
-    frames: dict[str, int] = {}
-    for r in table.to_pylist():
-        if r["frame_id"] != AGGREGATE:
-            continue
-        values.setdefault(r["archive"], {})[(r["product"], r["method"], r["metric"])] = r["value"]
-        if r["metric"] == "n_frames":
-            frames[r["archive"]] = max(frames.get(r["archive"], 0), int(r["value"]))
-    tables = []
-    for archive in sorted(values):
-        vals = values[archive]
-        t = Table(title=f"{archive}: {frames.get(archive, 0)} frames scored")
-        t.add_column("product")
-        t.add_column("metric")
-        t.add_column("arroyo", justify="right")
-        t.add_column("baseline", justify="right")
-        for product in dict.fromkeys(p for p, _, _, _ in _DISPLAY):
-            methods = sorted({m for p, m, _ in vals if p == product}, key=_method_rank)
-            baselines = [m for m in methods if m != "arroyo"]
-            first = True
-            for product_, metric, label, kind in _DISPLAY:
-                if product_ != product:
-                    continue
-                ours = vals.get((product, "arroyo", metric))
-                theirs = [vals.get((product, m, metric)) for m in baselines]
-                if ours is None and all(v is None for v in theirs):
-                    continue
-                name = product + (f" (vs {', '.join(baselines)})" if baselines else "")
-                t.add_row(
-                    name if first else "",
-                    label,
-                    _format_value(ours, kind),
-                    " / ".join(_format_value(v, kind) for v in theirs) or "",
-                )
-                first = False
-        tables.append(t)
-    return tables
-
-
-def _method_rank(method: str) -> tuple[int, str]:
-    rank = _METHOD_ORDER.index(method) if method in _METHOD_ORDER else len(_METHOD_ORDER)
-    return rank, method
-
-
-def format_evaluation(table: pa.Table, *, width: int = 100) -> str:
-    """The evaluation as plain text: the tables of :func:`evaluation_tables`, rendered.
-
-    Parameters
-    ----------
-    table : pyarrow.Table
-        The result of :func:`evaluate_run`.
-    width : int
-        Console width in characters.
-
-    Returns
-    -------
-    text : str
-        The tables, or a line saying that nothing could be scored.
-    """
-    import io
-
-    from rich.console import Console
-
-    tables = evaluation_tables(table)
-    if not tables:
-        return "nothing to score: no frame has both products and ground truth\n"
-    buffer = io.StringIO()
-    console = Console(file=buffer, width=width, force_terminal=False, color_system=None)
-    for t in tables:
-        console.print(t)
-    return buffer.getvalue()
