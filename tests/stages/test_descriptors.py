@@ -1,0 +1,278 @@
+"""Tests of the per-object measurement functions (hand-made arrays, known answers)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from pipeline.camera import Camera
+from stages._descriptors import (
+    DESCRIPTOR_COLUMNS,
+    GroundFrame,
+    background_jump_fraction,
+    classify_size,
+    cooccurrence_contrast,
+    describe_objects,
+    frame_ground,
+    polarity_against,
+    robust_extent,
+    second_moment_ellipse,
+    top_height,
+    widest_row_width_m,
+)
+
+CAMERA = Camera(focal_px=200.0, baseline_m=0.2, height_m=1.2, pitch_deg=30.0)
+
+
+def _random_points(seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return rng.uniform([-2, -1, 0.5], [2, 1, 6], size=(50, 3))
+
+
+def test_ground_frame_from_camera_matches_camera_to_ground():
+    points = _random_points()
+    frame = GroundFrame.from_camera(CAMERA)
+    np.testing.assert_allclose(frame.to_ground(points), CAMERA.camera_to_ground(points), atol=1e-12)
+    assert frame.source == "camera"
+
+
+def test_ground_frame_from_plane_matches_camera_pose():
+    theta = math.radians(CAMERA.pitch_deg)
+    up = np.array([0.0, -math.cos(theta), -math.sin(theta)])
+    plane = np.r_[up * 3.0, CAMERA.height_m * 3.0]  # unnormalised coefficients are fine
+    frame = GroundFrame.from_plane(plane)
+    points = _random_points(1)
+    np.testing.assert_allclose(frame.to_ground(points), CAMERA.camera_to_ground(points), atol=1e-12)
+    assert frame.source == "plane"
+
+
+def test_ground_frame_from_plane_looking_straight_down():
+    frame = GroundFrame.from_plane([0.0, 0.0, -1.0, 2.0])
+    # the camera is 2 m up; a point 2 m along the axis lies on the ground below it
+    np.testing.assert_allclose(frame.to_ground(np.array([0.0, 0.0, 2.0])), [0, 0, 0], atol=1e-12)
+
+
+@pytest.mark.parametrize(
+    "plane, message",
+    [
+        ([0, -1, 0, -1.0], "camera above"),
+        ([0, 0, 0, 1.0], "must not be zero"),
+        ([0, -1, 0, np.nan], "4 finite"),
+        ([0, -1, 0], "4 finite"),
+    ],
+)
+def test_ground_frame_from_plane_rejects_bad_planes(plane, message):
+    with pytest.raises(ValueError, match=message):
+        GroundFrame.from_plane(plane)
+
+
+def test_ground_frame_from_camera_needs_pose():
+    with pytest.raises(ValueError, match="height_m and pitch_deg"):
+        GroundFrame.from_camera(Camera(focal_px=100.0, baseline_m=0.1))
+
+
+def test_frame_ground_prefers_pose_then_plane():
+    no_pose = Camera(focal_px=100.0, baseline_m=0.1)
+    assert frame_ground(CAMERA, [0, -1, 0, 5.0]).source == "camera"
+    assert frame_ground(no_pose, [0, -1, 0, 5.0]).source == "plane"
+    assert frame_ground(no_pose, [np.nan] * 4) is None
+    assert frame_ground(no_pose, None) is None
+
+
+def test_robust_extent():
+    values = np.linspace(0.0, 1.0, 1001)
+    assert robust_extent(values) == pytest.approx(0.96)
+    assert robust_extent(values, low=0, high=100) == pytest.approx(1.0)
+    assert math.isnan(robust_extent(np.array([1.0, np.nan])))
+
+
+def test_ellipse_of_a_disk_has_its_diameter():
+    yy, xx = np.mgrid[-15:16, -15:16]
+    rows, cols = np.nonzero(xx**2 + yy**2 <= 10.5**2)
+    major, minor, _ = second_moment_ellipse(rows, cols)
+    assert major == pytest.approx(21.0, abs=0.3)
+    assert minor == pytest.approx(21.0, abs=0.3)
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(1, 30), st.integers(1, 30))
+def test_ellipse_of_a_rectangle(width, height):
+    rows, cols = np.nonzero(np.ones((height, width), dtype=bool))
+    major, minor, angle = second_moment_ellipse(rows, cols)
+    assert major == pytest.approx(4 * math.sqrt(max(width, height) ** 2 / 12))
+    assert minor == pytest.approx(4 * math.sqrt(min(width, height) ** 2 / 12))
+    if width > height:
+        assert angle == pytest.approx(0.0, abs=1e-9)
+    elif height > width:
+        assert angle == pytest.approx(90.0)
+
+
+def test_ellipse_angle_is_clockwise_from_x():
+    diagonal = np.arange(20)
+    _, minor, angle = second_moment_ellipse(diagonal, diagonal)  # going right and down
+    assert angle == pytest.approx(45.0)
+    _, _, angle = second_moment_ellipse(diagonal, -diagonal)  # going left and down
+    assert angle == pytest.approx(-45.0)
+
+
+def test_ellipse_rejects_empty():
+    with pytest.raises(ValueError, match="non-empty"):
+        second_moment_ellipse(np.array([]), np.array([]))
+
+
+def test_cooccurrence_contrast():
+    mask = np.ones((6, 6), dtype=bool)
+    checker = (np.indices((6, 6)).sum(axis=0) % 2) * 10
+    assert cooccurrence_contrast(checker, mask) == pytest.approx(100.0)
+    stripes = (np.arange(6)[:, None] % 2) * 10 * np.ones((1, 6))
+    assert cooccurrence_contrast(stripes, mask) == pytest.approx(50.0)
+    assert cooccurrence_contrast(np.full((6, 6), 7), mask) == 0.0
+    single = np.zeros((6, 6), dtype=bool)
+    single[2, 2] = True
+    assert math.isnan(cooccurrence_contrast(checker, single))
+    # pixels outside the mask never enter a pair
+    half = np.zeros((6, 6), dtype=bool)
+    half[:, :3] = True
+    wild = np.where(half, 5, np.arange(36).reshape(6, 6) * 7)
+    assert cooccurrence_contrast(wild, half) == 0.0
+
+
+def test_polarity_against():
+    assert polarity_against(50.0, np.array([100, 120, 90])) == "darker"
+    assert polarity_against(150.0, np.array([100, 120, 90])) == "lighter"
+    assert polarity_against(200.0, np.array([])) == "lighter"
+
+
+def test_top_height_uses_the_topmost_valid_pixels():
+    rows = np.array([5, 5, 5, 6, 6, 6, 7, 7, 7, 8, 8, 8])
+    heights = np.array([np.nan, 0.30, 0.32, 0.28, 0.27, 0.26, 0.2, 0.2, 0.2, 0.1, 0.1, 0.1])
+    value, row = top_height(rows, heights, min_pixels=3)
+    assert value == pytest.approx(0.30)  # median of 0.30, 0.32, 0.28
+    assert row in (5, 6)
+    value, _ = top_height(rows, heights, top_fraction=1.0)
+    assert value == pytest.approx(np.nanmedian(heights))
+    assert top_height(rows, np.full(rows.shape, np.nan)) == (
+        pytest.approx(math.nan, nan_ok=True),
+        -1,
+    )
+
+
+def test_widest_row_width():
+    mask = np.tri(9, 9, dtype=bool)  # row r spans r + 1 pixels
+    rows, cols = np.nonzero(mask)
+    depth = np.full(rows.shape, 2.0)
+    assert widest_row_width_m(rows, cols, depth, focal_px=100.0, fallback_z=2.0) == pytest.approx(
+        9 * 2.0 / 100.0
+    )
+    # a nearer widest row loses to a farther narrower row
+    depth = np.where(rows == 8, 1.0, 2.0)
+    expected = max(9 * 1.0, 8 * 2.0) / 100.0
+    assert widest_row_width_m(rows, cols, depth, focal_px=100.0, fallback_z=2.0) == pytest.approx(
+        expected
+    )
+    # rows without valid depth use the fallback depth
+    depth = np.where(rows == 8, np.nan, 1.0)
+    assert widest_row_width_m(rows, cols, depth, focal_px=100.0, fallback_z=3.0) == pytest.approx(
+        9 * 3.0 / 100.0
+    )
+
+
+@pytest.mark.parametrize(
+    "largest, height, expected",
+    [
+        (0.05, 0.04, "sample"),
+        (0.10, 0.09, "sample"),
+        (0.11, 0.05, "obstacle"),
+        (0.08, 0.10, "obstacle"),
+        (math.nan, 0.02, "obstacle"),
+        (0.05, math.nan, "obstacle"),
+    ],
+)
+def test_classify_size(largest, height, expected):
+    got = classify_size(largest, height, sample_max_m=0.10, rover_clearance_m=0.10)
+    assert got == expected
+
+
+def test_background_jump_fraction():
+    labels = np.zeros((10, 10), dtype=np.int32)
+    labels[3:7, 3:7] = 1
+    mask = labels == 1
+    disparity = np.full((10, 10), 10.0)
+    assert background_jump_fraction(mask, labels, disparity, jump_px=1.0) == 0.0
+    disparity[:, :3] = 15.0  # something nearer just left of the object
+    assert background_jump_fraction(mask, labels, disparity, jump_px=1.0) == pytest.approx(0.25)
+    disparity[:, :3] = np.nan
+    assert background_jump_fraction(mask, labels, disparity, jump_px=1.0) == 0.0
+
+
+def test_background_jump_ignores_wraparound():
+    labels = np.zeros((6, 6), dtype=np.int32)
+    labels[:, :2] = 1  # touches the left edge: np.roll would wrap to the right edge
+    disparity = np.full((6, 6), 5.0)
+    disparity[:, -1] = 50.0
+    assert background_jump_fraction(labels == 1, labels, disparity, jump_px=1.0) == 0.0
+
+
+def _flat(shape, value):
+    return np.full(shape, value, dtype=np.float32)
+
+
+def test_describe_objects_validates_inputs():
+    labels = np.zeros((8, 8), dtype=np.int32)
+    ok = _flat((8, 8), 1.0)
+    with pytest.raises(TypeError, match="integers"):
+        describe_objects(ok, ok, ok, ok, ok, camera=CAMERA)
+    with pytest.raises(ValueError, match="labels' shape"):
+        describe_objects(labels, _flat((8, 9), 1.0), ok, ok, ok, camera=CAMERA)
+    with pytest.raises(ValueError, match="2-D"):
+        describe_objects(np.zeros(8, np.int32), ok, ok, ok, ok, camera=CAMERA)
+    with pytest.raises(TypeError, match="Camera"):
+        describe_objects(labels, ok, ok, ok, ok, camera={"focal_px": 1})
+
+
+def test_describe_objects_empty_gives_typed_columns():
+    z = _flat((8, 8), 1.0)
+    cols = describe_objects(np.zeros((8, 8), np.int32), z, z, z, z, camera=CAMERA)
+    assert list(cols) == list(DESCRIPTOR_COLUMNS)
+    for name, kind in DESCRIPTOR_COLUMNS.items():
+        assert cols[name].shape == (0,)
+        assert cols[name].dtype.kind == ("U" if kind == "str" else np.dtype(kind).kind)
+
+
+def test_describe_objects_image_fields_and_appearance():
+    labels = np.zeros((20, 20), dtype=np.int32)
+    labels[4:8, 2:12] = 1  # 4 x 10 bar, dark
+    labels[12:20, 15:18] = 2  # 8 x 3 bar on the bottom edge, light
+    gray = np.full((20, 20), 100, dtype=np.uint8)
+    gray[labels == 1] = 40
+    gray[labels == 2] = 200
+    gray[12:20:2, 15:18] = 210  # row stripes inside object 2
+    nan = _flat((20, 20), np.nan)
+    cols = describe_objects(labels, gray, nan, nan, nan, camera=CAMERA)
+    np.testing.assert_array_equal(cols["object_id"], [1, 2])
+    np.testing.assert_array_equal(cols["area_px"], [40, 24])
+    np.testing.assert_allclose(cols["centroid_x"], [6.5, 16.0])
+    np.testing.assert_allclose(cols["centroid_y"], [5.5, 15.5])
+    np.testing.assert_array_equal(cols["bbox_x_min"], [2, 15])
+    np.testing.assert_array_equal(cols["bbox_x_max"], [11, 17])
+    np.testing.assert_array_equal(cols["bbox_y_near"], [7, 19])
+    np.testing.assert_array_equal(cols["bbox_y_far"], [4, 12])
+    np.testing.assert_array_equal(cols["polarity"], ["darker", "lighter"])
+    np.testing.assert_allclose(cols["mean_gray"], [40.0, 205.0])
+    np.testing.assert_allclose(cols["texture_std"], [0.0, 5.0])
+    # object 2: 8 rows x 3 cols; 16 horizontal pairs differ by 0, 21 vertical pairs by 10
+    np.testing.assert_allclose(cols["texture_contrast"], [0.0, 100.0 * 21 / (16 + 21)])
+    np.testing.assert_allclose(
+        cols["ellipse_major_px"], [4 * math.sqrt(100 / 12), 4 * math.sqrt(64 / 12)]
+    )
+    np.testing.assert_allclose(cols["ellipse_angle_deg"], [0.0, 90.0], atol=1e-9)
+    np.testing.assert_array_equal(cols["touches_border"], [False, True])
+    # no depth at all: NaN metric fields, unreliable depth, conservative class
+    assert np.isnan(cols["range_m"]).all() and np.isnan(cols["width_m"]).all()
+    np.testing.assert_array_equal(cols["depth_valid_fraction"], [0.0, 0.0])
+    np.testing.assert_array_equal(cols["depth_unreliable"], [True, True])
+    np.testing.assert_array_equal(cols["size_class"], ["obstacle", "obstacle"])
