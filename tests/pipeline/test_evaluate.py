@@ -277,3 +277,41 @@ def test_otsu_baseline_takes_the_minority_side(dark_objects):
     labels = otsu_labels(image, min_area_px=30)
     assert labels.max() == 2 and labels[0, 39] == 0
     assert set(np.unique(labels[5:15, 5:15])) == {1}
+
+
+def test_evaluate_a_run_made_by_the_engine(tmp_path: Path):
+    """The engine's real run directory layout (ingest only, fake stage package)."""
+    import cv2
+
+    from pipeline.runner import run
+
+    root = tmp_path / "archive"
+    (root / "images").mkdir(parents=True)
+    (root / "truth").mkdir()
+    lines = ["frame_id,left,right"]
+    for k in range(2):
+        scene = _scene(10 + k)
+        for side in ("left", "right"):
+            cv2.imwrite(str(root / "images" / f"g{k}_{side}.png"), scene[side])
+        np.savez(
+            root / "truth" / f"g{k}.npz",
+            **{n: scene[n] for n in ("disparity", "range", "height", "labels", "occluded")},
+        )
+        lines.append(f"g{k},images/g{k}_left.png,images/g{k}_right.png")
+    (root / "frames.csv").write_text("\n".join(lines) + "\n")
+    catalog = root / "catalog.toml"
+    catalog.write_text(
+        '[archive]\nname = "engine"\ndescription = "fixture"\n\n'
+        "[camera]\nfocal_px = 430.0\nbaseline_m = 0.1\n\n"
+        '[frames]\nindex = "frames.csv"\n\n[truth]\ndir = "truth"\n'
+    )
+    out = tmp_path / "run"
+    summary = run(catalog, out, stage_package="arroyo_fake_stages", scheduler="synchronous")
+    assert summary.exit_code == 0
+    table = evaluate_run(out)
+    methods = {(r["product"], r["method"]) for r in table.to_pylist()}
+    assert methods == {("depth", "opencv-sgbm"), ("segmentation", "otsu")}
+    assert _value(
+        table, frame_id=AGGREGATE, product="segmentation", method="otsu", metric="f1"
+    ) == pytest.approx(1.0)
+    assert "engine: 2 frames scored" in format_evaluation(table)
