@@ -169,7 +169,7 @@ def decode_gray(
         header = read_header(data)
         if header.width * header.height > max_pixels:
             raise _Bad(
-                f"the image is {header.width}x{header.height} = "
+                f"the image is {header.height}x{header.width} (HxW) = "
                 f"{header.width * header.height} pixels, more than the limit of {max_pixels} "
                 "(ingest.max_pixels); raise the limit or tile/downsample the image"
             )

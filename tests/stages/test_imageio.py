@@ -274,7 +274,7 @@ def test_pixel_limit_applies_to_every_format(
     path = write(tmp_path / f"big{extension}", image)
     header = read_header(path.read_bytes())
     assert (header.height, header.width) == (48, 64)
-    assert_frame_error(path, "48 = 3072 pixels", max_pixels=3071)
+    assert_frame_error(path, "48x64 (HxW) = 3072 pixels", max_pixels=3071)
     assert read_gray(path, max_pixels=3072).image.shape == (48, 64)
 
 

@@ -1,0 +1,144 @@
+"""Ingest: read a frame's left and right images as 8-bit gray.
+
+The decoding rules (formats, colour -> gray, 16-bit and float scaling, what fails a frame)
+are those of :mod:`stages._imageio`. Ingest adds the pair checks: left and right must have
+the same size, and that size must be the archive's (``FrameContext.image_shape``) when the
+engine knows it. Each conversion becomes a note in the frame's record, and the sha256 of
+both files becomes a per-frame figure.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pipeline.errors import FrameError
+from pipeline.stage import FrameContext, Param, Product, Stage, StageResult
+
+from ._imageio import DEFAULT_MAX_PIXELS, DecodedImage, read_gray
+
+__all__ = ["STAGE", "run_ingest", "check_pair_shapes"]
+
+
+def run_ingest(
+    inputs: Mapping[str, np.ndarray], *, frame: FrameContext, params: Mapping[str, Any]
+) -> StageResult:
+    """Read and check one stereo pair.
+
+    Parameters
+    ----------
+    inputs : dict
+        Empty: ingest reads files, not products.
+    frame : FrameContext
+        Needs ``left_path`` and ``right_path``; ``image_shape`` (H, W) when known.
+    params : dict
+        ``max_pixels`` : int, largest accepted width x height.
+
+    Returns
+    -------
+    result : StageResult
+        ``arrays``: ``left``, ``right`` as (H, W) uint8; ``figures``: ``left_sha256``,
+        ``right_sha256``; ``notes``: the conversions applied, prefixed by the side.
+
+    Raises
+    ------
+    FrameError
+        An unreadable image (see :func:`stages._imageio.read_gray`) or a size mismatch.
+    """
+    if frame.left_path is None or frame.right_path is None:
+        raise FrameError(
+            f"frame {frame.frame_id}: ingest needs the left and right image paths, got "
+            f"left={frame.left_path!r}, right={frame.right_path!r}"
+        )
+    max_pixels = params.get("max_pixels", DEFAULT_MAX_PIXELS)
+    left = read_gray(frame.left_path, max_pixels=max_pixels)
+    right = read_gray(frame.right_path, max_pixels=max_pixels)
+    check_pair_shapes(
+        left.image.shape,
+        right.image.shape,
+        frame_id=frame.frame_id,
+        left_path=frame.left_path,
+        right_path=frame.right_path,
+        archive_shape=frame.image_shape,
+    )
+    return StageResult(
+        arrays={"left": left.image, "right": right.image},
+        figures={"left_sha256": left.sha256, "right_sha256": right.sha256},
+        notes=_pair_notes(left, right),
+    )
+
+
+def check_pair_shapes(
+    left_shape: tuple[int, ...],
+    right_shape: tuple[int, ...],
+    *,
+    frame_id: str,
+    left_path: Path | str,
+    right_path: Path | str,
+    archive_shape: tuple[int, int] | None = None,
+) -> None:
+    """Raise FrameError unless left and right are equally sized and match the archive.
+
+    Parameters
+    ----------
+    left_shape, right_shape : (H, W) tuple of int
+    frame_id : str
+    left_path, right_path : Path or str
+        Named in the messages.
+    archive_shape : (H, W) tuple of int, optional
+        Size every frame of the archive must have; not checked when None.
+    """
+    if tuple(left_shape) != tuple(right_shape):
+        raise FrameError(
+            f"frame {frame_id}: left image {left_path} is {_hxw(left_shape)} but right image "
+            f"{right_path} is {_hxw(right_shape)} (HxW); a stereo pair must have equal sizes"
+        )
+    if archive_shape is not None and tuple(left_shape) != tuple(archive_shape):
+        raise FrameError(
+            f"frame {frame_id} is {_hxw(left_shape)} but the archive's frames are "
+            f"{_hxw(archive_shape)} (HxW); resize {left_path} and {right_path}, or remove "
+            "the frame from the index (set [frames] shape in the catalog to choose the size)"
+        )
+
+
+def _hxw(shape: tuple[int, ...]) -> str:
+    return "x".join(str(n) for n in shape)
+
+
+def _pair_notes(left: DecodedImage, right: DecodedImage) -> list[str]:
+    if left.notes == right.notes:
+        return [f"left and right: {note}" for note in left.notes]
+    return [f"left: {note}" for note in left.notes] + [f"right: {note}" for note in right.notes]
+
+
+STAGE = Stage(
+    name="ingest",
+    version="1",
+    inputs=(),
+    outputs=(
+        Product(
+            "left",
+            dtype="uint8",
+            attrs={"units": "1", "long_name": "left camera image, gray levels 0-255"},
+        ),
+        Product(
+            "right",
+            dtype="uint8",
+            attrs={"units": "1", "long_name": "right camera image, gray levels 0-255"},
+        ),
+    ),
+    params=(
+        Param(
+            "max_pixels",
+            int,
+            DEFAULT_MAX_PIXELS,
+            "largest image (width x height) decoded; larger frames fail, read from the header",
+            minimum=1,
+        ),
+    ),
+    run=run_ingest,
+    doc="read left/right images (PNG, JPEG, TIFF, PGM/PPM, BMP) as 8-bit gray",
+)

@@ -1,0 +1,141 @@
+"""The ingest stage on real PNG/TIFF/JPEG files written by OpenCV."""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from pipeline.camera import Camera
+from pipeline.errors import FrameError, ParamError
+from pipeline.stage import FrameContext
+from stages._imageio import DEFAULT_MAX_PIXELS
+from stages.ingest import STAGE, check_pair_shapes, run_ingest
+
+CAMERA = Camera(focal_px=400.0, baseline_m=0.1)
+
+
+@pytest.fixture(scope="module")
+def pair() -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(5)
+    right = cv2.GaussianBlur(rng.integers(0, 256, (60, 80), dtype=np.uint8), (0, 0), 2)
+    left = np.roll(right, 4, axis=1)  # a constant disparity of 4 px
+    return left, right
+
+
+def write(path: Path, image: np.ndarray) -> Path:
+    assert cv2.imwrite(str(path), image)
+    return path
+
+
+def context(left: Path, right: Path, shape: tuple[int, int] | None = None) -> FrameContext:
+    return FrameContext(
+        frame_id="f1", archive="test", camera=CAMERA, left_path=left, right_path=right,
+        image_shape=shape,
+    )  # fmt: skip
+
+
+def ingest(frame: FrameContext, **overrides: int):
+    return run_ingest({}, frame=frame, params=STAGE.resolve_params(overrides))
+
+
+@pytest.mark.parametrize("extension", [".png", ".tif"])
+def test_lossless_pair_is_read_exactly(
+    tmp_path: Path, pair: tuple[np.ndarray, np.ndarray], extension: str
+) -> None:
+    left = write(tmp_path / f"l{extension}", pair[0])
+    right = write(tmp_path / f"r{extension}", pair[1])
+    result = ingest(context(left, right, shape=(60, 80)))
+    np.testing.assert_array_equal(result.arrays["left"], pair[0])
+    np.testing.assert_array_equal(result.arrays["right"], pair[1])
+    for name, product in zip(("left", "right"), STAGE.outputs, strict=True):
+        assert result.arrays[name].dtype == np.dtype(product.dtype)
+    assert result.notes == []
+    assert result.figures == {
+        "left_sha256": hashlib.sha256(left.read_bytes()).hexdigest(),
+        "right_sha256": hashlib.sha256(right.read_bytes()).hexdigest(),
+    }
+
+
+def test_jpeg_colour_pair_notes(tmp_path: Path, pair: tuple[np.ndarray, np.ndarray]) -> None:
+    tint = np.array([1.0, 0.8, 0.6])
+    left = write(tmp_path / "l.jpg", (pair[0][..., None] * tint).astype(np.uint8))
+    right = write(tmp_path / "r.jpg", (pair[1][..., None] * tint).astype(np.uint8))
+    result = ingest(context(left, right))
+    assert result.arrays["left"].shape == (60, 80)
+    assert len(result.notes) == 1 and result.notes[0].startswith("left and right: colour")
+
+
+def test_notes_differ_per_side(tmp_path: Path, pair: tuple[np.ndarray, np.ndarray]) -> None:
+    left = write(tmp_path / "l.png", pair[0].astype(np.uint16) * 257)
+    right = write(tmp_path / "r.png", pair[1])
+    result = ingest(context(left, right))
+    np.testing.assert_array_equal(result.arrays["left"], pair[0])
+    assert len(result.notes) == 1 and result.notes[0].startswith("left: 16-bit samples")
+
+
+def test_left_right_size_mismatch_names_both(
+    tmp_path: Path, pair: tuple[np.ndarray, np.ndarray]
+) -> None:
+    left = write(tmp_path / "l.png", pair[0])
+    right = write(tmp_path / "r.png", pair[1][:50])
+    with pytest.raises(FrameError) as info:
+        ingest(context(left, right))
+    message = str(info.value)
+    for fragment in (str(left), str(right), "60x80", "50x80", "equal sizes"):
+        assert fragment in message
+
+
+def test_frame_of_another_size_than_the_archive(
+    tmp_path: Path, pair: tuple[np.ndarray, np.ndarray]
+) -> None:
+    left = write(tmp_path / "l.png", pair[0])
+    right = write(tmp_path / "r.png", pair[1])
+    with pytest.raises(FrameError, match="frame f1 is 60x80 but the archive's frames are 64x64"):
+        ingest(context(left, right, shape=(64, 64)))
+
+
+def test_bad_file_fails_the_frame_naming_it(
+    tmp_path: Path, pair: tuple[np.ndarray, np.ndarray]
+) -> None:
+    left = write(tmp_path / "l.png", pair[0])
+    data = (tmp_path / "l.png").read_bytes()
+    right = tmp_path / "r.png"
+    right.write_bytes(data[: len(data) // 2])
+    with pytest.raises(FrameError, match=f"{right}: truncated PNG"):
+        ingest(context(left, right))
+    with pytest.raises(FrameError, match="missing file"):
+        ingest(context(left, tmp_path / "absent.png"))
+    with pytest.raises(FrameError, match="needs the left and right image paths"):
+        ingest(context(left, None))  # type: ignore[arg-type]
+
+
+def test_max_pixels_param(tmp_path: Path, pair: tuple[np.ndarray, np.ndarray]) -> None:
+    assert STAGE.defaults() == {"max_pixels": DEFAULT_MAX_PIXELS}
+    left = write(tmp_path / "l.png", pair[0])
+    right = write(tmp_path / "r.png", pair[1])
+    with pytest.raises(
+        FrameError, match=r"60x80 \(HxW\) = 4800 pixels, more than the limit of 4799"
+    ):
+        ingest(context(left, right), max_pixels=4799)
+    assert ingest(context(left, right), max_pixels=4800).arrays["left"].shape == (60, 80)
+    with pytest.raises(ParamError):
+        STAGE.resolve_params({"max_pixels": 0})
+
+
+def test_stage_declaration() -> None:
+    assert STAGE.name == "ingest" and STAGE.inputs == ()
+    assert STAGE.output_names == ("left", "right")
+    for product in STAGE.outputs:
+        assert product.dtype == "uint8" and product.kind == "array"
+        assert {"units", "long_name"} <= set(product.attrs)
+
+
+def test_check_pair_shapes_accepts_equal_sizes() -> None:
+    check_pair_shapes((4, 5), (4, 5), frame_id="f", left_path="l", right_path="r")
+    check_pair_shapes(
+        (4, 5), (4, 5), frame_id="f", left_path="l", right_path="r", archive_shape=(4, 5)
+    )
