@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import graphlib
 import importlib
+import os
 import pkgutil
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
@@ -26,6 +27,7 @@ __all__ = [
     "parse_set_overrides",
     "describe_graph",
     "resolve_stage_params",
+    "stage_package_name",
 ]
 
 
@@ -124,8 +126,14 @@ def build_graph(stages: Iterable[Stage]) -> StageGraph:
     return StageGraph(stages=tuple(by_name[n] for n in order), producer=producer)
 
 
-def discover_stages(package: str = "stages") -> list[Stage]:
-    """Every ``STAGE`` declared by a public module of ``package``."""
+def stage_package_name(package: str | None = None) -> str:
+    """The stage package: the argument, else ``$ARROYO_STAGE_PACKAGE``, else ``stages``."""
+    return package or os.environ.get("ARROYO_STAGE_PACKAGE") or "stages"
+
+
+def discover_stages(package: str | None = None) -> list[Stage]:
+    """Every ``STAGE`` declared by a public module of the stage package."""
+    package = stage_package_name(package)
     pkg = importlib.import_module(package)
     found = []
     for info in sorted(pkgutil.iter_modules(pkg.__path__), key=lambda m: m.name):

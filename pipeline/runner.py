@@ -28,6 +28,7 @@ from .graph import (
     discover_stages,
     parse_set_overrides,
     resolve_stage_params,
+    stage_package_name,
 )
 from .lock import RunLock
 from .provenance import environment, new_run_id, now_iso
@@ -175,11 +176,11 @@ def _validate(
     catalog_path: str | os.PathLike[str],
     overrides: Iterable[str],
     frames: str | None,
-    stage_package: str,
+    stage_package: str | None,
 ) -> tuple[Catalog, StageGraph, dict[str, dict[str, Any]], list[FrameRecord]]:
     """Catalog, graph, effective params and selected frames; raises before any work."""
     catalog = load_catalog(catalog_path)
-    graph = build_graph(discover_stages(stage_package))
+    graph = build_graph(discover_stages(stage_package_name(stage_package)))
     params = resolve_stage_params(graph, catalog.params, parse_set_overrides(graph, overrides))
     selected = [f for f in catalog.frames if frames is None or fnmatch.fnmatch(f.frame_id, frames)]
     if not selected:
@@ -196,7 +197,7 @@ def plan_run(
     *,
     overrides: Iterable[str] = (),
     frames: str | None = None,
-    stage_package: str = "stages",
+    stage_package: str | None = None,
     state: RunState | None = None,
 ) -> RunPlan:
     """Validate everything and work out what must run.
@@ -243,7 +244,7 @@ def plan_run(
         reasons=reasons,
         image_shape=image_shape,
         input_hashes=hashes,
-        stage_package=stage_package,
+        stage_package=stage_package_name(stage_package),
     )
 
 
@@ -277,7 +278,7 @@ def run(
     frames: str | None = None,
     dry_run: bool = False,
     progress: Callable[[int, int, str], None] | None = None,
-    stage_package: str = "stages",
+    stage_package: str | None = None,
 ) -> RunSummary | RunPlan:
     """Run (or with ``dry_run`` only plan) a catalog into a run directory.
 

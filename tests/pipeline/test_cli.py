@@ -1,0 +1,57 @@
+"""The CLI maps outcomes to exit codes and prints what a user needs."""
+
+from __future__ import annotations
+
+import pytest
+
+from pipeline.cli import main
+from pipeline.lock import RunLock
+
+
+@pytest.fixture(autouse=True)
+def _fake_stages(monkeypatch):
+    monkeypatch.setenv("ARROYO_STAGE_PACKAGE", "arroyo_fake_stages")
+
+
+def test_run_status_graph_and_dry_run(archive, tmp_path, capsys):
+    out = tmp_path / "run"
+    assert main(["run", str(archive), "--out", str(out), "--scheduler", "synchronous"]) == 0
+    assert "4 done, 0 failed" in capsys.readouterr().out
+    assert main(["status", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "blend" in text and "finished" in text
+    assert main(["run", str(archive), "--out", str(out), "--dry-run",
+                 "--set", "blend.weight=0.1"]) == 0
+    plan = capsys.readouterr().out
+    assert "0 frame(s) would run" not in plan and "changed" in plan
+    assert main(["graph"]) == 0
+    assert "1. ingest" in capsys.readouterr().out
+    assert main(["graph", "--format", "dot"]) == 0
+    assert capsys.readouterr().out.startswith("digraph")
+
+
+def test_failed_frames_exit_1_and_catalog_error_exit_2(archive, tmp_path, capsys):
+    (archive.parent / "images" / "f000_right.png").write_bytes(b"")
+    out = tmp_path / "run"
+    assert main(["run", str(archive), "--out", str(out), "--scheduler", "synchronous"]) == 1
+    assert "failed f000" in capsys.readouterr().out
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[archive]\nname = 'x'\n[camera]\nfocal_px = -1\n")
+    assert main(["run", str(bad), "--out", str(tmp_path / "r2")]) == 2
+    assert "bad.toml" in capsys.readouterr().err
+
+
+def test_bad_set_exits_2_and_locked_exits_3(archive, tmp_path, capsys):
+    out = tmp_path / "run"
+    assert main(["run", str(archive), "--out", str(out), "--set", "blend.weight=9"]) == 2
+    assert "<= 1.0" in capsys.readouterr().err
+    out.mkdir()
+    with RunLock(out):
+        code = main(["run", str(archive), "--out", str(out), "--scheduler", "synchronous"])
+    assert code == 3
+    assert "in use" in capsys.readouterr().err
+
+
+def test_status_of_missing_rundir_exits_2(tmp_path, capsys):
+    assert main(["status", str(tmp_path / "nothing")]) == 2
+    assert "does not exist" in capsys.readouterr().err
