@@ -47,9 +47,7 @@ at ingest time, and the rest of the run goes on.
 
 from __future__ import annotations
 
-import csv
 import hashlib
-import io
 import math
 import os
 import re
@@ -58,19 +56,13 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
+from ._frame_index import OVERRIDABLE, as_float, decode_utf8, read_bytes, read_index
 from .camera import Camera
 from .errors import CatalogError
 
 __all__ = ["FrameRecord", "Catalog", "load_catalog", "OVERRIDABLE_CAMERA_FIELDS"]
 
-OVERRIDABLE_CAMERA_FIELDS: tuple[str, ...] = (
-    "focal_px",
-    "baseline_m",
-    "height_m",
-    "pitch_deg",
-    "cx",
-    "cy",
-)
+OVERRIDABLE_CAMERA_FIELDS: tuple[str, ...] = OVERRIDABLE
 """Camera fields an index column of the same name overrides per frame."""
 
 _TABLE_KEYS: dict[str, tuple[str, ...]] = {
@@ -82,11 +74,6 @@ _TABLE_KEYS: dict[str, tuple[str, ...]] = {
     "synth": ("archetype", "frames", "seed", "variant"),
 }
 _NAME_RE = re.compile(r"[a-z0-9_-]+")
-_FRAME_ID_RE = re.compile(r"[A-Za-z0-9_.-]+")
-_FRAME_ID_MAX = 200
-_REQUIRED_COLUMNS = ("frame_id", "left", "right")
-_INT_RE = re.compile(r"[+-]?[0-9]+")
-_FLOAT_RE = re.compile(r"[+-]?([0-9]+\.?[0-9]*|\.[0-9]+)([eE][+-]?[0-9]+)?")
 
 
 @dataclass(frozen=True)
@@ -190,32 +177,6 @@ def _coerce_path(path: Any) -> Path:
     return Path(os.path.abspath(text))
 
 
-def _read_bytes(path: Path, what: str, fix: str) -> bytes:
-    try:
-        return path.read_bytes()
-    except FileNotFoundError:
-        raise CatalogError(f"{what} {path} does not exist; {fix}") from None
-    except IsADirectoryError:
-        raise CatalogError(f"{what} {path} is a directory, expected a file; {fix}") from None
-    except PermissionError:
-        raise CatalogError(
-            f"{what} {path} is not readable (permission denied); check its permissions"
-        ) from None
-    except (OSError, ValueError) as exc:
-        raise CatalogError(f"{what} {path} cannot be read: {exc}; {fix}") from None
-
-
-def _decode_utf8(raw: bytes, path: Path, what: str) -> str:
-    try:
-        return raw.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        line = raw[: exc.start].count(b"\n") + 1
-        raise CatalogError(
-            f"{path}: line {line}: {what} is not valid UTF-8 text (byte {exc.start}); "
-            "save it as UTF-8 text"
-        ) from None
-
-
 class _TomlDoc:
     """The parsed TOML, its text (to locate keys' lines) and error helpers."""
 
@@ -228,8 +189,8 @@ class _TomlDoc:
     @classmethod
     def read(cls, path: Path) -> _TomlDoc:
         fix = "give the path of a catalog TOML file"
-        raw = _read_bytes(path, "catalog", fix)
-        text = _decode_utf8(raw, path, "the catalog")
+        raw = read_bytes(path, "catalog", fix)
+        text = decode_utf8(raw, path, "the catalog")
         try:
             data = tomllib.loads(text)
         except tomllib.TOMLDecodeError as exc:
@@ -332,23 +293,12 @@ class _TomlDoc:
             if not isinstance(value, int) or isinstance(value, bool):
                 raise self.error(table, key, f"expected an integer, got {value!r}")
             return value
-        number = _as_float(value)
+        number = as_float(value)
         if number is None:
             raise self.error(table, key, f"expected a finite number, got {value!r}")
         if kind == "positive" and number <= 0:
             raise self.error(table, key, f"must be > 0, got {value!r}; set a positive value")
         return number
-
-
-def _as_float(value: Any) -> float | None:
-    """``value`` as a finite float, or None when it is not a finite number."""
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        return None
-    try:
-        number = float(value)
-    except OverflowError:
-        return None
-    return number if math.isfinite(number) else None
 
 
 def _load_plain(doc: _TomlDoc, *, source: Path) -> Catalog:
@@ -367,7 +317,7 @@ def _load_plain(doc: _TomlDoc, *, source: Path) -> Catalog:
             raise doc.error("truth", "dir", f"expected a directory path, got {truth!r}")
         truth_dir = Path(os.path.abspath(doc.path.parent / truth))
     index_path = Path(os.path.abspath(doc.path.parent / index))
-    frames = _read_index(index_path, camera)
+    frames = _frames(index_path, camera)
     return Catalog(
         path=doc.path,
         sha256=doc.sha256,
@@ -492,123 +442,18 @@ def _load_synth(doc: _TomlDoc) -> Catalog:
     )
 
 
-def _read_index(path: Path, camera: Camera) -> tuple[FrameRecord, ...]:
-    fix = "check [frames] index in the catalog (relative to the catalog's directory)"
-    text = _decode_utf8(_read_bytes(path, "frame index", fix), path, "the frame index")
-    rows: list[tuple[int, list[str]]] = []
-    reader = csv.reader(io.StringIO(text, newline=""))
-    try:
-        for row in reader:
-            if any(cell.strip() for cell in row):
-                rows.append((reader.line_num, [cell.strip() for cell in row]))
-    except csv.Error as exc:
-        raise CatalogError(
-            f"{path}: line {reader.line_num}: invalid CSV ({exc}); fix the quoting"
-        ) from None
-    if not rows:
-        raise CatalogError(
-            f"{path}: the frame index is empty; it needs a header frame_id,left,right and "
-            "one row per stereo pair"
-        )
-    header_line, header = rows[0]
-    _check_header(path, header_line, header)
-    if len(rows) == 1:
-        raise CatalogError(f"{path}: the frame index has no frames; add one row per stereo pair")
-    columns = {name: i for i, name in enumerate(header)}
-    metadata_types = _metadata_types(header, rows[1:])
-    seen: dict[str, int] = {}
+def _frames(index_path: Path, camera: Camera) -> tuple[FrameRecord, ...]:
     records = []
-    for line, cells in rows[1:]:
-        if len(cells) != len(header):
-            raise CatalogError(
-                f"{path}: line {line}: expected {len(header)} cells like the header, got "
-                f"{len(cells)}; quote cells that contain commas"
-            )
-        for name in _REQUIRED_COLUMNS:
-            if not cells[columns[name]]:
-                raise CatalogError(f"{path}: line {line}: empty cell in column {name!r}; fill it")
-        frame_id = cells[columns["frame_id"]]
-        if (
-            not _FRAME_ID_RE.fullmatch(frame_id)
-            or set(frame_id) == {"."}
-            or len(frame_id) > _FRAME_ID_MAX
-        ):
-            raise CatalogError(
-                f"{path}: line {line}: frame_id {frame_id!r} must be 1-{_FRAME_ID_MAX} of "
-                "A-Z a-z 0-9 _ . - (not only dots) so it is safe in file names; rename it"
-            )
-        if frame_id in seen:
-            raise CatalogError(
-                f"{path}: line {line}: duplicate frame_id {frame_id!r} (first on line "
-                f"{seen[frame_id]}); frame ids must be unique"
-            )
-        seen[frame_id] = line
-        paths = {}
-        for side in ("left", "right"):
-            cell = cells[columns[side]]
-            if "\x00" in cell:
-                raise CatalogError(f"{path}: line {line}: column {side!r} is not a valid path")
-            paths[side] = Path(os.path.abspath(path.parent / cell))
-        overrides: dict[str, Any] = {}
-        metadata: dict[str, Any] = {}
-        for name, kind in metadata_types.items():
-            cell = cells[columns[name]]
-            metadata[name] = None if not cell else kind(cell)
-        for name in OVERRIDABLE_CAMERA_FIELDS:
-            if name in columns and cells[columns[name]]:
-                overrides[name] = _override(path, line, name, cells[columns[name]])
+    for row in read_index(index_path):
         try:
-            frame_camera = camera.with_overrides(overrides)
-        except (TypeError, ValueError) as exc:
-            raise CatalogError(f"{path}: line {line}: per-frame camera override: {exc}") from None
+            frame_camera = camera.with_overrides(row.overrides)
+        except (TypeError, ValueError) as exc:  # defensive: the index checks each override
+            raise CatalogError(
+                f"{index_path}: line {row.line}: per-frame camera override: {exc}"
+            ) from None
         records.append(
-            FrameRecord(frame_id, paths["left"], paths["right"], frame_camera, metadata, overrides)
+            FrameRecord(
+                row.frame_id, row.left, row.right, frame_camera, row.metadata, row.overrides
+            )
         )
     return tuple(records)
-
-
-def _check_header(path: Path, line: int, header: list[str]) -> None:
-    missing = [name for name in _REQUIRED_COLUMNS if name not in header]
-    if missing:
-        raise CatalogError(
-            f"{path}: line {line}: the frame index lacks the column(s) {', '.join(missing)}; "
-            f"its header must contain frame_id,left,right, got {','.join(header)!r}"
-        )
-    for i, name in enumerate(header):
-        if not name:
-            raise CatalogError(f"{path}: line {line}: header cell {i + 1} is empty; name it")
-        if header.index(name) != i:
-            raise CatalogError(f"{path}: line {line}: column {name!r} appears twice; rename one")
-
-
-def _metadata_types(header: list[str], rows: list[tuple[int, list[str]]]) -> dict[str, type]:
-    """Per metadata column: int, float or str, whichever fits every non-empty cell."""
-    types: dict[str, type] = {}
-    for i, name in enumerate(header):
-        if name in _REQUIRED_COLUMNS or name in OVERRIDABLE_CAMERA_FIELDS:
-            continue
-        cells = [cells[i] for _, cells in rows if i < len(cells) and cells[i]]
-        if all(_INT_RE.fullmatch(c) for c in cells):
-            types[name] = int
-        elif all(_FLOAT_RE.fullmatch(c) or _INT_RE.fullmatch(c) for c in cells):
-            types[name] = float
-        else:
-            types[name] = str
-    return types
-
-
-def _override(path: Path, line: int, name: str, cell: str) -> float:
-    number = _as_float(float(cell)) if _FLOAT_RE.fullmatch(cell) else None
-    if number is None:
-        problem = "a finite number"
-    elif name == "pitch_deg" and not 0 <= number < 90:
-        problem = "a number in [0, 90) degrees"
-    elif name in ("focal_px", "baseline_m", "height_m") and number <= 0:
-        problem = "a number > 0"
-    else:
-        return number
-    raise CatalogError(
-        f"{path}: line {line}: column {name!r} overrides the camera's {name} for this frame "
-        f"and must be {problem}, got {cell!r}; fix the cell, or leave it empty to keep the "
-        "catalog's value"
-    )
