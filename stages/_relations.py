@@ -83,7 +83,7 @@ def ordering_matrices(
     Parameters
     ----------
     x_m, y_m : (K,) ndarray of float
-        Ground positions, NaN where unknown (no edge).
+        Ground positions; an object with either coordinate NaN gets no edge.
     margin_m : float
         Near-tie margin, metres, >= 0.
     """
@@ -91,15 +91,16 @@ def ordering_matrices(
         raise ValueError(f"margin_m must be >= 0, got {margin_m!r}")
     x = np.asarray(x_m, dtype=np.float64)
     y = np.asarray(y_m, dtype=np.float64)
-    dx = x[:, None] - x[None, :]
-    dy = y[:, None] - y[None, :]
-    with np.errstate(invalid="ignore"):
-        return {
-            "left_of": dx < -margin_m,
-            "right_of": dx > margin_m,
-            "in_front_of": dy < -margin_m,
-            "behind": dy > margin_m,
-        }
+    known = np.isfinite(x) & np.isfinite(y)
+    both = known[:, None] & known[None, :]
+    dx = np.where(both, x[:, None] - x[None, :], 0.0)
+    dy = np.where(both, y[:, None] - y[None, :], 0.0)
+    return {
+        "left_of": dx < -margin_m,
+        "right_of": dx > margin_m,
+        "in_front_of": dy < -margin_m,
+        "behind": dy > margin_m,
+    }
 
 
 def horizontal_overlap(

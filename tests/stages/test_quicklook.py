@@ -1,0 +1,152 @@
+"""Tests of the quicklook PNGs (OpenCV drawing)."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from pipeline.camera import Camera
+from pipeline.stage import FrameContext
+from stages.quicklook import (
+    STAGE,
+    encode_png,
+    objects_image,
+    range_contours_image,
+    residual_image,
+)
+
+SHAPE = (72, 96)
+
+
+def _gray(value=120):
+    return np.full(SHAPE, value, dtype=np.uint8)
+
+
+def _labels():
+    labels = np.zeros(SHAPE, dtype=np.int32)
+    labels[10:30, 10:40] = 1
+    labels[40:60, 50:80] = 2
+    return labels
+
+
+def _is_gray(image):
+    return (image[..., 0] == image[..., 1]) & (image[..., 1] == image[..., 2])
+
+
+def test_objects_image_outlines_each_object():
+    labels = _labels()
+    out = objects_image(_gray(), labels)
+    assert out.shape == (*SHAPE, 3) and out.dtype == np.uint8
+    for k in (1, 2):
+        mask = labels == k
+        boundary = mask & ~cv2.erode(mask.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+        assert (~_is_gray(out))[boundary].mean() > 0.6  # outline drawn (ids overlay a few)
+    far = ~cv2.dilate((labels > 0).astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+    assert (out[far] == 120).all()  # background untouched
+
+
+def test_objects_image_without_objects_is_the_gray_image():
+    out = objects_image(_gray(77), np.zeros(SHAPE, dtype=np.int32))
+    assert (out == 77).all()
+
+
+def test_range_contours_follow_levels():
+    rows = np.arange(SHAPE[0], dtype=np.float32)[:, None]
+    rng = np.broadcast_to(3.0 - 2.0 * rows / (SHAPE[0] - 1), SHAPE).astype(np.float32)
+    out = range_contours_image(_gray(), rng, step_m=0.25)
+    assert out.shape == (*SHAPE, 3)
+    colored_rows = np.flatnonzero((~_is_gray(out))[:, -3:].any(axis=1))  # right edge: no text
+    crossings = [2.75, 2.5, 2.25, 2.0, 1.75, 1.5, 1.25]
+    expected = [(3.0 - level) / 2.0 * (SHAPE[0] - 1) for level in crossings]
+    for row in expected:
+        assert np.min(np.abs(colored_rows - row)) <= 1.0
+    assert colored_rows.size <= 2 * len(crossings)
+
+
+def test_range_contours_with_no_valid_range_is_the_image():
+    out = range_contours_image(_gray(50), np.full(SHAPE, np.nan, dtype=np.float32))
+    assert (out == 50).all()
+    flat = range_contours_image(_gray(50), np.full(SHAPE, 1.1, dtype=np.float32))
+    assert (flat == 50).all()
+
+
+def test_range_contours_limit_the_number_of_levels():
+    rows = np.arange(SHAPE[0], dtype=np.float32)[:, None]
+    rng = np.broadcast_to(1.0 + rows, SHAPE).astype(np.float32)  # 72 m span
+    out = range_contours_image(_gray(), rng, step_m=0.01)
+    colored_rows = np.flatnonzero((~_is_gray(out))[:, -3:].any(axis=1))
+    assert 0 < colored_rows.size <= 2 * 30
+
+
+def test_range_contours_validate():
+    with pytest.raises(ValueError, match="step_m"):
+        range_contours_image(_gray(), np.ones(SHAPE, np.float32), step_m=0.0)
+    with pytest.raises(ValueError, match="shape"):
+        range_contours_image(_gray(), np.ones((5, 5), np.float32))
+
+
+def test_residual_image_panels():
+    rng = np.random.default_rng(0)
+    left = rng.integers(0, 256, SHAPE, dtype=np.uint8)
+    residual = np.zeros(SHAPE, dtype=np.float32)
+    residual[:, :5] = np.nan
+    out = residual_image(left, left, residual)
+    width = SHAPE[1]
+    assert out.shape == (SHAPE[0], 2 * width + 4, 3)
+    body = slice(20, None)  # below the panel titles
+    assert (out[body, : width - 1] == 128).all()  # left - right = 0 everywhere
+    right_panel = out[body, width + 4 :]
+    assert (right_panel[:, 5:] == 128).all()
+    assert (right_panel[:, :5] == (90, 20, 0)).all()  # undefined residual is marked
+
+
+def test_residual_image_scales_differences():
+    left = np.full(SHAPE, 100, dtype=np.uint8)
+    right = left.copy()
+    right[40:, :] = 110  # left - right = -10 there
+    out = residual_image(left, right, np.full(SHAPE, 10.0, dtype=np.float32))
+    assert out[60, 40, 0] == 1  # 128 - 127/10 * 10, clipped scale at the 99th percentile
+    assert out[60, SHAPE[1] + 4 + 40, 0] == 255
+
+
+def test_encode_png_round_trip():
+    image = objects_image(_gray(), _labels())
+    decoded = cv2.imdecode(np.frombuffer(encode_png(image), np.uint8), cv2.IMREAD_UNCHANGED)
+    np.testing.assert_array_equal(decoded, image)
+
+
+def _inputs():
+    rows = np.arange(SHAPE[0], dtype=np.float32)[:, None]
+    return {
+        "left": _gray(),
+        "right": _gray(110),
+        "labels": _labels(),
+        "range": np.broadcast_to(3.0 - rows / SHAPE[0], SHAPE).astype(np.float32),
+        "residual": np.zeros(SHAPE, dtype=np.float32),
+    }
+
+
+def test_stage_writes_three_decodable_pngs():
+    assert STAGE.name == "quicklook"
+    assert STAGE.inputs == ("left", "right", "labels", "range", "residual")
+    assert [(p.name, p.kind) for p in STAGE.outputs] == [("quicklooks", "files")]
+    frame = FrameContext(
+        frame_id="f007", archive="t", camera=Camera(focal_px=100.0, baseline_m=0.1)
+    )
+    result = STAGE.run(_inputs(), frame=frame, params=STAGE.defaults())
+    expected_shapes = {
+        "quicklooks/f007/objects.png": (*SHAPE, 3),
+        "quicklooks/f007/range_contours.png": (*SHAPE, 3),
+        "quicklooks/f007/residual.png": (SHAPE[0], 2 * SHAPE[1] + 4, 3),
+    }
+    assert set(result.files) == set(expected_shapes)
+    for path, content in result.files.items():
+        image = cv2.imdecode(np.frombuffer(content, np.uint8), cv2.IMREAD_UNCHANGED)
+        assert image is not None and image.shape == expected_shapes[path]
+
+
+def test_stage_disabled_writes_nothing():
+    frame = FrameContext(frame_id="f0", archive="t", camera=Camera(focal_px=100.0, baseline_m=0.1))
+    params = STAGE.resolve_params({"enabled": False})
+    assert STAGE.run(_inputs(), frame=frame, params=params).files == {}
