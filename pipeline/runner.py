@@ -162,7 +162,8 @@ def _probe_shape(catalog: Catalog) -> tuple[int, int] | None:
 
     for frame in catalog.frames[:50]:
         try:
-            return tuple(read_gray(frame.right).image.shape)  # type: ignore[return-value]
+            h, w = read_gray(frame.right).image.shape
+            return int(h), int(w)
         except Exception:  # noqa: BLE001 - any unreadable frame: try the next one
             continue
     return None
@@ -218,7 +219,9 @@ def plan_run(
         if reader is not None and reader is not state:
             reader.close()
     image_shape = _probe_shape(catalog)
-    keys, todo, reasons = {}, {}, {}
+    keys: dict[str, dict[str, str]] = {}
+    todo: dict[str, list[str]] = {}
+    reasons: dict[str, dict[str, str]] = {}
     for frame in selected:
         fid = frame.frame_id
         keys[fid] = frame_keys(graph, params, frame, hashes[fid], image_shape)

@@ -75,13 +75,14 @@ class Param:
             raise ParamError(
                 f"{label} expects {expected}, got {type(value).__name__} {value!r}"
             )
-        if self.type is float and not math.isfinite(value):
+        if isinstance(value, float) and not math.isfinite(value):
             raise ParamError(f"{label} expects a finite float, got {value!r}")
         if self.choices is not None and value not in self.choices:
             raise ParamError(f"{label} must be one of {list(self.choices)}, got {value!r}")
-        if self.minimum is not None and value < self.minimum:
+        number = float(value) if isinstance(value, int | float) else None
+        if number is not None and self.minimum is not None and number < self.minimum:
             raise ParamError(f"{label} must be >= {self.minimum}, got {value!r}")
-        if self.maximum is not None and value > self.maximum:
+        if number is not None and self.maximum is not None and number > self.maximum:
             raise ParamError(f"{label} must be <= {self.maximum}, got {value!r}")
         return value
 

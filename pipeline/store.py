@@ -152,14 +152,14 @@ def ensure_zarr(
     n = len(frame_ids)
     ids = np.array(list(frame_ids), dtype=str)
     if "frame" in group:
-        old = np.array([str(v) for v in group["frame"][:]], dtype=str)
+        coord = _array(group, "frame")
+        old = np.array([str(v) for v in np.asarray(coord[:]).ravel()], dtype=str)
         if len(old) > n or not np.array_equal(old, ids[: len(old)]):
             raise RunDirError(
                 f"{path} holds frames {list(old[:3])}... that do not match the catalog's "
                 f"frame list; the catalog's frames may only be extended at the end. Use a "
                 "new --out directory for a different frame list"
             )
-        coord = group["frame"]
         if len(old) < n:
             coord.resize((n,))
             coord[:] = ids
@@ -172,7 +172,7 @@ def ensure_zarr(
     for name, (product, frame_shape, attrs) in arrays.items():
         full = (n, *frame_shape)
         if name in group:
-            existing = group[name]
+            existing = _array(group, name)
             if tuple(existing.shape[1:]) != tuple(frame_shape):
                 del group[name]
                 recreated.add(name)
@@ -196,6 +196,13 @@ def ensure_zarr(
         warnings.simplefilter("ignore", zarr.errors.ZarrUserWarning)
         zarr.consolidate_metadata(str(path))
     return recreated
+
+
+def _array(group: zarr.Group, name: str) -> zarr.Array:
+    node = group[name]
+    if not isinstance(node, zarr.Array):
+        raise RunDirError(f"{name!r} in the product store is a group, expected an array")
+    return node
 
 
 def write_frame_array(rundir: Path, name: str, index: int, data: np.ndarray) -> str:
