@@ -230,8 +230,18 @@ STAGE = Stage(
     version="1",
     inputs=("right", "labels", "disparity", "range", "height", "ground_plane"),
     outputs=(
-        Product("descriptors", kind="table", attrs={"long_name": "per-object descriptors"}),
-        Product("relations", kind="table", attrs={"long_name": "scene-graph edges"}),
+        Product(
+            "descriptors",
+            kind="table",
+            schema=DESCRIPTOR_SCHEMA,
+            attrs={"long_name": "per-object descriptors"},
+        ),
+        Product(
+            "relations",
+            kind="table",
+            schema=RELATION_SCHEMA,
+            attrs={"long_name": "scene-graph edges"},
+        ),
     ),
     params=(
         Param("sample_max_m", float, 0.10, "largest cross-section of a sample, m", minimum=0),

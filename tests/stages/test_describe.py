@@ -248,9 +248,9 @@ def test_size_frequency_figures():
 def test_stage_declaration_and_run():
     assert STAGE.name == "describe" and STAGE.version == "1"
     assert STAGE.inputs == ("right", "labels", "disparity", "range", "height", "ground_plane")
-    assert [(p.name, p.kind) for p in STAGE.outputs] == [
-        ("descriptors", "table"),
-        ("relations", "table"),
+    assert [(p.name, p.kind, p.schema) for p in STAGE.outputs] == [
+        ("descriptors", "table", DESCRIPTOR_SCHEMA),
+        ("relations", "table", RELATION_SCHEMA),
     ]
     labels, gray, disparity, rng, height = plate_scene(CAMERA, SHAPE, [(0.0, 1.6, 0.3, 0.2, 60)])
     inputs = {
