@@ -115,7 +115,9 @@ def _png_header(data: bytes) -> ImageHeader:
         length, kind = struct.unpack(">I4s", data[position : position + 8])
         end = position + 12 + length
         if end > len(data):
-            raise _truncated("PNG", f"chunk {kind!r} runs past the end of the file")
+            raise _truncated(
+                "PNG", f"chunk {kind.decode('latin-1')!r} runs past the end of the file"
+            )
         if kind == b"IEND":
             return _size("PNG", width, height)
         position = end
