@@ -423,3 +423,19 @@ def test_fuzz_mutated_valid_catalog(
             lines[number] = lines[number].split(" = ")[0] + " = " + value
     path = write_catalog(tmp_path, "\n".join(lines + extra))
     _assert_only_catalog_error(path)
+
+
+def test_permission_denied_message_even_as_root(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Root reads everything, so the permission branch is also exercised by simulation."""
+    path = write_catalog(tmp_path)
+    real_read_bytes = Path.read_bytes
+
+    def read_bytes(self: Path) -> bytes:
+        if self.name == "frames.csv":
+            raise PermissionError(13, "Permission denied", str(self))
+        return real_read_bytes(self)
+
+    monkeypatch.setattr(Path, "read_bytes", read_bytes)
+    assert_error(path, "frames.csv", "permission denied")

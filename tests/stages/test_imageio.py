@@ -372,3 +372,16 @@ def test_fuzz_truncated_and_corrupted_valid_files(
     for where, value in flips:
         data[int(where * (len(data) - 1))] = value
     _decode_or_frame_error(bytes(data[: max(1, int(cut * len(data)))]), f"fuzz{extension}")
+
+
+def test_permission_denied_message_even_as_root(
+    tmp_path: Path, gray: np.ndarray, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Root reads everything, so the permission branch is also exercised by simulation."""
+    path = write(tmp_path / "locked.png", gray)
+
+    def denied(*args: object, **kwargs: object) -> None:
+        raise PermissionError(13, "Permission denied", str(path))
+
+    monkeypatch.setattr(_imageio, "open", denied, raising=False)
+    assert_frame_error(path, "permission denied")
