@@ -195,7 +195,8 @@ class _TomlDoc:
             data = tomllib.loads(text)
         except tomllib.TOMLDecodeError as exc:
             # Python < 3.14 only puts "(at line N, column M)" in the message.
-            lineno = getattr(exc, "lineno", None)
+            found = re.search(r"at line (\d+)", str(exc))
+            lineno = getattr(exc, "lineno", None) or (found and int(found.group(1)))
             where = f"line {lineno}: " if lineno else ""
             raise CatalogError(
                 f"{path}: {where}malformed TOML: {exc}; fix the syntax at that place"

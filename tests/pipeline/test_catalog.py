@@ -183,7 +183,7 @@ def test_synth_catalog_errors(tmp_path: Path, fake_synth: list) -> None:
 @pytest.mark.parametrize(
     ("old", "new", "fragments"),
     [
-        ("focal_px = 430.0", "focal_px = 430.0 ]", ("line 6", "malformed TOML")),
+        ("focal_px = 430.0", "focal_px = 430.0 ]", ("cat.toml: line 6: malformed TOML", "column")),
         ("focal_px = 430.0", "focal_px = -430.0", ("line 6", "[camera] focal_px", "> 0")),
         ("focal_px = 430.0", "focal_px = 0", ("line 6", "[camera] focal_px", "> 0")),
         ("baseline_m = 0.10", "baseline_m = -0.1", ("line 7", "[camera] baseline_m", "> 0")),
