@@ -1,0 +1,638 @@
+"""``arroyo query``: SQL (DuckDB, in-process) over the Parquet products of one or more runs.
+
+Views
+-----
+Every run directory given contributes its rows to four views, so several runs (for example
+one per archive) query as one table set:
+
+``descriptors``
+    One row per rock per frame (columns in ``docs/design.md``).
+``relations``
+    One row per scene-graph edge.
+``frames``
+    One row per catalog frame: ``status`` ('done'|'failed'|'pending'), ``error``,
+    ``failed_stage``, ``<stage>_seconds``, ``<stage>_<figure>`` and the catalog's metadata
+    columns.
+``evaluation``
+    Scores against ground truth, when ``arroyo evaluate`` ran (tidy: product, method, metric,
+    value; ``frame_id = '*'`` is the archive aggregate).
+
+Each view has an ``archive`` column (the catalog's archive name) and a ``run`` column: the
+name of the run directory as given (``runs/lab`` -> ``lab``; the whole path as given when
+two directories share a name). ``run_id`` stays the id of the run that computed the row (a
+resumed run directory may hold rows of several run ids). Columns that exist in some runs
+only (per-archive catalog metadata, new figures) are NULL in the others. A view that no
+given run has files for (``evaluation`` before ``arroyo evaluate``) is an empty view with
+the documented columns, so a query over it returns no rows rather than an error.
+
+What a query sees
+-----------------
+``descriptors`` and ``relations`` are read from the published generation of each run
+(``RUNDIR/<product>.parquet``, a symlink swapped atomically when a run ends; files
+hive-partitioned by ``archive=<name>/`` so a filter on ``archive`` prunes whole files, and
+compacted into few large files). They therefore hold completed frames only. The files are
+listed once when the views are created: a run publishing meanwhile does not change what an
+open connection reads. A run still in progress (``run.json`` status ``running`` and a live
+holder of ``RUNDIR/.arroyo.lock``) is refused unless ``allow_running=True``, which reads
+what the last finished run published plus the current ``frames.parquet``.
+
+Only one read-only statement (``SELECT``, ``WITH ... SELECT``, ``DESCRIBE``, ``SHOW``,
+``EXPLAIN``, ``SUMMARIZE``) is accepted by :func:`query_runs`; use :func:`open_runs` for a
+full DuckDB connection in a notebook.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import sys
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from decimal import Decimal
+from pathlib import Path
+from typing import IO, Any
+
+import duckdb
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from .errors import ParamError, RunDirError
+from .lock import lock_holder
+from .store import FRAMES_NAME, ZARR_NAME, atomic_write_bytes, published_path
+
+__all__ = [
+    "VIEWS",
+    "FORMATS",
+    "RunInfo",
+    "load_runs",
+    "open_runs",
+    "query_runs",
+    "query_df",
+    "frame_dataset",
+    "format_text_table",
+    "query_command",
+]
+
+VIEWS = ("descriptors", "relations", "frames", "evaluation")
+FORMATS = ("table", "csv", "parquet", "json")
+EVALUATION_NAME = "evaluation.parquet"
+_TABLE_ROWS_SHOWN = 500
+_READ_ONLY = {"SELECT", "EXPLAIN"}
+_READ_ONLY_PRAGMAS = ("describe", "show", "summarize", "pragma show", "pragma table_info")
+
+
+@dataclass(frozen=True)
+class RunInfo:
+    """A run directory resolved for querying.
+
+    Attributes
+    ----------
+    path : Path
+        The run directory.
+    run : str
+        The value of the views' ``run`` column.
+    run_id, archive, status : str
+        From ``run.json``.
+    files : dict of str to list of Path
+        View name -> Parquet files it reads (possibly empty).
+    """
+
+    path: Path
+    run: str
+    run_id: str
+    archive: str
+    status: str
+    files: dict[str, list[Path]] = field(default_factory=dict)
+
+
+# -- run directories ----------------------------------------------------------------------
+def _coerce_rundirs(rundirs: Any) -> list[Path]:
+    if isinstance(rundirs, str | os.PathLike):
+        rundirs = [rundirs]
+    if not isinstance(rundirs, Iterable):
+        raise TypeError(
+            f"rundirs must be a path or a sequence of paths, got {type(rundirs).__name__}"
+        )
+    paths = []
+    for item in rundirs:
+        if not isinstance(item, str | os.PathLike):
+            raise TypeError(f"each run directory must be a str or Path, got {item!r}")
+        paths.append(Path(item))
+    if not paths:
+        raise ParamError("no run directory given; pass at least one RUNDIR")
+    seen: dict[Path, Path] = {}
+    for path in paths:
+        key = path.resolve()
+        if key in seen:
+            raise ParamError(
+                f"run directory {path} is given twice (also as {seen[key]}); its rows would "
+                "be counted twice. Pass each RUNDIR once"
+            )
+        seen[key] = path
+    return paths
+
+
+def _load_run_json(rundir: Path) -> dict[str, Any]:
+    if not rundir.exists():
+        raise RunDirError(
+            f"run directory {rundir} does not exist; check the path or run "
+            "`arroyo run CATALOG --out DIR` first"
+        )
+    if not rundir.is_dir():
+        raise RunDirError(f"{rundir} is a file, not a run directory")
+    path = rundir / "run.json"
+    if not path.is_file():
+        raise RunDirError(
+            f"{rundir} is not an arroyo run directory (no run.json); pass the --out directory "
+            "of `arroyo run`"
+        )
+    try:
+        meta = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise RunDirError(f"cannot read {path}: {exc}") from None
+    if not isinstance(meta, dict):
+        raise RunDirError(f"{path} does not hold a JSON object; it is not an arroyo run.json")
+    return meta
+
+
+def _check_not_running(rundir: Path, meta: Mapping[str, Any]) -> None:
+    # A run holds the lock only while it runs; checking run.json first keeps us from
+    # touching the lock of finished runs at all.
+    if meta.get("status") != "running":
+        return
+    holder = lock_holder(rundir)
+    if holder is None:
+        return  # a killed run: what it published is complete, the rest is not visible
+    raise RunDirError(
+        f"run {rundir} is still in progress (arroyo pid {holder.get('pid', '?')} on host "
+        f"{holder.get('host', '?')} since {holder.get('since', '?')}); wait until it "
+        "finishes, or pass allow_running=True to read the frames it has published so far"
+    )
+
+
+def _published_files(rundir: Path, product: str) -> list[Path]:
+    link = published_path(rundir, product)
+    if not link.exists():
+        return []
+    # resolve the symlink once: a later swap by a new run must not change what we read
+    target = link.resolve()
+    if target.is_file():
+        return [target]
+    return sorted(target.glob("archive=*/*.parquet")) or sorted(target.rglob("*.parquet"))
+
+
+def _run_labels(paths: Sequence[Path]) -> list[str]:
+    names = [p.resolve().name or str(p) for p in paths]
+    return [
+        name if names.count(name) == 1 else str(path)
+        for name, path in zip(names, paths, strict=True)
+    ]
+
+
+def load_runs(rundirs: Any, *, allow_running: bool = False) -> list[RunInfo]:
+    """Resolve run directories: metadata and the Parquet files each view reads.
+
+    Parameters
+    ----------
+    rundirs : path or sequence of paths
+        Run directories (``arroyo run --out``).
+    allow_running : bool
+        Accept a run still in progress (reads what it has published so far).
+
+    Raises
+    ------
+    RunDirError
+        A directory is missing, not a run directory, or (without ``allow_running``) still
+        being written by a live run.
+    ParamError
+        No directory, or the same directory twice.
+    """
+    paths = _coerce_rundirs(rundirs)
+    runs = []
+    for path, label in zip(paths, _run_labels(paths), strict=True):
+        meta = _load_run_json(path)
+        if not allow_running:
+            _check_not_running(path, meta)
+        files = {
+            "descriptors": _published_files(path, "descriptors"),
+            "relations": _published_files(path, "relations"),
+            "frames": [path / FRAMES_NAME] if (path / FRAMES_NAME).is_file() else [],
+            "evaluation": [path / EVALUATION_NAME] if (path / EVALUATION_NAME).is_file() else [],
+        }
+        runs.append(
+            RunInfo(
+                path=path,
+                run=label,
+                run_id=str(meta.get("run_id", "")),
+                archive=str(meta.get("archive", "")),
+                status=str(meta.get("status", "")),
+                files=files,
+            )
+        )
+    return runs
+
+
+# -- views --------------------------------------------------------------------------------
+def _sql_str(value: str | os.PathLike[str]) -> str:
+    return "'" + str(value).replace("'", "''") + "'"
+
+
+def _empty_schema(view: str) -> pa.Schema:
+    ids = [("archive", pa.string()), ("run", pa.string()), ("run_id", pa.string())]
+    if view in ("descriptors", "relations"):
+        from stages.describe import DESCRIPTOR_SCHEMA, RELATION_SCHEMA
+
+        body = DESCRIPTOR_SCHEMA if view == "descriptors" else RELATION_SCHEMA
+        return pa.schema([*ids, ("frame_id", pa.string()), *body])
+    if view == "frames":
+        return pa.schema(
+            [
+                *ids,
+                ("frame_id", pa.string()),
+                ("index", pa.int64()),
+                ("status", pa.string()),
+                ("failed_stage", pa.string()),
+                ("error", pa.string()),
+            ]
+        )
+    return pa.schema(
+        [
+            *ids,
+            ("frame_id", pa.string()),
+            ("product", pa.string()),
+            ("method", pa.string()),
+            ("metric", pa.string()),
+            ("value", pa.float64()),
+        ]
+    )
+
+
+def _branch_sql(view: str, run: RunInfo) -> str | None:
+    files = run.files.get(view, [])
+    if not files:
+        return None
+    names: set[str] = set()
+    for path in files:
+        try:
+            names |= set(pq.read_schema(path).names)
+        except (OSError, pa.ArrowInvalid) as exc:
+            raise RunDirError(
+                f"cannot read {path} of run {run.path}: {exc}; `arroyo status --verify "
+                f"{run.path}` checks the store and the next run repairs it"
+            ) from None
+    hive = "true" if view in ("descriptors", "relations") else "false"
+    source = (
+        f"read_parquet([{', '.join(_sql_str(p) for p in files)}], "
+        f"hive_partitioning={hive}, union_by_name=true)"
+    )
+    first = []
+    if "archive" in names:
+        first.append("archive")
+    else:
+        first.append(f"{_sql_str(run.archive)} AS archive")
+    first.append(f"{_sql_str(run.run)} AS run")
+    first.append("run_id" if "run_id" in names else f"{_sql_str(run.run_id)} AS run_id")
+    drop = [c for c in ("archive", "run", "run_id") if c in names]
+    star = f"* EXCLUDE ({', '.join(drop)})" if drop else "*"
+    return f"SELECT {', '.join(first)}, {star} FROM {source}"
+
+
+def _create_views(con: duckdb.DuckDBPyConnection, runs: Sequence[RunInfo]) -> None:
+    for view in VIEWS:
+        branches = [b for b in (_branch_sql(view, r) for r in runs) if b is not None]
+        if branches:
+            body = "\nUNION ALL BY NAME\n".join(f"({b})" for b in branches)
+            con.execute(f"CREATE VIEW {view} AS {body}")
+        else:
+            empty = _empty_schema(view).empty_table()
+            con.register(f"_empty_{view}", empty)
+            con.execute(f"CREATE VIEW {view} AS SELECT * FROM _empty_{view}")
+
+
+def open_runs(rundirs: Any, *, allow_running: bool = False) -> duckdb.DuckDBPyConnection:
+    """A DuckDB connection with the views over these runs (for notebooks).
+
+    Parameters
+    ----------
+    rundirs : path or sequence of paths
+        One or more run directories.
+    allow_running : bool
+        Accept runs still in progress (see the module docstring).
+
+    Returns
+    -------
+    duckdb.DuckDBPyConnection
+        In-memory connection with views ``descriptors``, ``relations``, ``frames`` and
+        ``evaluation``. ``con.sql(SQL)`` gives a relation: ``.to_arrow_table()``,
+        ``.df()`` (pandas), ``.fetchall()``.
+
+    Examples
+    --------
+    >>> con = open_runs(["runs/lab", "runs/mojave"])  # doctest: +SKIP
+    >>> con.sql("SELECT archive, count(*) FROM descriptors GROUP BY ALL").df()  # doctest: +SKIP
+    """
+    runs = load_runs(rundirs, allow_running=allow_running)
+    con = duckdb.connect(":memory:")
+    try:
+        _create_views(con, runs)
+    except BaseException:
+        con.close()
+        raise
+    return con
+
+
+def _check_read_only(con: duckdb.DuckDBPyConnection, sql: str) -> None:
+    if not isinstance(sql, str):
+        raise TypeError(f"sql must be a str, got {type(sql).__name__}")
+    if not sql.strip():
+        raise ParamError('empty SQL; pass a query such as "SELECT count(*) FROM descriptors"')
+    try:
+        statements = con.extract_statements(sql)
+    except duckdb.Error as exc:
+        raise ParamError(f"invalid SQL: {exc}") from None
+    if len(statements) != 1:
+        raise ParamError(
+            f"pass exactly one SQL statement, got {len(statements)}; run them one at a time"
+        )
+    kind = statements[0].type.name
+    text = sql.strip().lower()
+    if kind not in _READ_ONLY and not text.startswith(_READ_ONLY_PRAGMAS):
+        raise ParamError(
+            f"only read-only queries (SELECT, WITH ... SELECT, DESCRIBE, SUMMARIZE, EXPLAIN) "
+            f"are allowed, got a {kind} statement; arroyo query never changes a run. Use "
+            "--format/--output to save results"
+        )
+
+
+def query_runs(rundirs: Any, sql: str, *, allow_running: bool = False) -> pa.Table:
+    """Run one read-only SQL statement over the views of these runs.
+
+    Parameters
+    ----------
+    rundirs : path or sequence of paths
+        One or more run directories.
+    sql : str
+        One DuckDB SELECT (or DESCRIBE/SUMMARIZE/EXPLAIN) over ``descriptors``,
+        ``relations``, ``frames``, ``evaluation``.
+    allow_running : bool
+        Accept runs still in progress.
+
+    Returns
+    -------
+    pyarrow.Table
+
+    Raises
+    ------
+    ParamError
+        Invalid SQL, an unknown table or column, or a statement that is not read-only.
+    RunDirError
+        A missing or in-progress run directory.
+    """
+    con = open_runs(rundirs, allow_running=allow_running)
+    try:
+        _check_read_only(con, sql)
+        try:
+            relation = con.sql(sql)
+            if relation is None:
+                return pa.table({})
+            return relation.to_arrow_table()
+        except duckdb.IOException as exc:
+            raise RunDirError(f"cannot read the run's Parquet files: {exc}") from None
+        except duckdb.Error as exc:
+            raise ParamError(
+                f"query failed: {exc}\nviews: {', '.join(VIEWS)} (DESCRIBE descriptors lists "
+                "the columns)"
+            ) from None
+    finally:
+        con.close()
+
+
+def query_df(rundirs: Any, sql: str, *, allow_running: bool = False) -> Any:
+    """:func:`query_runs` as a pandas DataFrame."""
+    return query_runs(rundirs, sql, allow_running=allow_running).to_pandas()
+
+
+# -- one frame's maps ---------------------------------------------------------------------
+def frame_dataset(rundir: str | os.PathLike[str], frame_id: str) -> Any:
+    """The array products of one frame (images, disparity, range, height, residual, labels,
+    sector grids) as an in-memory ``xarray.Dataset``.
+
+    Parameters
+    ----------
+    rundir : path
+        Run directory.
+    frame_id : str
+        A frame of the run's catalog.
+
+    Returns
+    -------
+    xarray.Dataset
+        Variables with dims (y, x) or (sector_y, sector_x)...; attrs ``archive``,
+        ``run_id``, ``frame_id``, ``status`` ('done'|'failed'|'pending') and ``error``.
+        Maps of a frame that is not done hold fill values (NaN, 0).
+    """
+    import xarray as xr
+
+    path = Path(rundir)
+    meta = _load_run_json(path)
+    if not isinstance(frame_id, str):
+        raise TypeError(f"frame_id must be a str, got {type(frame_id).__name__}")
+    store = path / ZARR_NAME
+    if not store.exists():
+        raise RunDirError(f"{path} has no {ZARR_NAME}; the run wrote no array products yet")
+    data = xr.open_zarr(store)
+    frames = [str(f) for f in data["frame"].values]
+    if frame_id not in frames:
+        raise ParamError(
+            f"frame {frame_id!r} is not in run {path} ({len(frames)} frames, e.g. "
+            f'{frames[:3]}); `arroyo query {path} "SELECT frame_id FROM frames"` lists them'
+        )
+    one = data.sel(frame=frame_id).load()
+    data.close()
+    status, error = "pending", None
+    if (path / FRAMES_NAME).is_file():
+        rows = pq.read_table(path / FRAMES_NAME, columns=["frame_id", "status", "error"])
+        for row in rows.to_pylist():
+            if row["frame_id"] == frame_id:
+                status, error = row["status"], row["error"]
+    one.attrs.update(
+        archive=str(meta.get("archive", "")),
+        run_id=str(meta.get("run_id", "")),
+        frame_id=frame_id,
+        status=status,
+        error=error or "",
+    )
+    return one
+
+
+# -- output -------------------------------------------------------------------------------
+def _format_cell(value: Any) -> str:
+    if value is None:
+        return ""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float):
+        if not math.isfinite(value):
+            return str(value).lower()
+        if value == 0 or 1e-3 <= abs(value) < 1e7:
+            text = f"{value:.4f}".rstrip("0").rstrip(".")
+            return text if text not in ("", "-0") else "0"
+        return f"{value:.4g}"
+    return str(value)
+
+
+def _is_numeric(type_: pa.DataType) -> bool:
+    return pa.types.is_integer(type_) or pa.types.is_floating(type_) or pa.types.is_decimal(type_)
+
+
+def format_text_table(table: pa.Table, *, max_rows: int | None = None) -> str:
+    """A plain-text table (numbers right-aligned) for pipes, files and logs.
+
+    Parameters
+    ----------
+    table : pyarrow.Table
+    max_rows : int, optional
+        Show at most this many rows and say how many were left out.
+    """
+    shown = table if max_rows is None else table.slice(0, max_rows)
+    names = table.column_names
+    cells = [[_format_cell(v) for v in shown.column(n).to_pylist()] for n in names]
+    numeric = [_is_numeric(table.schema.field(n).type) for n in names]
+    widths = [max([len(n), *map(len, col)]) for n, col in zip(names, cells, strict=True)]
+
+    def line(values: Sequence[str]) -> str:
+        parts = [
+            v.rjust(w) if num else v.ljust(w)
+            for v, w, num in zip(values, widths, numeric, strict=True)
+        ]
+        return "  ".join(parts).rstrip()
+
+    out = [line(names), "  ".join("-" * w for w in widths)]
+    out += [line(row) for row in zip(*cells, strict=True)] if names else []
+    footer = f"({table.num_rows} row{'s' if table.num_rows != 1 else ''}"
+    if shown.num_rows < table.num_rows:
+        footer += f", first {shown.num_rows} shown; use --format csv for all"
+    out.append(footer + ")")
+    return "\n".join(out) + "\n"
+
+
+def _rich_table(table: pa.Table, *, max_rows: int) -> Any:
+    from rich.table import Table
+
+    shown = table.slice(0, max_rows)
+    caption = f"{table.num_rows} row{'s' if table.num_rows != 1 else ''}"
+    if shown.num_rows < table.num_rows:
+        caption += f", first {shown.num_rows} shown; use --format csv for all"
+    out = Table(caption=caption, header_style="bold")
+    for name in table.column_names:
+        numeric = _is_numeric(table.schema.field(name).type)
+        out.add_column(name, justify="right" if numeric else "left")
+    columns = [[_format_cell(v) for v in shown.column(n).to_pylist()] for n in table.column_names]
+    for row in zip(*columns, strict=True):
+        out.add_row(*row)
+    return out
+
+
+def _json_value(value: Any) -> Any:
+    if isinstance(value, Decimal):
+        value = float(value)
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: _json_value(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_json_value(v) for v in value]
+    return value
+
+
+def _encode(table: pa.Table, fmt: str) -> bytes:
+    if fmt == "csv":
+        import pyarrow.csv as pacsv
+
+        sink = pa.BufferOutputStream()
+        pacsv.write_csv(table, sink)
+        return sink.getvalue().to_pybytes()
+    if fmt == "json":
+        rows = [_json_value(r) for r in table.to_pylist()]
+        return (json.dumps(rows, indent=1, default=str, allow_nan=False) + "\n").encode()
+    if fmt == "parquet":
+        sink = pa.BufferOutputStream()
+        pq.write_table(table, sink, compression="zstd")
+        return sink.getvalue().to_pybytes()
+    return format_text_table(table).encode()
+
+
+def _coerce_format(fmt: Any) -> str:
+    if fmt not in FORMATS:
+        raise ParamError(f"--format must be one of {', '.join(FORMATS)}, got {fmt!r}")
+    return str(fmt)
+
+
+def query_command(
+    rundirs: Sequence[str | os.PathLike[str]],
+    sql: str,
+    *,
+    fmt: str = "table",
+    output: str | os.PathLike[str] | None = None,
+    allow_running: bool = False,
+    stdout: IO[str] | None = None,
+) -> int:
+    """``arroyo query``: run the query, then print or write the result.
+
+    Parameters
+    ----------
+    rundirs : sequence of paths
+    sql : str
+    fmt : {'table', 'csv', 'parquet', 'json'}
+        ``table``: a rich table on a terminal, plain text otherwise. ``parquet`` needs
+        ``output`` unless stdout is redirected.
+    output : path, optional
+        File to write (atomically); default stdout.
+    allow_running : bool
+        Accept runs still in progress.
+    stdout : text stream, optional
+        Where to print (default ``sys.stdout``).
+
+    Returns
+    -------
+    int
+        0. Errors raise ParamError / RunDirError (exit code 2 in the CLI) before anything
+        is written.
+    """
+    fmt = _coerce_format(fmt)
+    stream = stdout if stdout is not None else sys.stdout
+    tty = bool(getattr(stream, "isatty", lambda: False)())
+    if fmt == "parquet" and output is None and tty:
+        raise ParamError(
+            "--format parquet writes binary data; pass --output FILE.parquet or redirect "
+            "stdout to a file"
+        )
+    if output is not None:
+        target = Path(output)
+        if target.is_dir():
+            raise ParamError(f"--output {target} is a directory; pass a file name")
+        if not target.parent.is_dir():
+            raise ParamError(f"--output {target}: directory {target.parent} does not exist")
+    table = query_runs(rundirs, sql, allow_running=allow_running)
+    if output is not None:
+        atomic_write_bytes(Path(output), _encode(table, fmt))
+        return 0
+    if fmt == "table" and tty:
+        from rich.console import Console
+
+        Console(file=stream).print(_rich_table(table, max_rows=_TABLE_ROWS_SHOWN))
+        return 0
+    if fmt == "table":
+        stream.write(format_text_table(table, max_rows=_TABLE_ROWS_SHOWN))
+    elif fmt == "parquet":
+        stream.flush()
+        buffer = getattr(stream, "buffer", None)
+        if buffer is None:
+            raise ParamError("stdout takes no binary data here; pass --output FILE.parquet")
+        buffer.write(_encode(table, fmt))
+        buffer.flush()
+    else:
+        stream.write(_encode(table, fmt).decode())
+    stream.flush()
+    return 0
