@@ -69,7 +69,7 @@ def sgbm_disparity(
     if block_size < 3 or block_size % 2 == 0:
         raise ValueError(f"block_size must be odd and >= 3, got {block_size!r}")
     span = max_disparity - min_disparity + 1
-    matcher = cv2.StereoSGBM_create(
+    matcher = cv2.StereoSGBM_create(  # type: ignore[attr-defined]
         minDisparity=int(min_disparity),
         numDisparities=int(-(-span // 16) * 16),
         blockSize=int(block_size),

@@ -441,7 +441,7 @@ def _descriptor_block(c: dict[str, np.ndarray], keep: np.ndarray, prefix: str) -
     out.update(_quantiles(rel(s["p_w"], s["t_w"]), f"{prefix}width_rel_err", ""))
     out.update(_quantiles(rel(s["p_r"], s["t_r"]), f"{prefix}range_rel_err", ""))
     n = int(keep.sum())
-    out[f"{prefix}class_accuracy"] = _ratio(np.count_nonzero(s["p_c"] == s["t_c"]), n)
+    out[f"{prefix}class_accuracy"] = _ratio(int(np.count_nonzero(s["p_c"] == s["t_c"])), n)
     out[f"{prefix}n_rocks"] = float(n)
     return out
 
@@ -566,7 +566,7 @@ def relation_agreement(
         checked |= is_rel
         agree |= is_rel & ok
         if is_rel.any():
-            out[f"agreement_{name}"] = _ratio(np.count_nonzero(is_rel & ok), is_rel.sum())
+            out[f"agreement_{name}"] = _ratio(int(np.count_nonzero(is_rel & ok)), int(is_rel.sum()))
     n_checked, n_agree = int(checked.sum()), int(agree.sum())
     return {
         "agreement": _ratio(n_agree, n_checked),
