@@ -1,0 +1,777 @@
+"""Numba kernels of the renderer, in one module on purpose.
+
+numba's on-disk cache (``cache=True``) does not notice when a jitted function calls into
+another module that changed; keeping every kernel that calls another in this one file
+means an edit anywhere here invalidates the whole cache, so stale machine code never runs.
+
+Contents: band-limited gradient noise; the scene as solids (heightfield ground, implicit
+rocks) and the first hit of a ray with them; the per-view ray caster; the column sampler
+that measures rocks for the answer key.
+
+The scene is the union of solids in the ground frame (x right, y forward, z up):
+
+* the ground, ``z < g(x, y)``: micro-relief, ripples and undulation around the plane
+  ``z = 0``, bounded by ``[gmin, gmax]``;
+* rocks, ``F_k(p) < 0``: superquadrics ``(|u/a|^e + |v/b|^e + |w/c|^e)^(1/e) < 1`` cut by
+  a few planes (facets) with a noise relief, rotated and partly buried.
+
+The first hit of a ray with a union is the smallest of the first hits with each solid, so
+the ground and each rock are intersected separately: the ground by sphere tracing the
+height gap, each rock (found through a 2-D grid over the ground, walked with a DDA) by
+sphere tracing its implicit function inside its bounding sphere; both roots are refined
+with the Illinois variant of regula falsi.
+
+Texture and shading depend only on the surface point (never on the camera), so the two
+views of a pair see the same surface; noise octaves finer than a pixel fade out
+(``footprint``) so far ground does not alias differently in the two views.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+__all__ = [
+    "NOISE_LIPSCHITZ", "make_permutation", "perlin2", "perlin3", "fbm", "fbm2",
+    "GROUND_FIELDS", "ROCK_FIELDS", "GRID_FIELDS", "MAX_PLANES",
+    "ground_height", "ground_albedo", "rock_field", "rock_albedo", "rock_first_hit",
+    "intersect", "rock_lipschitz", "render_view", "rock_columns",
+]  # fmt: skip
+
+# ==== noise ====
+# Upper bound of |grad perlin2|, |grad perlin3| (measured maximum about 2.75; kept with a
+# margin) used by the sphere tracers to take steps that cannot jump over a surface.
+NOISE_LIPSCHITZ = 3.5
+
+
+def make_permutation(rng: np.random.Generator) -> np.ndarray:
+    """A random permutation table of 0..255, doubled to 512 entries (int64)."""
+    p = rng.permutation(256).astype(np.int64)
+    return np.concatenate([p, p])
+
+
+@njit(cache=True, nogil=True)
+def _fade(t: float) -> float:
+    return t * t * t * (t * (t * 6.0 - 15.0) + 10.0)
+
+
+@njit(cache=True, nogil=True)
+def _grad(h: int, x: float, y: float, z: float) -> float:
+    h &= 15
+    u = x if h < 8 else y
+    if h < 4:
+        v = y
+    elif h == 12 or h == 14:
+        v = x
+    else:
+        v = z
+    return (u if (h & 1) == 0 else -u) + (v if (h & 2) == 0 else -v)
+
+
+@njit(cache=True, nogil=True)
+def perlin3(perm: np.ndarray, x: float, y: float, z: float) -> float:
+    """Improved Perlin noise at ``(x, y, z)``; values in about [-1, 1], period 256."""
+    fx = math.floor(x)
+    fy = math.floor(y)
+    fz = math.floor(z)
+    xi = int(fx) & 255
+    yi = int(fy) & 255
+    zi = int(fz) & 255
+    x -= fx
+    y -= fy
+    z -= fz
+    u = _fade(x)
+    v = _fade(y)
+    w = _fade(z)
+    a = perm[xi] + yi
+    aa = perm[a] + zi
+    ab = perm[a + 1] + zi
+    b = perm[xi + 1] + yi
+    ba = perm[b] + zi
+    bb = perm[b + 1] + zi
+    x1 = x - 1.0
+    y1 = y - 1.0
+    z1 = z - 1.0
+    g000 = _grad(perm[aa], x, y, z)
+    g100 = _grad(perm[ba], x1, y, z)
+    g010 = _grad(perm[ab], x, y1, z)
+    g110 = _grad(perm[bb], x1, y1, z)
+    g001 = _grad(perm[aa + 1], x, y, z1)
+    g101 = _grad(perm[ba + 1], x1, y, z1)
+    g011 = _grad(perm[ab + 1], x, y1, z1)
+    g111 = _grad(perm[bb + 1], x1, y1, z1)
+    l00 = g000 + u * (g100 - g000)
+    l10 = g010 + u * (g110 - g010)
+    l01 = g001 + u * (g101 - g001)
+    l11 = g011 + u * (g111 - g011)
+    l0 = l00 + v * (l10 - l00)
+    l1 = l01 + v * (l11 - l01)
+    return l0 + w * (l1 - l0)
+
+
+@njit(cache=True, nogil=True)
+def fbm(perm: np.ndarray, x: float, y: float, z: float, octaves: int, footprint: float) -> float:
+    """Fractal sum of ``octaves`` noise octaves (gain 1/2, lacunarity 2).
+
+    ``footprint`` is the size of a pixel on the surface in units of the first octave's
+    wavelength; octaves finer than half a pixel fade out (0 keeps every octave).
+    """
+    total = 0.0
+    amp = 1.0
+    freq = 1.0
+    for k in range(octaves):
+        s = footprint * freq
+        if s >= 0.5:
+            break
+        weight = 1.0 if s <= 0.25 else (0.5 - s) / 0.25
+        # per-octave offsets keep lattice points of successive octaves from lining up
+        total += (
+            weight
+            * amp
+            * perlin3(perm, x * freq + 17.31 * k, y * freq + 5.17 * k, z * freq + 11.73 * k)
+        )
+        amp *= 0.5
+        freq *= 2.0
+    return total
+
+
+@njit(cache=True, nogil=True)
+def perlin2(perm: np.ndarray, x: float, y: float) -> float:
+    """2-D gradient noise (four diagonal gradients); values in about [-1, 1], period 256."""
+    fx = math.floor(x)
+    fy = math.floor(y)
+    xi = int(fx) & 255
+    yi = int(fy) & 255
+    x -= fx
+    y -= fy
+    u = _fade(x)
+    v = _fade(y)
+    x1 = x - 1.0
+    y1 = y - 1.0
+    a = perm[xi] + yi
+    b = perm[xi + 1] + yi
+    h00 = perm[a]
+    h10 = perm[b]
+    h01 = perm[a + 1]
+    h11 = perm[b + 1]
+    g00 = (x if (h00 & 1) == 0 else -x) + (y if (h00 & 2) == 0 else -y)
+    g10 = (x1 if (h10 & 1) == 0 else -x1) + (y if (h10 & 2) == 0 else -y)
+    g01 = (x if (h01 & 1) == 0 else -x) + (y1 if (h01 & 2) == 0 else -y1)
+    g11 = (x1 if (h11 & 1) == 0 else -x1) + (y1 if (h11 & 2) == 0 else -y1)
+    l0 = g00 + u * (g10 - g00)
+    l1 = g01 + u * (g11 - g01)
+    return l0 + v * (l1 - l0)
+
+
+@njit(cache=True, nogil=True)
+def fbm2(perm: np.ndarray, x: float, y: float, octaves: int, footprint: float) -> float:
+    """2-D counterpart of :func:`fbm` (cheaper: for heightfields)."""
+    total = 0.0
+    amp = 1.0
+    freq = 1.0
+    for k in range(octaves):
+        s = footprint * freq
+        if s >= 0.5:
+            break
+        weight = 1.0 if s <= 0.25 else (0.5 - s) / 0.25
+        total += weight * amp * perlin2(perm, x * freq + 17.31 * k, y * freq + 5.17 * k)
+        amp *= 0.5
+        freq *= 2.0
+    return total
+
+
+# ==== geometry ====
+# ---- packed parameter layouts (float64 vectors; names -> index) ----------------------------
+GROUND_FIELDS: tuple[str, ...] = (
+    "relief_amp", "relief_freq", "relief_octaves",
+    "ripple_amp", "ripple_wavelength", "ripple_dir_x", "ripple_dir_y",
+    "ripple_warp", "ripple_warp_freq",
+    "undulation_amp", "undulation_freq",
+    "gmin", "gmax", "lipschitz",
+    "albedo", "tex_amp", "tex_freq", "tex_octaves",
+    "pebble_amp", "pebble_freq", "pebble_threshold",
+    "striation_amp", "stain_amp", "stain_freq",
+)  # fmt: skip
+ROCK_FIELDS: tuple[str, ...] = (
+    "cx", "cy", "cz", "a", "b", "c", "e",
+    "r00", "r01", "r02", "r10", "r11", "r12", "r20", "r21", "r22",
+    "relief_amp", "relief_freq", "off_x", "off_y", "off_z",
+    "albedo", "tex_amp", "tex_freq", "radius", "lipschitz", "n_planes",
+    *(f"p{i}_{k}" for i in range(6) for k in ("nx", "ny", "nz", "d")),
+)  # fmt: skip
+MAX_PLANES = 6
+GRID_FIELDS: tuple[str, ...] = ("x0", "y0", "cell", "nx", "ny", "zmin", "zmax")
+
+_G = {n: i for i, n in enumerate(GROUND_FIELDS)}
+_R = {n: i for i, n in enumerate(ROCK_FIELDS)}
+G_RELIEF_AMP, G_RELIEF_FREQ, G_RELIEF_OCT = (
+    _G["relief_amp"],
+    _G["relief_freq"],
+    _G["relief_octaves"],
+)
+G_RIP_AMP, G_RIP_LAMBDA, G_RIP_DX, G_RIP_DY = (
+    _G["ripple_amp"],
+    _G["ripple_wavelength"],
+    _G["ripple_dir_x"],
+    _G["ripple_dir_y"],
+)
+G_RIP_WARP, G_RIP_WARP_F = _G["ripple_warp"], _G["ripple_warp_freq"]
+G_UND_AMP, G_UND_F = _G["undulation_amp"], _G["undulation_freq"]
+G_MIN, G_MAX, G_LIP = _G["gmin"], _G["gmax"], _G["lipschitz"]
+G_ALB, G_TEX_AMP, G_TEX_F, G_TEX_OCT = (
+    _G["albedo"],
+    _G["tex_amp"],
+    _G["tex_freq"],
+    _G["tex_octaves"],
+)
+G_PEB_AMP, G_PEB_F, G_PEB_THR = _G["pebble_amp"], _G["pebble_freq"], _G["pebble_threshold"]
+G_STRI_AMP, G_STAIN_AMP, G_STAIN_F = _G["striation_amp"], _G["stain_amp"], _G["stain_freq"]
+
+R_CX, R_CY, R_CZ, R_A, R_B, R_C, R_E = (_R[n] for n in ("cx", "cy", "cz", "a", "b", "c", "e"))
+R_ROT = _R["r00"]
+R_RELIEF_AMP, R_RELIEF_F = _R["relief_amp"], _R["relief_freq"]
+R_OFF = _R["off_x"]
+R_ALB, R_TEX_AMP, R_TEX_F = _R["albedo"], _R["tex_amp"], _R["tex_freq"]
+R_RADIUS, R_LIP = _R["radius"], _R["lipschitz"]
+R_NPLANES, R_PLANES = _R["n_planes"], _R["p0_nx"]
+
+_INF = np.inf
+
+
+# ---- ground ------------------------------------------------------------------------------
+@njit(cache=True, nogil=True)
+def _ripple_phase(ground: np.ndarray, perm: np.ndarray, x: float, y: float) -> float:
+    wf = ground[G_RIP_WARP_F]
+    return (x * ground[G_RIP_DX] + y * ground[G_RIP_DY]) / ground[G_RIP_LAMBDA] + ground[
+        G_RIP_WARP
+    ] * perlin2(perm, x * wf + 3.7, y * wf + 1.9)
+
+
+@njit(cache=True, nogil=True)
+def ground_height(
+    ground: np.ndarray, perm: np.ndarray, x: float, y: float, footprint: float
+) -> float:
+    """Ground height ``g(x, y)`` in metres; ``footprint`` (m) > 0 drops unresolved detail."""
+    h = 0.0
+    amp = ground[G_RELIEF_AMP]
+    if amp > 0.0:
+        f = ground[G_RELIEF_FREQ]
+        h += amp * fbm2(perm, x * f, y * f, int(ground[G_RELIEF_OCT]), footprint * f)
+    amp = ground[G_UND_AMP]
+    if amp > 0.0:
+        f = ground[G_UND_F]
+        h += amp * perlin2(perm, x * f + 31.1, y * f + 7.7)
+    amp = ground[G_RIP_AMP]
+    if amp > 0.0:
+        s_px = footprint / ground[G_RIP_LAMBDA]
+        weight = 1.0 if s_px <= 0.25 else max(0.0, (0.5 - s_px) / 0.25)
+        if weight > 0.0:
+            s = 2.0 * math.pi * _ripple_phase(ground, perm, x, y)
+            # asymmetric ripple (gentle stoss, steeper lee) whose height varies along the crest
+            profile = (math.sin(s) + 0.22 * math.sin(2.0 * s)) / 1.2
+            crest = 0.75 + 0.35 * perlin2(perm, x * 1.3 + 5.5, y * 1.3 + 2.2)
+            h += weight * amp * crest * profile
+    return h
+
+
+@njit(cache=True, nogil=True)
+def ground_albedo(
+    ground: np.ndarray, perm: np.ndarray, x: float, y: float, z: float, footprint: float
+) -> float:
+    """Ground albedo at a surface point; ``footprint`` (m) is the pixel size there."""
+    # the ground is nearly flat: 2-D texture of the surface point's (x, y) is enough
+    f = ground[G_TEX_F]
+    tex = ground[G_TEX_AMP] * fbm2(
+        perm, x * f + 101.3, y * f + 47.9, int(ground[G_TEX_OCT]), footprint * f
+    )
+    f = ground[G_STAIN_F]
+    stain = ground[G_STAIN_AMP] * fbm2(perm, x * f + 71.1, y * f + 3.3, 2, footprint * f)
+    alb = ground[G_ALB] * (1.0 + tex + stain)
+    amp = ground[G_PEB_AMP]
+    if amp != 0.0:
+        # pebbles: thresholded noise blobs, half darker and half lighter than the soil
+        f = ground[G_PEB_F]
+        s_px = footprint * f
+        weight = 1.0 if s_px <= 0.25 else max(0.0, (0.5 - s_px) / 0.25)
+        thr = ground[G_PEB_THR]
+        n1 = perlin2(perm, x * f + 40.1, y * f + 12.7)
+        n2 = perlin2(perm, x * f + 90.3, y * f + 61.9)
+        dark = min(1.0, max(0.0, (n1 - thr) / 0.08))
+        light = min(1.0, max(0.0, (n2 - thr) / 0.08))
+        # unresolved pebbles blend into their mean (about 3 % cover each)
+        dark = weight * dark + (1.0 - weight) * 0.03
+        light = weight * light + (1.0 - weight) * 0.03
+        alb *= (1.0 - amp * dark) * (1.0 + amp * light)
+    amp = ground[G_STRI_AMP]
+    if amp != 0.0 and ground[G_RIP_AMP] > 0.0:
+        # coarse dark grains collect in ripple troughs: albedo striations along the crests
+        s_px = footprint / ground[G_RIP_LAMBDA]
+        weight = 1.0 if s_px <= 0.25 else max(0.0, (0.5 - s_px) / 0.25)
+        s = 2.0 * math.pi * _ripple_phase(ground, perm, x, y)
+        alb *= 1.0 + weight * amp * math.sin(s)
+    return min(0.98, max(0.01, alb))
+
+
+@njit(cache=True, nogil=True)
+def _ground_first_hit(
+    ground, perm, ox, oy, oz, dx, dy, dz, tmin, tmax
+) -> float:  # pragma: no cover - numba
+    """First ``t`` in [tmin, tmax] with the ray below the ground; inf when none."""
+    gmin = ground[G_MIN]
+    gmax = ground[G_MAX]
+    if abs(dz) < 1e-12:
+        if oz < gmin or oz > gmax:
+            return _INF
+        ta, tb = tmin, tmax
+    else:
+        t1 = (gmax - oz) / dz
+        t2 = (gmin - oz) / dz
+        ta = max(min(t1, t2), tmin)
+        tb = min(max(t1, t2), tmax)
+    if ta > tb:
+        return _INF
+    # the height gap changes at most this fast along the (unit) ray
+    slope = ground[G_LIP] * math.sqrt(dx * dx + dy * dy)
+    if dz >= slope and oz + dz * ta > ground_height(ground, perm, ox + dx * ta, oy + dy * ta, 0.0):
+        return _INF  # climbing faster than the ground can rise: it never comes back down
+    rate = abs(dz) + slope
+    # never step less than ~5 mm horizontally: the finest relief has wavelengths of centimetres
+    min_step = min(max((tb - ta) / 32.0, 0.005 / max(math.sqrt(dx * dx + dy * dy), 0.2)), tb - ta)
+    t = ta
+    gap = oz + dz * t - ground_height(ground, perm, ox + dx * t, oy + dy * t, 0.0)
+    if gap <= 0.0:
+        return t
+    while t < tb:
+        tn = min(t + max(gap / rate, min_step), tb)
+        gap_n = oz + dz * tn - ground_height(ground, perm, ox + dx * tn, oy + dy * tn, 0.0)
+        if gap_n <= 0.0:
+            return _refine_ground(ground, perm, ox, oy, oz, dx, dy, dz, t, gap, tn, gap_n)
+        t = tn
+        gap = gap_n
+    return _INF
+
+
+@njit(cache=True, nogil=True)
+def _refine_ground(ground, perm, ox, oy, oz, dx, dy, dz, lo, f_lo, hi, f_hi):
+    # Illinois regula falsi on the height gap: f_lo > 0 >= f_hi
+    side = 0
+    for _ in range(24):
+        t = (lo * f_hi - hi * f_lo) / (f_hi - f_lo)
+        f = oz + dz * t - ground_height(ground, perm, ox + dx * t, oy + dy * t, 0.0)
+        if f > 0.0:
+            lo, f_lo = t, f
+            if side == -1:
+                f_hi *= 0.5
+            side = -1
+        else:
+            hi, f_hi = t, f
+            if side == 1:
+                f_lo *= 0.5
+            side = 1
+        if abs(f) < 1e-7:
+            return t
+        if hi - lo < 1e-6:
+            break
+    return hi
+
+
+# ---- rocks -------------------------------------------------------------------------------
+@njit(cache=True, nogil=True)
+def _to_local(rock, px, py, pz):
+    x = px - rock[R_CX]
+    y = py - rock[R_CY]
+    z = pz - rock[R_CZ]
+    r = R_ROT
+    # local = R^T (p - c); R maps local to world, row-major
+    u = rock[r + 0] * x + rock[r + 3] * y + rock[r + 6] * z
+    v = rock[r + 1] * x + rock[r + 4] * y + rock[r + 7] * z
+    w = rock[r + 2] * x + rock[r + 5] * y + rock[r + 8] * z
+    return u, v, w
+
+
+@njit(cache=True, nogil=True)
+def rock_field(rock: np.ndarray, perm: np.ndarray, px: float, py: float, pz: float) -> float:
+    """Implicit function of one rock at a world point: < 0 inside, > 0 outside."""
+    u, v, w = _to_local(rock, px, py, pz)
+    e = rock[R_E]
+    un = u / rock[R_A]
+    vn = v / rock[R_B]
+    wn = w / rock[R_C]
+    s = (abs(un) ** e + abs(vn) ** e + abs(wn) ** e) ** (1.0 / e) - 1.0
+    # flat cuts make facets and edges, as on broken rock
+    for i in range(int(rock[R_NPLANES])):
+        p = R_PLANES + 4 * i
+        s = max(s, rock[p] * un + rock[p + 1] * vn + rock[p + 2] * wn - rock[p + 3])
+    f = rock[R_RELIEF_F]
+    o = R_OFF
+    n = perlin3(perm, u * f + rock[o], v * f + rock[o + 1], w * f + rock[o + 2])
+    n += 0.45 * perlin3(
+        perm, 2.1 * u * f + rock[o + 1], 2.1 * v * f + rock[o + 2], 2.1 * w * f + rock[o]
+    )
+    return s - rock[R_RELIEF_AMP] * n
+
+
+@njit(cache=True, nogil=True)
+def rock_albedo(
+    rock: np.ndarray, perm: np.ndarray, px: float, py: float, pz: float, footprint: float
+) -> float:
+    """Albedo of a rock at a surface point (texture fixed to the rock)."""
+    u, v, w = _to_local(rock, px, py, pz)
+    f = rock[R_TEX_F]
+    o = R_OFF
+    tex = fbm(perm, u * f + rock[o + 2], v * f + rock[o], w * f + rock[o + 1], 5, footprint * f)
+    alb = rock[R_ALB] * (1.0 + rock[R_TEX_AMP] * tex)
+    return min(0.98, max(0.01, alb))
+
+
+@njit(cache=True, nogil=True)
+def rock_first_hit(rock, perm, ox, oy, oz, dx, dy, dz, tmin, tmax) -> float:
+    """First ``t`` in [tmin, tmax] where the unit ray enters the rock; inf when none."""
+    # bounding sphere
+    qx = ox - rock[R_CX]
+    qy = oy - rock[R_CY]
+    qz = oz - rock[R_CZ]
+    rad = rock[R_RADIUS]
+    bq = qx * dx + qy * dy + qz * dz
+    cq = qx * qx + qy * qy + qz * qz - rad * rad
+    disc = bq * bq - cq
+    if disc <= 0.0:
+        return _INF
+    sq = math.sqrt(disc)
+    t0 = max(-bq - sq, tmin)
+    t1 = min(-bq + sq, tmax)
+    if t0 >= t1:
+        return _INF
+    lip = rock[R_LIP]
+    min_step = (t1 - t0) / 48.0
+    t = t0
+    f = rock_field(rock, perm, ox + dx * t, oy + dy * t, oz + dz * t)
+    if f < 0.0:
+        return t
+    while t < t1:
+        tn = min(t + max(f / lip, min_step), t1)
+        fn = rock_field(rock, perm, ox + dx * tn, oy + dy * tn, oz + dz * tn)
+        if fn < 0.0:
+            return _refine_rock(rock, perm, ox, oy, oz, dx, dy, dz, t, f, tn, fn)
+        t = tn
+        f = fn
+    return _INF
+
+
+@njit(cache=True, nogil=True)
+def _refine_rock(rock, perm, ox, oy, oz, dx, dy, dz, lo, f_lo, hi, f_hi):
+    # Illinois regula falsi on the implicit function: f_lo > 0 > f_hi
+    side = 0
+    for _ in range(30):
+        t = (lo * f_hi - hi * f_lo) / (f_hi - f_lo)
+        f = rock_field(rock, perm, ox + dx * t, oy + dy * t, oz + dz * t)
+        if f >= 0.0:
+            lo, f_lo = t, f
+            if side == -1:
+                f_hi *= 0.5
+            side = -1
+        else:
+            hi, f_hi = t, f
+            if side == 1:
+                f_lo *= 0.5
+            side = 1
+        if hi - lo < 1e-7:
+            break
+    return hi
+
+
+@njit(cache=True, nogil=True)
+def _slab(oz, dz, zlo, zhi, tmin, tmax):
+    if abs(dz) < 1e-12:
+        if oz < zlo or oz > zhi:
+            return 1.0, 0.0
+        return tmin, tmax
+    t1 = (zhi - oz) / dz
+    t2 = (zlo - oz) / dz
+    return max(min(t1, t2), tmin), min(max(t1, t2), tmax)
+
+
+@njit(cache=True, nogil=True)
+def intersect(
+    ox: float,
+    oy: float,
+    oz: float,
+    dx: float,
+    dy: float,
+    dz: float,
+    tmin: float,
+    tmax: float,
+    any_hit: bool,
+    ground: np.ndarray,
+    perm: np.ndarray,
+    rocks: np.ndarray,
+    cell_start: np.ndarray,
+    cell_items: np.ndarray,
+    grid: np.ndarray,
+):
+    """First hit of a unit ray with the scene.
+
+    Returns ``(t, solid)``: ``solid`` is -1 for no hit, 0 for the ground, ``k + 1`` for rock
+    ``k``. With ``any_hit`` the search stops at the first hit found (shadow rays).
+    """
+    best_t = _ground_first_hit(ground, perm, ox, oy, oz, dx, dy, dz, tmin, tmax)
+    best_id = 0 if best_t < _INF else -1
+    if best_id == 0 and any_hit:
+        return best_t, best_id
+    if rocks.shape[0] == 0:
+        return best_t, best_id
+    x0, y0, cell = grid[0], grid[1], grid[2]
+    nx, ny = int(grid[3]), int(grid[4])
+    ta, tb = _slab(oz, dz, grid[5], grid[6], tmin, min(tmax, best_t))
+    if ta >= tb:
+        return best_t, best_id
+    # clip the horizontal path to the grid rectangle
+    x1, y1 = x0 + nx * cell, y0 + ny * cell
+    if abs(dx) < 1e-12:
+        if ox < x0 or ox >= x1:
+            return best_t, best_id
+    else:
+        a, b = (x0 - ox) / dx, (x1 - ox) / dx
+        ta, tb = max(ta, min(a, b)), min(tb, max(a, b))
+    if abs(dy) < 1e-12:
+        if oy < y0 or oy >= y1:
+            return best_t, best_id
+    else:
+        a, b = (y0 - oy) / dy, (y1 - oy) / dy
+        ta, tb = max(ta, min(a, b)), min(tb, max(a, b))
+    if ta >= tb:
+        return best_t, best_id
+    # 2-D DDA over the cells the ray crosses between ta and tb
+    px = (ox + dx * ta - x0) / cell
+    py = (oy + dy * ta - y0) / cell
+    ix = min(max(int(math.floor(px)), 0), nx - 1)
+    iy = min(max(int(math.floor(py)), 0), ny - 1)
+    step_x = 1 if dx > 0 else -1
+    step_y = 1 if dy > 0 else -1
+    if abs(dx) < 1e-12:
+        tnext_x, tdelta_x = _INF, _INF
+    else:
+        bx = (ix + (1 if dx > 0 else 0)) * cell + x0
+        tnext_x, tdelta_x = (bx - ox) / dx, cell / abs(dx)
+    if abs(dy) < 1e-12:
+        tnext_y, tdelta_y = _INF, _INF
+    else:
+        by = (iy + (1 if dy > 0 else 0)) * cell + y0
+        tnext_y, tdelta_y = (by - oy) / dy, cell / abs(dy)
+    while True:
+        c = iy * nx + ix
+        for j in range(cell_start[c], cell_start[c + 1]):
+            k = cell_items[j]
+            t = rock_first_hit(rocks[k], perm, ox, oy, oz, dx, dy, dz, tmin, min(best_t, tb))
+            if t < best_t:
+                best_t = t
+                best_id = k + 1
+                if any_hit:
+                    return best_t, best_id
+        t_exit = min(tnext_x, tnext_y)
+        if best_t <= t_exit or t_exit >= tb:
+            break
+        if tnext_x < tnext_y:
+            ix += step_x
+            tnext_x += tdelta_x
+            if ix < 0 or ix >= nx:
+                break
+        else:
+            iy += step_y
+            tnext_y += tdelta_y
+            if iy < 0 or iy >= ny:
+                break
+    return best_t, best_id
+
+
+def rock_lipschitz(a: float, b: float, c: float, relief_amp: float, relief_freq: float) -> float:
+    """Bound on |grad F| per metre for a rock's implicit function (sphere-tracing step)."""
+    return 1.0 / min(a, b, c) + relief_amp * relief_freq * NOISE_LIPSCHITZ * (1.0 + 0.45 * 2.1)
+
+
+# ==== ray caster ====
+_NORMAL_OFFSET = 5e-4  # m: secondary rays start this far off the surface
+_MAX_T = 1.0e3
+
+
+@njit(cache=True, nogil=True)
+def _ground_normal(ground, perm, x, y, footprint):
+    h = max(0.5 * footprint, 1e-3)
+    g0 = ground_height(ground, perm, x, y, footprint)
+    gx = (ground_height(ground, perm, x + h, y, footprint) - g0) / h
+    gy = (ground_height(ground, perm, x, y + h, footprint) - g0) / h
+    inv = 1.0 / math.sqrt(gx * gx + gy * gy + 1.0)
+    return -gx * inv, -gy * inv, inv
+
+
+@njit(cache=True, nogil=True)
+def _rock_normal(rock, perm, x, y, z):
+    h = 2e-3 * min(rock[R_A], rock[R_B], rock[R_C])
+    nx = rock_field(rock, perm, x + h, y, z) - rock_field(rock, perm, x - h, y, z)
+    ny = rock_field(rock, perm, x, y + h, z) - rock_field(rock, perm, x, y - h, z)
+    nz = rock_field(rock, perm, x, y, z + h) - rock_field(rock, perm, x, y, z - h)
+    norm = math.sqrt(nx * nx + ny * ny + nz * nz)
+    if norm == 0.0:
+        return 0.0, 0.0, 1.0
+    return nx / norm, ny / norm, nz / norm
+
+
+@njit(cache=True, nogil=True)
+def render_view(
+    origin: np.ndarray,
+    axes: np.ndarray,
+    focal: float,
+    cx: float,
+    cy: float,
+    height: int,
+    width: int,
+    lod_origin: np.ndarray,
+    lights: np.ndarray,
+    ambient: float,
+    ground: np.ndarray,
+    perm: np.ndarray,
+    rocks: np.ndarray,
+    cell_start: np.ndarray,
+    cell_items: np.ndarray,
+    grid: np.ndarray,
+    occlusion_target: np.ndarray,
+    want_truth: bool,
+):
+    """Render one view.
+
+    Parameters
+    ----------
+    origin : (3,) ndarray of float64
+        Optical centre in the ground frame.
+    axes : (3, 3) ndarray of float64
+        Camera X, Y, Z axes (rows) in the ground frame.
+    lights : (L, 5) ndarray of float64
+        ``kind, x, y, z, power``: kind 0 = directional (x, y, z towards the light, power =
+        irradiance), kind 1 = point lamp at (x, y, z) (power / r^2 irradiance).
+    occlusion_target : (3,) ndarray of float64
+        The other camera's centre; with ``want_truth`` each pixel records whether its
+        surface point is hidden from there.
+
+    Returns
+    -------
+    radiance : (H, W) ndarray of float64
+    zcam : (H, W) ndarray of float64
+        Depth along the optical axis (m).
+    solid : (H, W) ndarray of int32
+        0 ground, k + 1 rock k, -1 nothing hit.
+    height : (H, W) ndarray of float64
+        Ground-frame z of the surface point (m above the plane z = 0).
+    occluded : (H, W) ndarray of bool
+    """
+    radiance = np.zeros((height, width))
+    zcam = np.full((height, width), np.inf)
+    solid = np.full((height, width), -1, dtype=np.int32)
+    zup = np.zeros((height, width))
+    occluded = np.zeros((height, width), dtype=np.bool_)
+    ox, oy, oz = origin[0], origin[1], origin[2]
+    fx, fy, fz = axes[2, 0], axes[2, 1], axes[2, 2]
+    for iy in range(height):
+        ry = (iy - cy) / focal
+        for ix in range(width):
+            rx = (ix - cx) / focal
+            dx = fx + rx * axes[0, 0] + ry * axes[1, 0]
+            dy = fy + rx * axes[0, 1] + ry * axes[1, 1]
+            dz = fz + rx * axes[0, 2] + ry * axes[1, 2]
+            inv = 1.0 / math.sqrt(dx * dx + dy * dy + dz * dz)
+            dx *= inv
+            dy *= inv
+            dz *= inv
+            t, sid = intersect(
+                ox, oy, oz, dx, dy, dz, 0.0, _MAX_T, False,
+                ground, perm, rocks, cell_start, cell_items, grid,
+            )  # fmt: skip
+            if sid < 0:
+                continue
+            px = ox + dx * t
+            py = oy + dy * t
+            pz = oz + dz * t
+            solid[iy, ix] = sid
+            zcam[iy, ix] = t * (dx * fx + dy * fy + dz * fz)
+            zup[iy, ix] = pz
+            # texture level of detail from the midpoint of the two cameras: same in both views
+            vx = px - lod_origin[0]
+            vy = py - lod_origin[1]
+            vz = pz - lod_origin[2]
+            dist = math.sqrt(vx * vx + vy * vy + vz * vz)
+            if sid == 0:
+                foot = dist / focal / max(abs(vz) / dist, 0.1)
+                nx, ny, nz = _ground_normal(ground, perm, px, py, foot)
+                albedo = ground_albedo(ground, perm, px, py, pz, foot)
+            else:
+                rock = rocks[sid - 1]
+                nx, ny, nz = _rock_normal(rock, perm, px, py, pz)
+                cosv = abs(nx * vx + ny * vy + nz * vz) / dist
+                foot = dist / focal / max(cosv, 0.2)
+                albedo = rock_albedo(rock, perm, px, py, pz, foot)
+            sx = px + nx * _NORMAL_OFFSET
+            sy = py + ny * _NORMAL_OFFSET
+            sz = pz + nz * _NORMAL_OFFSET
+            irradiance = ambient * (0.5 + 0.5 * nz)
+            for li in range(lights.shape[0]):
+                if lights[li, 0] == 0.0:
+                    lx, ly, lz = lights[li, 1], lights[li, 2], lights[li, 3]
+                    ldist = _MAX_T
+                    power = lights[li, 4]
+                else:
+                    lx = lights[li, 1] - sx
+                    ly = lights[li, 2] - sy
+                    lz = lights[li, 3] - sz
+                    ldist = math.sqrt(lx * lx + ly * ly + lz * lz)
+                    lx /= ldist
+                    ly /= ldist
+                    lz /= ldist
+                    power = lights[li, 4] / (ldist * ldist)
+                cos_in = nx * lx + ny * ly + nz * lz
+                if cos_in <= 0.0:
+                    continue
+                _, hit = intersect(
+                    sx, sy, sz, lx, ly, lz, 1e-6, ldist, True,
+                    ground, perm, rocks, cell_start, cell_items, grid,
+                )  # fmt: skip
+                if hit < 0:
+                    irradiance += power * cos_in
+            radiance[iy, ix] = albedo * irradiance
+            if want_truth:
+                qx = occlusion_target[0] - sx
+                qy = occlusion_target[1] - sy
+                qz = occlusion_target[2] - sz
+                qd = math.sqrt(qx * qx + qy * qy + qz * qz)
+                _, hit = intersect(
+                    sx, sy, sz, qx / qd, qy / qd, qz / qd, 1e-6, qd, True,
+                    ground, perm, rocks, cell_start, cell_items, grid,
+                )  # fmt: skip
+                occluded[iy, ix] = hit >= 0
+    return radiance, zcam, solid, zup, occluded
+
+
+# ==== rock measurement ====
+@njit(cache=True, nogil=True)
+def rock_columns(rock, perm, ground, n, cx, cy, cz, radius):
+    top = np.full((n, n), np.nan)
+    bottom = np.full((n, n), np.nan)
+    floor = np.zeros((n, n))
+    xs = np.empty(n)
+    step = 2.0 * radius / n
+    for i in range(n):
+        xs[i] = -radius + (i + 0.5) * step
+    for iy in range(n):
+        for ix in range(n):
+            x = cx + xs[ix]
+            y = cy + xs[iy]
+            floor[iy, ix] = ground_height(ground, perm, x, y, 0.0)
+            z_hi = cz + radius + 1e-3
+            t = rock_first_hit(rock, perm, x, y, z_hi, 0.0, 0.0, -1.0, 0.0, 2.0 * radius + 2e-3)
+            if t == np.inf:
+                continue
+            top[iy, ix] = z_hi - t
+            z_lo = cz - radius - 1e-3
+            t = rock_first_hit(rock, perm, x, y, z_lo, 0.0, 0.0, 1.0, 0.0, 2.0 * radius + 2e-3)
+            bottom[iy, ix] = z_lo + t
+    return xs, top, bottom, floor
