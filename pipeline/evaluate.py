@@ -176,14 +176,15 @@ def _rows_by_frame(table: pa.Table | None) -> dict[str, list[dict[str, Any]]]:
 
 
 def _depth_range(run: Mapping[str, Any], truth_disparity: np.ndarray) -> tuple[int, int]:
+    """SGBM's search range: the depth stage's, or (when automatic) the truth's plus a margin."""
     params = ((run.get("stages") or {}).get("depth") or {}).get("params") or {}
-    lo = int(params.get("min_disparity", 0) or 0)
-    hi = params.get("max_disparity")
-    if hi is None:
+    lo = int(params.get("min_disparity") or 0)
+    hi = int(params.get("max_disparity") or 0)
+    if hi <= lo:  # 0 (or absent) means "derived by the depth stage": derive ours from truth
         finite = truth_disparity[np.isfinite(truth_disparity)]
         top = float(finite.max()) if finite.size else 64.0
-        hi = int(math.ceil(top)) + _DISPARITY_MARGIN_PX
-    return lo, max(int(hi), lo + 1)
+        hi = max(int(math.ceil(top)) + _DISPARITY_MARGIN_PX, lo + 2)
+    return lo, hi
 
 
 # ------------------------------------------------------------------------------- scoring

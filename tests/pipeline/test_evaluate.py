@@ -4,6 +4,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
@@ -315,3 +316,39 @@ def test_evaluate_a_run_made_by_the_engine(tmp_path: Path):
         table, frame_id=AGGREGATE, product="segmentation", method="otsu", metric="f1"
     ) == pytest.approx(1.0)
     assert "engine: 2 frames scored" in format_evaluation(table)
+
+
+@pytest.mark.slow
+def test_end_to_end_render_run_evaluate(tmp_path: Path):
+    """A tiny built-in archive through the real stages, then scored against its truth."""
+    pytest.importorskip("stages.depth", reason="the depth stage has not landed")
+    synth = pytest.importorskip("pipeline.synth", reason="the renderer has not landed")
+    from pipeline.runner import run
+
+    archive = synth.synthesize_archive("lab", tmp_path / "lab", frames=2, seed=3, size=160)
+    out = tmp_path / "run"
+    summary = run(archive / "catalog.toml", out, scheduler="synchronous")
+    assert summary.exit_code == 0
+    table = evaluate_run(out)
+    written = pq.read_table(out / "evaluation.parquet")
+    pd.testing.assert_frame_equal(written.to_pandas(), table.to_pandas())  # NaN-aware
+    rows = table.to_pylist()
+    pairs = {(r["product"], r["method"]) for r in rows}
+    assert {
+        ("depth", "arroyo"),
+        ("depth", "opencv-sgbm"),
+        ("segmentation", "arroyo"),
+        ("segmentation", "otsu"),
+        ("descriptors", "arroyo"),
+    } <= pairs
+    aggregate = {
+        (r["product"], r["method"], r["metric"]): r["value"]
+        for r in rows
+        if r["frame_id"] == AGGREGATE
+    }
+    assert aggregate[("depth", "arroyo", "n_frames")] == 2
+    for method in ("arroyo", "opencv-sgbm"):
+        assert 0.0 <= aggregate[("depth", method, "bad2")] <= 1.0
+        assert aggregate[("depth", method, "n_px")] > 0.5 * 2 * 160 * 160
+    assert 0.0 <= aggregate[("segmentation", "arroyo", "f1")] <= 1.0
+    assert "lab" in format_evaluation(table)
