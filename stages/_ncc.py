@@ -1,0 +1,369 @@
+"""Numba kernels of zero-mean normalised cross-correlation (ZNCC) stereo matching.
+
+Private helpers of :mod:`stages._stereo`; see that module for the matching rules.
+
+Layout and exactness. Images are gray levels minus 128, as float32 (products) and int32
+(statistics). Every window sum (of ``R``, ``R**2``, ``R*L``...) is an exact integer: box sums
+come from int64 integral images (per-window image statistics) and from sliding float32
+column/row sums of the products ``R[y, x] * L[y, x + d]`` (the row kernel), which stay exact
+because centred products are at most 128**2 and a window of at most 31 x 31 px keeps every
+partial sum below 2**24. Only the final ZNCC division is floating point, and it is done with
+the same operations for a pixel whatever the image or tile it sits in, so matching a tile gives
+bit-identical results to matching the whole frame.
+
+Per image row the kernel keeps, for every window half-width ``hw`` and every disparity index
+``j`` (disparity ``d = d_min + j``), the column sums ``cs[x, j]`` of ``R*L`` over the
+``2 hw + 1`` window rows and the window sums ``hs[x, j]``: O(1) work per pixel, disparity and
+window whatever the window size (box filtering), no Python loop over pixels.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+__all__: list[str] = []  # private module; names used by stages._stereo
+
+NO_PEAK = np.float32(np.nan)
+LR_REJECTED = np.float32(-np.inf)
+
+
+@njit(cache=True)
+def window_stats(image, hws):  # pragma: no cover - numba
+    """Per-window sums, ``1 / sqrt(n*sum(v^2) - sum(v)^2)`` and standard deviations.
+
+    ``image`` is a centred int32 image (H, W), ``hws`` the window half-widths (K,). Returns
+    three float32 arrays (K, H, W), zero where the ``(2 hw + 1)`` square window does not fit
+    in the image or is flat. The sums are exact (integers below 2**24).
+    """
+    h, w = image.shape
+    n_win = hws.size
+    integral = np.zeros((h + 1, w + 1), np.int64)
+    integral2 = np.zeros((h + 1, w + 1), np.int64)
+    for y in range(h):
+        row = np.int64(0)
+        row2 = np.int64(0)
+        for x in range(w):
+            v = np.int64(image[y, x])
+            row += v
+            row2 += v * v
+            integral[y + 1, x + 1] = integral[y, x + 1] + row
+            integral2[y + 1, x + 1] = integral2[y, x + 1] + row2
+    sums = np.zeros((n_win, h, w), np.float32)
+    inv = np.zeros((n_win, h, w), np.float32)
+    std = np.zeros((n_win, h, w), np.float32)
+    for k in range(n_win):
+        hw = hws[k]
+        n = (2 * hw + 1) * (2 * hw + 1)
+        for y in range(hw, h - hw):
+            y0 = y - hw
+            y1 = y + hw + 1
+            for x in range(hw, w - hw):
+                x0 = x - hw
+                x1 = x + hw + 1
+                s = integral[y1, x1] - integral[y0, x1] - integral[y1, x0] + integral[y0, x0]
+                s2 = integral2[y1, x1] - integral2[y0, x1] - integral2[y1, x0] + integral2[y0, x0]
+                spread = n * s2 - s * s
+                sums[k, y, x] = s
+                if spread > 0:
+                    root = np.sqrt(np.float64(spread))
+                    inv[k, y, x] = 1.0 / root
+                    std[k, y, x] = root / n
+    return sums, inv, std
+
+
+@njit(cache=True)
+def _update_column_sums(cs, ref, other, y_add, y_sub, d_min):  # pragma: no cover - numba
+    """Add product row ``y_add`` to ``cs`` and remove row ``y_sub`` (skipped when < 0)."""
+    w = ref.shape[1]
+    n_disp = cs.shape[1]
+    for x in range(w):
+        j0 = max(0, -x - d_min)
+        j1 = min(n_disp, w - x - d_min)
+        ra = ref[y_add, x]
+        if y_sub >= 0:
+            rs = ref[y_sub, x]
+            for j in range(j0, j1):
+                xo = x + d_min + j
+                cs[x, j] += ra * other[y_add, xo] - rs * other[y_sub, xo]
+        else:
+            for j in range(j0, j1):
+                cs[x, j] += ra * other[y_add, x + d_min + j]
+
+
+@njit(cache=True)
+def _window_sums(hs, cs, hw):  # pragma: no cover - numba
+    """Slide the ``2 hw + 1`` wide horizontal window over the column sums."""
+    w, n_disp = cs.shape
+    if w < 2 * hw + 1:
+        return
+    for j in range(n_disp):
+        acc = np.float32(0)
+        for x in range(2 * hw + 1):
+            acc += cs[x, j]
+        hs[hw, j] = acc
+    for x in range(hw + 1, w - hw):
+        for j in range(n_disp):
+            hs[x, j] = hs[x - 1, j] + cs[x + hw, j] - cs[x - hw - 1, j]
+
+
+@njit(cache=True)
+def _refresh_row(cs, hs, ref, other, y, hw, d_min):  # pragma: no cover - numba
+    """Bring the column and window sums of one window size to row ``y``."""
+    if y == hw:
+        cs[:, :] = 0
+        for yy in range(2 * hw + 1):
+            _update_column_sums(cs, ref, other, yy, -1, d_min)
+    else:
+        _update_column_sums(cs, ref, other, y + hw, y - hw - 1, d_min)
+    _window_sums(hs, cs, hw)
+
+
+@njit(cache=True)
+def _parabola_offset(c_minus, c_0, c_plus):  # pragma: no cover - numba
+    """Vertex offset in [-0.5, 0.5] of the parabola through three equally spaced samples."""
+    curvature = c_minus - 2.0 * c_0 + c_plus
+    if curvature == 0.0:
+        return 0.0
+    offset = 0.5 * (c_minus - c_plus) / curvature
+    return min(0.5, max(-0.5, offset))
+
+
+@njit(cache=True, inline="always")
+def _ncc(hs, n, rs_row, ri_row, os_row, oi_row, x, j, d_min):  # pragma: no cover - numba
+    """ZNCC of reference column ``x`` at disparity index ``j`` in the current row."""
+    xo = x + d_min + j
+    num = n * np.float64(hs[x, j]) - np.float64(rs_row[x]) * np.float64(os_row[xo])
+    return np.float32(num * ri_row[x] * oi_row[xo])
+
+
+@njit(cache=True)
+def _row_curves(curves, hs, hw, rs_row, ri_row, os_row, oi_row, d_min):  # pragma: no cover
+    """ZNCC of every column and disparity of the current row; -2 where undefined."""
+    w, n_disp = curves.shape
+    n = (2 * hw + 1) * (2 * hw + 1)
+    curves[:, :] = -2.0
+    for x in range(hw, w - hw):
+        j0 = max(0, hw - x - d_min)
+        j1 = min(n_disp, w - hw - x - d_min)
+        rs = np.float64(rs_row[x])
+        ri = np.float64(ri_row[x])
+        for j in range(j0, j1):
+            xo = x + d_min + j
+            num = n * np.float64(hs[x, j]) - rs * np.float64(os_row[xo])
+            curves[x, j] = np.float32(num * ri * oi_row[xo])
+
+
+@njit(cache=True)
+def _left_best(left_index, left_value, curves, hw, d_min):  # pragma: no cover - numba
+    """Best disparity index of every column of the other image from the row's curves.
+
+    The left-reference curve is the reference one re-indexed, ``C_left(xl, j) =
+    C_ref(xl - d_min - j, j)``, so one pass over the row's curves finds every argmax.
+    """
+    w, n_disp = curves.shape
+    left_index[:] = -1
+    left_value[:] = -np.inf
+    for x in range(hw, w - hw):
+        j0 = max(0, hw - x - d_min)
+        j1 = min(n_disp, w - hw - x - d_min)
+        for j in range(j0, j1):
+            xl = x + d_min + j
+            if curves[x, j] > left_value[xl]:
+                left_value[xl] = curves[x, j]
+                left_index[xl] = j
+
+
+@njit(cache=True, inline="always")
+def _peak(curve, j0, j1):  # pragma: no cover - numba
+    """Best index, best value and best value more than one index away, in one pass."""
+    best = j0
+    best_value = np.float32(-np.inf)
+    second = np.float32(-np.inf)
+    prefix_lag1 = np.float32(-np.inf)  # max of curve[j0 : j], i.e. up to index j - 1
+    prefix_lag2 = np.float32(-np.inf)  # max of curve[j0 : j - 1], i.e. up to index j - 2
+    for j in range(j0, j1):
+        value = curve[j]
+        if value > best_value:
+            best_value = value
+            best = j
+            second = prefix_lag2
+        elif j > best + 1 and value > second:
+            second = value
+        prefix_lag2 = prefix_lag1
+        if value > prefix_lag1:
+            prefix_lag1 = value
+    return best, best_value, second
+
+
+@njit(cache=True)
+def adaptive_match(
+    ref,
+    other,
+    d_min,
+    n_disp,
+    hws,
+    ref_sums,
+    ref_inv,
+    ref_std,
+    other_sums,
+    other_inv,
+    min_texture,
+    min_ncc,
+    distinctness,
+    lr_tolerance,
+):  # pragma: no cover - numba
+    """Adaptive-window ZNCC matching with subpixel peak and left-right check.
+
+    Parameters are centred float32 images (H, W), the first disparity and the number of
+    disparities, the window half-widths in increasing order (K,), and per-window statistics
+    of shape (K, H, W) from :func:`window_stats`.
+
+    Returns
+    -------
+    disparity : (H, W) float32
+        Subpixel disparity; NaN where no window gave a textured, distinct peak; -inf where
+        a peak was found but every such window failed the left-right check.
+    window : (H, W) int8
+        Index of the accepted window, -1 where none.
+    """
+    h, w = ref.shape
+    n_win = hws.size
+    disparity = np.full((h, w), NO_PEAK, np.float32)
+    window = np.full((h, w), -1, np.int8)
+    cs = np.zeros((n_win, w, n_disp), np.float32)
+    hs = np.zeros((n_win, w, n_disp), np.float32)
+    # The smallest window serves most pixels: its whole row of curves is computed in one
+    # vectorised pass and the left-right check reads it back; larger windows are
+    # evaluated only for the pixels that need them.
+    first = np.full((w, n_disp), -2.0, np.float32)
+    curve = np.empty(n_disp, np.float32)
+    left_index = np.full(w, -1, np.int64)
+    left_value = np.full(w, -np.inf, np.float32)
+    for y in range(h):
+        for k in range(n_win):
+            hw = hws[k]
+            if y >= hw and y + hw < h:
+                _refresh_row(cs[k], hs[k], ref, other, y, hw, d_min)
+        if y >= hws[0] and y + hws[0] < h:
+            _row_curves(
+                first, hs[0], hws[0], ref_sums[0, y], ref_inv[0, y], other_sums[0, y],
+                other_inv[0, y], d_min,
+            )  # fmt: skip
+            _left_best(left_index, left_value, first, hws[0], d_min)
+        for x in range(w):
+            peak_seen = False
+            for k in range(n_win):
+                hw = hws[k]
+                if y < hw or y + hw >= h or x < hw or x + hw >= w:
+                    break  # larger windows do not fit either
+                if ref_std[k, y, x] < min_texture:
+                    continue
+                j0 = max(0, hw - x - d_min)
+                j1 = min(n_disp, w - hw - x - d_min)
+                if j1 - j0 < 3:
+                    continue
+                n = (2 * hw + 1) * (2 * hw + 1)
+                hs_k = hs[k]
+                rs_row = ref_sums[k, y]
+                ri_row = ref_inv[k, y]
+                os_row = other_sums[k, y]
+                oi_row = other_inv[k, y]
+                if k == 0:
+                    row_curve = first[x]
+                else:
+                    for j in range(j0, j1):
+                        curve[j] = _ncc(hs_k, n, rs_row, ri_row, os_row, oi_row, x, j, d_min)
+                    row_curve = curve
+                best, best_value, second = _peak(row_curve, j0, j1)
+                if best == j0 or best == j1 - 1 or best_value < min_ncc:
+                    continue
+                if best_value - second < distinctness:
+                    continue
+                peak_seen = True
+                # Left-reference curve of the matched pixel: C_left(xl, d) = C_ref(xl - d, d).
+                xl = x + d_min + best
+                if k == 0:
+                    lr_best = left_index[xl]
+                else:
+                    lr_best = -1
+                    lr_value = np.float32(-np.inf)
+                    for jj in range(n_disp):
+                        xr = xl - d_min - jj
+                        if xr < hw or xr + hw >= w:
+                            continue
+                        value = _ncc(hs_k, n, rs_row, ri_row, os_row, oi_row, xr, jj, d_min)
+                        if value > lr_value:
+                            lr_value = value
+                            lr_best = jj
+                if abs(lr_best - best) > lr_tolerance:
+                    continue
+                # The window-edge asymmetry of the reference curve's neighbours appears with
+                # the opposite sign in the left-reference curve, so averaging both parabola
+                # vertices cancels it (an exact integer shift gives an exact integer).
+                offset = _parabola_offset(row_curve[best - 1], best_value, row_curve[best + 1])
+                if x - 1 >= hw and x + 1 + hw < w:
+                    before = _ncc(hs_k, n, rs_row, ri_row, os_row, oi_row, x + 1, best - 1, d_min)
+                    after = _ncc(hs_k, n, rs_row, ri_row, os_row, oi_row, x - 1, best + 1, d_min)
+                    offset = 0.5 * (offset + _parabola_offset(before, best_value, after))
+                disparity[y, x] = np.float32(d_min + best + offset)
+                window[y, x] = k
+                break
+            if window[y, x] < 0 and peak_seen:
+                disparity[y, x] = LR_REJECTED
+    return disparity, window
+
+
+@njit(cache=True)
+def ncc_cost_volume(ref, other, d_min, n_disp, hw, ref_sums, ref_inv, other_sums, other_inv):
+    """Matching cost ``(1 - ZNCC) / 2`` in [0, 1] of one window, shape (H, W, D) float32.
+
+    Where the window does not fit (image border, disparity beyond the other image) the cost
+    is 0.5, the cost of an uncorrelated match, so semi-global aggregation fills it from the
+    neighbours; the caller invalidates such pixels afterwards.
+    """  # pragma: no cover - numba
+    h, w = ref.shape
+    cost = np.full((h, w, n_disp), 0.5, np.float32)
+    cs = np.zeros((w, n_disp), np.float32)
+    hs = np.zeros((w, n_disp), np.float32)
+    n = (2 * hw + 1) * (2 * hw + 1)
+    for y in range(hw, h - hw):
+        _refresh_row(cs, hs, ref, other, y, hw, d_min)
+        for x in range(hw, w - hw):
+            j0 = max(0, hw - x - d_min)
+            j1 = min(n_disp, w - hw - x - d_min)
+            s_ref = np.float64(ref_sums[y, x])
+            i_ref = np.float64(ref_inv[y, x])
+            for j in range(j0, j1):
+                xo = x + d_min + j
+                num = n * np.float64(hs[x, j]) - s_ref * np.float64(other_sums[y, xo])
+                cost[y, x, j] = np.float32(0.5 - 0.5 * num * i_ref * other_inv[y, xo])
+    return cost
+
+
+@njit(cache=True)
+def occluded(disparity, tolerance):  # pragma: no cover - numba
+    """Reference pixels hidden in the other view by a nearer surface (uniqueness test).
+
+    Each valid pixel lands at column ``round(x + d)`` of the other image; where several land
+    on one column, the nearest (largest disparity) is what the other camera sees, and pixels
+    more than ``tolerance`` px behind it cannot have been seen: they are flagged.
+    """
+    h, w = disparity.shape
+    flags = np.zeros((h, w), np.bool_)
+    nearest = np.empty(w, np.float32)
+    for y in range(h):
+        nearest[:] = -np.inf
+        for x in range(w):
+            d = disparity[y, x]
+            if np.isfinite(d):
+                c = int(np.floor(x + d + 0.5))
+                if 0 <= c < w and d > nearest[c]:
+                    nearest[c] = d
+        for x in range(w):
+            d = disparity[y, x]
+            if np.isfinite(d):
+                c = int(np.floor(x + d + 0.5))
+                if 0 <= c < w and nearest[c] > d + tolerance:
+                    flags[y, x] = True
+    return flags

@@ -1,0 +1,123 @@
+"""Numba kernels of semi-global aggregation (Hirschmueller 2008) over a matching-cost volume.
+
+Private helpers of :mod:`stages._stereo`. The cost volume has shape (H, W, D), lower is better.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+__all__: list[str] = []  # private module; names used by stages._stereo
+
+_DIRECTIONS_8 = np.array(
+    [(0, 1), (0, -1), (1, 0), (-1, 0), (1, 1), (1, -1), (-1, 1), (-1, -1)], dtype=np.int64
+)
+
+
+@njit(cache=True)
+def _aggregate_direction(cost, total, dy, dx, p1, p2):  # pragma: no cover - numba
+    """Add the path costs along direction (dy, dx) to ``total``."""
+    h, w, n_disp = cost.shape
+    previous = np.zeros((w, n_disp), np.float32)
+    current = np.zeros((w, n_disp), np.float32)
+    prev_min = np.zeros(w, np.float32)
+    cur_min = np.zeros(w, np.float32)
+    y_start, y_stop, y_step = (0, h, 1) if dy >= 0 else (h - 1, -1, -1)
+    x_start, x_stop, x_step = (0, w, 1) if dx >= 0 else (w - 1, -1, -1)
+    for y in range(y_start, y_stop, y_step):
+        py = y - dy
+        for x in range(x_start, x_stop, x_step):
+            px = x - dx
+            has_pred = 0 <= py < h and 0 <= px < w
+            if has_pred:
+                if dy == 0:
+                    pred = current[px]
+                    pred_min = cur_min[px]
+                else:
+                    pred = previous[px]
+                    pred_min = prev_min[px]
+                jump = pred_min + p2
+                best = np.float32(np.inf)
+                for j in range(n_disp):
+                    m = pred[j]
+                    if j > 0 and pred[j - 1] + p1 < m:
+                        m = pred[j - 1] + p1
+                    if j + 1 < n_disp and pred[j + 1] + p1 < m:
+                        m = pred[j + 1] + p1
+                    if jump < m:
+                        m = jump
+                    value = cost[y, x, j] + m - pred_min
+                    current[x, j] = value
+                    if value < best:
+                        best = value
+            else:
+                best = np.float32(np.inf)
+                for j in range(n_disp):
+                    value = cost[y, x, j]
+                    current[x, j] = value
+                    if value < best:
+                        best = value
+            cur_min[x] = best
+            for j in range(n_disp):
+                total[y, x, j] += current[x, j]
+        previous, current = current, previous
+        prev_min, cur_min = cur_min, prev_min
+
+
+@njit(cache=True)
+def aggregate(cost, p1, p2, n_paths):  # pragma: no cover - numba
+    """Sum of path costs over 4 (horizontal, vertical) or 8 (plus diagonal) directions."""
+    total = np.zeros(cost.shape, np.float32)
+    for i in range(n_paths):
+        _aggregate_direction(
+            cost, total, _DIRECTIONS_8[i, 0], _DIRECTIONS_8[i, 1], np.float32(p1), np.float32(p2)
+        )
+    return total
+
+
+@njit(cache=True)
+def select(total, d_min, hw, lr_tolerance):  # pragma: no cover - numba
+    """Winner-take-all on aggregated costs, parabola subpixel, left-right check.
+
+    Returns disparity (H, W) float32: NaN without data (window outside the image, peak at
+    the end of the search range), -inf where the left-right check fails.
+    """
+    h, w, n_disp = total.shape
+    disparity = np.full((h, w), np.nan, np.float32)
+    for y in range(hw, h - hw):
+        for x in range(hw, w - hw):
+            j0 = max(0, hw - x - d_min)
+            j1 = min(n_disp, w - hw - x - d_min)
+            if j1 - j0 < 3:
+                continue
+            best = j0
+            best_value = np.inf
+            for j in range(j0, j1):
+                if total[y, x, j] < best_value:
+                    best_value = total[y, x, j]
+                    best = j
+            if best == j0 or best == j1 - 1:
+                continue
+            # Left-reference aggregated cost is the same volume re-indexed: S(xl - d, d).
+            xl = x + d_min + best
+            lr_best = -1
+            lr_value = np.inf
+            for jj in range(n_disp):
+                xr = xl - d_min - jj
+                if xr < 0 or xr >= w:
+                    continue
+                if total[y, xr, jj] < lr_value:
+                    lr_value = total[y, xr, jj]
+                    lr_best = jj
+            if abs(lr_best - best) > lr_tolerance:
+                disparity[y, x] = -np.inf
+                continue
+            c_minus = total[y, x, best - 1]
+            c_plus = total[y, x, best + 1]
+            curvature = c_minus - 2.0 * best_value + c_plus
+            offset = 0.0
+            if curvature > 0:
+                offset = min(0.5, max(-0.5, 0.5 * (c_minus - c_plus) / curvature))
+            disparity[y, x] = np.float32(d_min + best + offset)
+    return disparity

@@ -1,0 +1,552 @@
+"""Stereo matching of rectified, parallel-axis pairs: the depth stage's math.
+
+Geometry (``pipeline.camera``): the *reference* image is matched against the *other* image
+along the same row; disparity ``d`` means the reference pixel at column ``x`` is at column
+``x + d`` of the other image (reference = right, other = left in the study). Results are in
+reference geometry, float32 pixels, NaN where invalid.
+
+Methods
+-------
+``adaptive`` (default; the study's adaptive correlation window)
+    Zero-mean normalised cross-correlation (ZNCC) over square windows of increasing size
+    (default 5, 9, 15, 21 px). Per pixel the windows are tried smallest first and the first
+    one that passes all of these tests is kept:
+
+    1. *texture*: the standard deviation of the reference window is at least
+       ``min_texture`` gray levels (below it the correlation is dominated by sensor noise);
+    2. *peak*: the best ZNCC over the disparity range is at least ``min_ncc`` and lies
+       strictly inside the searchable range (a peak on the range's end may be a truncated
+       slope of a match outside it);
+    3. *distinct*: best ZNCC minus the best ZNCC more than 1 px away from it is at least
+       ``distinctness`` (repetitive or ambiguous texture gives several near-equal peaks);
+    4. *left-right consistent*: matching the found left pixel back to the reference with
+       the same window lands within ``lr_tolerance`` px of the start.
+
+    After matching, the *uniqueness* (occlusion) test invalidates pixels whose landing
+    column in the other image is taken by a nearer surface (a disparity more than
+    ``lr_tolerance`` px larger): the other camera cannot see them. It catches occluded
+    pixels next to a depth edge whose large windows reach into visible background and
+    so pass the left-right check with the background's disparity. Both tests count as
+    "left-right rejected" in the status.
+
+    Where no window passes, the pixel is invalid, not guessed. Why smallest first: a window
+    straddling a depth change or a strongly slanted surface mixes disparities and biases the
+    match (the "fattening" of foreground objects), so the smallest window is the most
+    accurate *if* it carries enough signal; a larger window is only used where the smaller
+    one is not reliable. This is the idea of Kanade and Okutomi's adaptive window (IEEE PAMI
+    16(9), 1994), which grows the window while the estimated disparity uncertainty falls;
+    here the uncertainty test is replaced by the cheap texture and peak-distinctness
+    tests above, which need no disparity-variation model. The accepted disparity is refined
+    to subpixel precision by a parabola through the ZNCC at the best disparity and its two
+    neighbours.
+
+    Speed: all window sums are box sums computed incrementally (O(1) per pixel, disparity
+    and window), in numba kernels (:mod:`stages._ncc`); the left-right check costs no second
+    matching because the left-reference cost volume is the right-reference one re-indexed:
+    ``C_left(xl, d) = C_right(xl - d, d)``.
+
+``sgm``
+    The same ZNCC costs of one window (``sgm_window``), ``(1 - ZNCC) / 2``, aggregated
+    semi-globally over 4 or 8 paths (penalties ``sgm_p1`` for 1 px steps, ``sgm_p2`` for
+    larger jumps), winner-take-all, parabola subpixel, left-right check on the re-indexed
+    aggregated volume. Fills weakly textured areas (dunes) the adaptive method leaves empty.
+
+``opencv-sgbm``
+    OpenCV's StereoSGBM as a reference (:func:`sgbm_disparity`).
+
+All methods finish by removing speckles: 4-connected regions of at most ``speckle_size``
+pixels whose neighbouring disparities differ by at most ``speckle_range`` px are isolated
+islands of (usually wrong) matches and are invalidated.
+
+Tiles: :func:`match_tiled` matches a large frame tile by tile with ``dask.array.map_overlap``;
+the overlap (:func:`tile_overlap`) covers everything a pixel's result depends on, so for the
+``adaptive`` method the result is bit-identical to whole-frame matching (window sums are
+exact integers). ``sgm`` and ``opencv-sgbm`` aggregate along paths across the whole frame, so
+their tiled results differ slightly near tile seams.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import cv2
+import numpy as np
+
+from . import _ncc, _sgm
+
+__all__ = [
+    "DEFAULT_WINDOWS",
+    "METHODS",
+    "STATUS_VALID",
+    "STATUS_NO_PEAK",
+    "STATUS_LR_REJECTED",
+    "STATUS_SPECKLE",
+    "Matching",
+    "match_disparity",
+    "match_tiled",
+    "tile_overlap",
+    "remove_speckles",
+    "check_settings",
+    "sgbm_disparity",
+]
+
+DEFAULT_WINDOWS: tuple[int, ...] = (5, 9, 15, 21)
+METHODS: tuple[str, ...] = ("adaptive", "sgm", "opencv-sgbm")
+
+STATUS_VALID = 0
+STATUS_NO_PEAK = 1
+STATUS_LR_REJECTED = 2
+STATUS_SPECKLE = 3
+
+# Internal one-array encoding of the status, so a tile function returns a single array.
+_SPECKLE_CODE = np.float32(np.inf)
+
+
+@dataclass(frozen=True)
+class Matching:
+    """Result of matching one pair.
+
+    Attributes
+    ----------
+    disparity : (M, N) ndarray of float32
+        Pixels, reference geometry, NaN where invalid.
+    status : (M, N) ndarray of int8
+        ``STATUS_VALID`` (0), ``STATUS_NO_PEAK`` (1: no textured, distinct peak or no data),
+        ``STATUS_LR_REJECTED`` (2: failed the left-right check), ``STATUS_SPECKLE`` (3).
+    """
+
+    disparity: np.ndarray
+    status: np.ndarray
+
+    @property
+    def valid_fraction(self) -> float:
+        """Share of all pixels with a valid disparity."""
+        return float(np.mean(self.status == STATUS_VALID))
+
+    @property
+    def lr_consistency(self) -> float:
+        """Share of pixels with a peak that passed the left-right check (NaN if none)."""
+        peaks = np.count_nonzero(self.status != STATUS_NO_PEAK)
+        if peaks == 0:
+            return float("nan")
+        return 1.0 - np.count_nonzero(self.status == STATUS_LR_REJECTED) / peaks
+
+
+# ----------------------------------------------------------------------------- validation
+
+
+def _coerce_image(image: Any, name: str) -> np.ndarray:
+    array = np.asarray(image)
+    if array.ndim != 2:
+        raise ValueError(f"{name} must be a 2-D gray image, got shape {array.shape}")
+    if array.dtype == np.uint8:
+        return array
+    if not np.issubdtype(array.dtype, np.integer):
+        raise TypeError(
+            f"{name} must be an integer gray image (uint8), got dtype {array.dtype}; "
+            "convert with np.clip(image, 0, 255).astype(np.uint8)"
+        )
+    if array.size and (array.min() < 0 or array.max() > 255):
+        raise ValueError(
+            f"{name} gray levels must be in [0, 255], got [{array.min()}, {array.max()}]"
+        )
+    return array.astype(np.uint8)
+
+
+def _coerce_pair(reference: Any, other: Any) -> tuple[np.ndarray, np.ndarray]:
+    ref = _coerce_image(reference, "reference")
+    oth = _coerce_image(other, "other")
+    if ref.shape != oth.shape:
+        raise ValueError(
+            f"reference and other images must have the same shape, got {ref.shape} and "
+            f"{oth.shape}; the pair must be rectified to a common size"
+        )
+    return ref, oth
+
+
+def _coerce_range(min_disparity: Any, max_disparity: Any) -> tuple[int, int]:
+    for name, value in (("min_disparity", min_disparity), ("max_disparity", max_disparity)):
+        if isinstance(value, bool) or not isinstance(value, int | np.integer):
+            raise TypeError(f"{name} must be an int, got {type(value).__name__} {value!r}")
+    lo, hi = int(min_disparity), int(max_disparity)
+    if hi - lo < 2:
+        raise ValueError(
+            f"max_disparity must exceed min_disparity by at least 2 (a peak needs two "
+            f"neighbours), got min_disparity={lo}, max_disparity={hi}"
+        )
+    if max(abs(lo), abs(hi)) > 2000:
+        raise ValueError(f"|disparity| must stay below 2000 px, got range [{lo}, {hi}]")
+    return lo, hi
+
+
+def _coerce_windows(windows: Any) -> tuple[int, ...]:
+    if isinstance(windows, str):
+        try:
+            windows = tuple(int(part) for part in windows.replace(" ", "").split(",") if part)
+        except ValueError:
+            raise ValueError(
+                f"windows must be comma-separated odd integers like '5,9,15,21', got {windows!r}"
+            ) from None
+    sizes = tuple(int(w) for w in windows)
+    if not sizes:
+        raise ValueError("windows must name at least one window size, e.g. '5,9,15,21'")
+    if any(w < 3 or w % 2 == 0 for w in sizes):
+        raise ValueError(f"window sizes must be odd integers >= 3, got {sizes}")
+    if max(sizes) > 31:
+        raise ValueError(f"window sizes must be at most 31 px, got {sizes}")
+    if any(b <= a for a, b in zip(sizes, sizes[1:], strict=False)):
+        raise ValueError(f"window sizes must be strictly increasing, got {sizes}")
+    return sizes
+
+
+def _check_method(method: str) -> str:
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {list(METHODS)}, got {method!r}")
+    return method
+
+
+def _check_positive(name: str, value: float, *, allow_zero: bool = True) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float | np.number):
+        raise TypeError(f"{name} must be a number, got {type(value).__name__} {value!r}")
+    if not np.isfinite(value) or value < 0 or (value == 0 and not allow_zero):
+        bound = ">= 0" if allow_zero else "> 0"
+        raise ValueError(f"{name} must be a finite number {bound}, got {value!r}")
+    return float(value)
+
+
+# ----------------------------------------------------------------------------- matching
+
+
+def _centred(image: np.ndarray) -> np.ndarray:
+    # Centring keeps every float32 window sum of products exact (see stages._ncc).
+    return image.astype(np.int32) - 128
+
+
+def _adaptive_coded(ref: np.ndarray, oth: np.ndarray, lo: int, hi: int, s: dict) -> np.ndarray:
+    hws = np.array([w // 2 for w in s["windows"]], dtype=np.int64)
+    r32, o32 = _centred(ref), _centred(oth)
+    rs, ri, rsd = _ncc.window_stats(r32, hws)
+    os_, oi, _ = _ncc.window_stats(o32, hws)
+    disparity, _ = _ncc.adaptive_match(
+        r32.astype(np.float32), o32.astype(np.float32), lo, hi - lo + 1, hws, rs, ri, rsd, os_, oi,
+        float(s["min_texture"]), float(s["min_ncc"]), float(s["distinctness"]),
+        float(s["lr_tolerance"]),
+    )  # fmt: skip
+    return disparity
+
+
+def _sgm_coded(ref: np.ndarray, oth: np.ndarray, lo: int, hi: int, s: dict) -> np.ndarray:
+    hw = int(s["sgm_window"]) // 2
+    r32, o32 = _centred(ref), _centred(oth)
+    hws = np.array([hw], dtype=np.int64)
+    rs, ri, _ = _ncc.window_stats(r32, hws)
+    os_, oi, _ = _ncc.window_stats(o32, hws)
+    cost = _ncc.ncc_cost_volume(
+        r32.astype(np.float32), o32.astype(np.float32), lo, hi - lo + 1, hw,
+        rs[0], ri[0], os_[0], oi[0],
+    )  # fmt: skip
+    total = _sgm.aggregate(cost, float(s["sgm_p1"]), float(s["sgm_p2"]), int(s["sgm_paths"]))
+    return _sgm.select(total, lo, hw, float(s["lr_tolerance"]))
+
+
+def _sgbm_coded(ref: np.ndarray, oth: np.ndarray, lo: int, hi: int, s: dict) -> np.ndarray:
+    return sgbm_disparity(oth, ref, min_disparity=lo, max_disparity=hi)
+
+
+_MATCHERS = {"adaptive": _adaptive_coded, "sgm": _sgm_coded, "opencv-sgbm": _sgbm_coded}
+
+
+_DEFAULTS: dict[str, Any] = {
+    "method": "adaptive", "windows": DEFAULT_WINDOWS, "min_texture": 2.0, "min_ncc": 0.5,
+    "distinctness": 0.02, "lr_tolerance": 1.0, "speckle_size": 50, "speckle_range": 1.0,
+    "sgm_window": 5, "sgm_p1": 0.03, "sgm_p2": 0.3, "sgm_paths": 8,
+}  # fmt: skip
+
+
+def _settings(
+    method: str,
+    windows: Any,
+    min_texture: float,
+    min_ncc: float,
+    distinctness: float,
+    lr_tolerance: float,
+    speckle_size: int,
+    speckle_range: float,
+    sgm_window: int,
+    sgm_p1: float,
+    sgm_p2: float,
+    sgm_paths: int,
+) -> dict[str, Any]:
+    if not -1.0 <= min_ncc <= 1.0:
+        raise ValueError(f"min_ncc must be in [-1, 1], got {min_ncc!r}")
+    if isinstance(speckle_size, bool) or not isinstance(speckle_size, int) or speckle_size < 0:
+        raise ValueError(f"speckle_size must be an int >= 0 (0 disables), got {speckle_size!r}")
+    if sgm_paths not in (4, 8):
+        raise ValueError(f"sgm_paths must be 4 or 8, got {sgm_paths!r}")
+    if sgm_window < 3 or sgm_window % 2 == 0 or sgm_window > 31:
+        raise ValueError(f"sgm_window must be an odd integer in [3, 31], got {sgm_window!r}")
+    return {
+        "method": _check_method(method),
+        "windows": _coerce_windows(windows),
+        "min_texture": _check_positive("min_texture", min_texture),
+        "min_ncc": float(min_ncc),
+        "distinctness": _check_positive("distinctness", distinctness),
+        "lr_tolerance": _check_positive("lr_tolerance", lr_tolerance),
+        "speckle_size": int(speckle_size),
+        "speckle_range": _check_positive("speckle_range", speckle_range, allow_zero=False),
+        "sgm_window": int(sgm_window),
+        "sgm_p1": _check_positive("sgm_p1", sgm_p1),
+        "sgm_p2": _check_positive("sgm_p2", sgm_p2),
+        "sgm_paths": int(sgm_paths),
+    }
+
+
+def check_settings(**settings: Any) -> dict[str, Any]:
+    """Validate matching settings (keywords of :func:`match_disparity` other than the images
+    and the range), filling defaults; raises ValueError/TypeError naming the bad one."""
+    unknown = set(settings) - set(_DEFAULTS)
+    if unknown:
+        raise TypeError(f"unknown matching settings {sorted(unknown)}; known: {sorted(_DEFAULTS)}")
+    return _settings(**{**_DEFAULTS, **settings})
+
+
+def _match_coded(ref: np.ndarray, oth: np.ndarray, lo: int, hi: int, s: dict) -> np.ndarray:
+    """Disparity with status codes: NaN no peak, -inf LR-rejected, +inf speckle."""
+    coded = _MATCHERS[s["method"]](ref, oth, lo, hi, s)
+    if s["method"] != "opencv-sgbm":
+        finite = np.where(np.isfinite(coded), coded, np.nan).astype(np.float32)
+        hidden = _ncc.occluded(finite, np.float32(max(s["lr_tolerance"], 0.5)))
+        coded = np.where(hidden, _ncc.LR_REJECTED, coded).astype(np.float32)
+    if s["speckle_size"] > 0:
+        finite = np.where(np.isfinite(coded), coded, np.nan).astype(np.float32)
+        _, removed = remove_speckles(
+            finite, max_size=s["speckle_size"], max_diff=s["speckle_range"]
+        )
+        coded = np.where(removed, _SPECKLE_CODE, coded).astype(np.float32)
+    return coded
+
+
+def _decode(coded: np.ndarray) -> Matching:
+    status = np.full(coded.shape, STATUS_VALID, np.int8)
+    status[np.isnan(coded)] = STATUS_NO_PEAK
+    status[np.isneginf(coded)] = STATUS_LR_REJECTED
+    status[np.isposinf(coded)] = STATUS_SPECKLE
+    disparity = np.where(status == STATUS_VALID, coded, np.nan).astype(np.float32)
+    return Matching(disparity=disparity, status=status)
+
+
+def match_disparity(
+    reference: np.ndarray,
+    other: np.ndarray,
+    *,
+    min_disparity: int,
+    max_disparity: int,
+    method: str = "adaptive",
+    windows: tuple[int, ...] | str = DEFAULT_WINDOWS,
+    min_texture: float = 2.0,
+    min_ncc: float = 0.5,
+    distinctness: float = 0.02,
+    lr_tolerance: float = 1.0,
+    speckle_size: int = 50,
+    speckle_range: float = 1.0,
+    sgm_window: int = 5,
+    sgm_p1: float = 0.03,
+    sgm_p2: float = 0.3,
+    sgm_paths: int = 8,
+) -> Matching:
+    """Match a rectified pair along rows.
+
+    Parameters
+    ----------
+    reference, other : (M, N) ndarray of uint8
+        Gray images; the reference pixel at column ``x`` is at ``x + d`` in ``other``.
+    min_disparity, max_disparity : int
+        Inclusive disparity search range in px, ``max_disparity >= min_disparity + 2``.
+    method : {'adaptive', 'sgm', 'opencv-sgbm'}
+        See the module docstring.
+    windows : tuple of odd int or str
+        Adaptive window sizes in px, increasing (``(5, 9, 15, 21)`` or ``'5,9,15,21'``).
+    min_texture : float
+        Minimum standard deviation (gray levels) of a reference window to be matched.
+    min_ncc : float in [-1, 1]
+        Minimum ZNCC of an accepted peak.
+    distinctness : float
+        Minimum ZNCC margin of the peak over the best value more than 1 px from it.
+    lr_tolerance : float
+        Largest left-right disagreement in px that still counts as consistent.
+    speckle_size : int
+        Largest connected region (px) removed as a speckle; 0 disables.
+    speckle_range : float
+        Disparity step (px) that still connects neighbours in a region.
+    sgm_window, sgm_p1, sgm_p2, sgm_paths : int, float, float, {4, 8}
+        ``sgm`` method: ZNCC window, penalties (cost units, cost in [0, 1]), path count.
+
+    Returns
+    -------
+    Matching
+        ``disparity`` (M, N) float32 with NaN invalid, and the per-pixel ``status``.
+    """
+    ref, oth = _coerce_pair(reference, other)
+    lo, hi = _coerce_range(min_disparity, max_disparity)
+    settings = _settings(
+        method, windows, min_texture, min_ncc, distinctness, lr_tolerance,
+        speckle_size, speckle_range, sgm_window, sgm_p1, sgm_p2, sgm_paths,
+    )  # fmt: skip
+    return _decode(_match_coded(ref, oth, lo, hi, settings))
+
+
+def tile_overlap(
+    *, min_disparity: int, max_disparity: int, largest_window: int, speckle_size: int
+) -> tuple[int, int]:
+    """Tile overlap ``(rows, columns)`` that makes tiled matching equal whole-frame matching.
+
+    A pixel's disparity depends on reference columns within ``|d|max + (d_max - d_min)``
+    (left-right check), other-image columns within ``|d|max`` and half a window around it;
+    speckle removal then looks ``speckle_size`` px further.
+    """
+    span = max(abs(min_disparity), abs(max_disparity))
+    half = largest_window // 2
+    columns = span + (max_disparity - min_disparity) + half + 2 + speckle_size
+    rows = half + 2 + speckle_size
+    return rows, columns
+
+
+def match_tiled(
+    reference: np.ndarray,
+    other: np.ndarray,
+    *,
+    tile_px: int,
+    min_disparity: int,
+    max_disparity: int,
+    **settings: Any,
+) -> Matching:
+    """:func:`match_disparity` tile by tile with ``dask.array.map_overlap``.
+
+    Parameters
+    ----------
+    reference, other : (M, N) ndarray of uint8
+        As for :func:`match_disparity`.
+    tile_px : int
+        Tile side in px (>= 16); the frame is cut into ``tile_px`` square chunks, each
+        matched with the overlap of :func:`tile_overlap` (dask enlarges chunks smaller
+        than the overlap).
+    **settings
+        Any keyword of :func:`match_disparity`.
+
+    Returns
+    -------
+    Matching
+        Equal to whole-frame matching for ``adaptive``.
+    """
+    import dask.array as da
+
+    from pipeline.compute import compute
+
+    if isinstance(tile_px, bool) or not isinstance(tile_px, int) or tile_px < 16:
+        raise ValueError(f"tile_px must be an int >= 16, got {tile_px!r}")
+    ref, oth = _coerce_pair(reference, other)
+    lo, hi = _coerce_range(min_disparity, max_disparity)
+    s = check_settings(**settings)
+    largest = max(max(s["windows"]), s["sgm_window"], 5)
+    rows, cols = tile_overlap(
+        min_disparity=lo, max_disparity=hi, largest_window=largest,
+        speckle_size=s["speckle_size"],
+    )  # fmt: skip
+
+    def tile(ref_tile: np.ndarray, oth_tile: np.ndarray) -> np.ndarray:
+        return _match_coded(ref_tile, oth_tile, lo, hi, s)
+
+    ref_d = da.from_array(ref, chunks=tile_px)
+    oth_d = da.from_array(oth, chunks=tile_px)
+    coded = da.map_overlap(
+        tile, ref_d, oth_d, depth={0: rows, 1: cols}, boundary="none", trim=True,
+        dtype=np.float32, meta=np.empty((0, 0), np.float32),
+    )  # fmt: skip
+    (result,) = compute(coded)
+    return _decode(np.asarray(result, dtype=np.float32))
+
+
+# ----------------------------------------------------------------------------- post-processing
+
+
+def remove_speckles(
+    disparity: np.ndarray, *, max_size: int, max_diff: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Invalidate small connected islands of disparity.
+
+    Parameters
+    ----------
+    disparity : (M, N) ndarray of float32
+        Pixels, NaN invalid, ``|d| < 2000``.
+    max_size : int
+        Regions of at most this many pixels (4-connected) are removed.
+    max_diff : float
+        Neighbours whose disparities differ by at most this (px, resolved to 1/16) belong
+        to the same region.
+
+    Returns
+    -------
+    cleaned : (M, N) ndarray of float32
+        ``disparity`` with the speckles set to NaN.
+    removed : (M, N) ndarray of bool
+        The pixels that were removed.
+    """
+    d = np.asarray(disparity, dtype=np.float32)
+    if d.ndim != 2:
+        raise ValueError(f"disparity must be 2-D, got shape {d.shape}")
+    valid = np.isfinite(d)
+    invalid_code = np.int16(-32768)
+    fixed = np.full(d.shape, invalid_code, np.int16)
+    fixed[valid] = np.round(d[valid] * 16).astype(np.int16)
+    marked = fixed.copy()
+    cv2.filterSpeckles(marked, int(invalid_code), int(max_size), max(1, round(max_diff * 16)))
+    removed = valid & (marked == invalid_code)
+    cleaned = np.where(removed, np.nan, d).astype(np.float32)
+    return cleaned, removed
+
+
+def sgbm_disparity(
+    left: np.ndarray,
+    right: np.ndarray,
+    *,
+    min_disparity: int,
+    max_disparity: int,
+    block_size: int = 5,
+) -> np.ndarray:
+    """OpenCV StereoSGBM disparity with the *right* image as reference (the baseline).
+
+    OpenCV's matcher takes the left image as reference (left ``x`` matches right ``x - d``).
+    Mirroring both images turns the right image into a left-reference image with the same
+    positive disparities, so ``compute(flip(right), flip(left))`` flipped back is the
+    right-reference disparity (right ``x`` matches left ``x + d``).
+
+    Parameters
+    ----------
+    left, right : (M, N) ndarray of uint8
+        Rectified gray pair.
+    min_disparity, max_disparity : int
+        Search range; OpenCV searches a multiple of 16 disparities from ``min_disparity``.
+    block_size : int
+        Odd matching block size; penalties P1 = 8 b^2, P2 = 32 b^2 (OpenCV's usual choice).
+
+    Returns
+    -------
+    disparity : (M, N) ndarray of float32
+        Right-reference disparity in px (1/16 px steps), NaN where OpenCV gives none.
+    """
+    right_u8, left_u8 = _coerce_pair(right, left)
+    lo, hi = _coerce_range(min_disparity, max_disparity)
+    count = int(np.ceil((hi - lo + 1) / 16.0)) * 16
+    matcher = cv2.StereoSGBM_create(
+        minDisparity=lo, numDisparities=count, blockSize=block_size,
+        P1=8 * block_size**2, P2=32 * block_size**2, disp12MaxDiff=1,
+        uniquenessRatio=10, speckleWindowSize=100, speckleRange=2,
+        mode=cv2.STEREO_SGBM_MODE_SGBM,
+    )  # fmt: skip
+    raw = matcher.compute(
+        np.ascontiguousarray(right_u8[:, ::-1]), np.ascontiguousarray(left_u8[:, ::-1])
+    )[:, ::-1]
+    disparity = raw.astype(np.float32) / 16.0
+    disparity[raw < lo * 16] = np.nan
+    return np.ascontiguousarray(disparity)

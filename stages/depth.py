@@ -1,0 +1,278 @@
+"""Depth stage: disparity, range, pseudo-left residual, ground plane and height above it.
+
+Matching math in :mod:`stages._stereo` (adaptive-window ZNCC by default), geometry in
+:mod:`stages.geometry`. With the camera's ``reference = "left"`` both images are mirrored
+and swapped, matched as if the left image were the right one, and every product is mirrored
+back, so products are always in the reference image's geometry (``docs/design.md``).
+
+Search range. ``max_disparity = 0`` (the default) derives it from the camera
+(:func:`stages.geometry.derive_max_disparity`): ``f b / nearest_range_m`` when
+``nearest_range_m`` is given, else the ground's disparity at the bottom image row (the
+nearest visible ground point, from camera height and pitch) plus 25 % and 2 px for rocks
+standing above it, else 64 px. For the built-in archives (f = 430 px, b = 0.1 m, 1.2 m up,
+pitched 38 deg) that is about 51 px; for the 0.8 m Viking baseline about 380 px.
+
+Residual. The right (reference) image is forward-warped by its disparity into the left
+image's geometry (the "pseudo-left" image); ``residual = left - pseudo_left`` lives in the
+left image's geometry, NaN where no right pixel lands. (With ``reference = "left"`` the roles
+swap: right minus pseudo-right, in the right image's geometry.)
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from pipeline.camera import Camera
+from pipeline.errors import ParamError
+from pipeline.stage import FrameContext, Param, Product, Stage, StageResult
+
+from . import _stereo
+from .geometry import (
+    derive_max_disparity,
+    fit_ground_plane,
+    height_above_plane,
+    pseudo_left,
+    range_from_disparity,
+    residual,
+)
+
+__all__ = ["STAGE", "run_depth", "resolve_disparity_range"]
+
+PARAMS: tuple[Param, ...] = (
+    Param("method", str, "adaptive", "matching method", choices=_stereo.METHODS),
+    Param("min_disparity", int, 0, "smallest disparity searched (px)", minimum=-1000),
+    Param(
+        "max_disparity",
+        int,
+        0,
+        "largest disparity searched (px); 0 = derive from the camera and nearest_range_m",
+        minimum=0,
+        maximum=2000,
+    ),  # fmt: skip
+    Param(
+        "nearest_range_m",
+        float,
+        0.0,
+        "nearest range anything can be at (m), sets max_disparity = f*b/range; 0 = unknown",
+        minimum=0.0,
+    ),  # fmt: skip
+    Param("windows", str, "5,9,15,21", "adaptive ZNCC window sizes (odd px, increasing)"),
+    Param("min_texture", float, 2.0, "least gray-level std of a matched window", minimum=0.0),
+    Param("min_ncc", float, 0.5, "least ZNCC of an accepted peak", minimum=-1.0, maximum=1.0),
+    Param(
+        "distinctness",
+        float,
+        0.02,
+        "least ZNCC margin of the peak over the runner-up",
+        minimum=0.0,
+    ),  # fmt: skip
+    Param("lr_tolerance", float, 1.0, "left-right check tolerance (px)", minimum=0.0),
+    Param("speckle_size", int, 50, "largest region removed as a speckle (px); 0 = off", minimum=0),
+    Param("speckle_range", float, 1.0, "disparity step joining a region (px)", minimum=0.0625),
+    Param("sgm_window", int, 5, "sgm: ZNCC window (odd px)", minimum=3, maximum=31),
+    Param("sgm_p1", float, 0.03, "sgm: penalty of a 1 px step (cost units)", minimum=0.0),
+    Param("sgm_p2", float, 0.3, "sgm: penalty of a larger jump (cost units)", minimum=0.0),
+    Param("sgm_paths", int, 8, "sgm: aggregation paths", choices=(4, 8)),
+    Param(
+        "tile_px",
+        int,
+        1024,
+        "frames with a side above this are matched per tile; 0 = never",
+        minimum=0,
+    ),  # fmt: skip
+    Param(
+        "ground_inlier_px",
+        float,
+        1.0,
+        "ground-plane inlier band (px of disparity)",
+        minimum=0.05,
+    ),  # fmt: skip
+)
+
+
+def _image(name: str, long_name: str, units: str) -> Product:
+    return Product(name, dtype="float32", attrs={"units": units, "long_name": long_name})
+
+
+OUTPUTS: tuple[Product, ...] = (
+    _image("disparity", "disparity in the reference image, NaN invalid", "px"),
+    _image("range", "range Z = f*b/d along the optical axis, NaN invalid", "m"),
+    _image(
+        "residual",
+        "left minus pseudo-left (right warped by disparity), NaN undefined",
+        "gray level",
+    ),  # fmt: skip
+    _image("height", "height above the fitted ground plane, NaN invalid", "m"),
+    Product(
+        "ground_plane",
+        dtype="float64",
+        dims=("frame", "coef"),
+        shape=lambda image_shape, params: (4,),
+        attrs={
+            "units": "1, 1, 1, m",
+            "long_name": "ground plane a,b,c,d in the camera frame (a*X+b*Y+c*Z+d=0, unit "
+            "normal pointing up), NaN when no fit",
+        },
+    ),  # fmt: skip
+)
+
+
+def resolve_disparity_range(
+    camera: Camera, shape: tuple[int, int], params: dict[str, Any]
+) -> tuple[int, int]:
+    """``(min_disparity, max_disparity)`` the stage searches (``max_disparity = 0`` derived).
+
+    Raises
+    ------
+    ParamError
+        When the range holds fewer than 3 disparities.
+    """
+    lo = int(params["min_disparity"])
+    hi = int(params["max_disparity"])
+    if hi == 0:
+        hi = derive_max_disparity(
+            camera, shape=shape, nearest_range_m=float(params["nearest_range_m"])
+        )
+    if hi - lo < 2:
+        raise ParamError(
+            f"depth.max_disparity ({hi}) must exceed depth.min_disparity ({lo}) by at least 2; "
+            "raise max_disparity or lower min_disparity"
+        )
+    return lo, hi
+
+
+_SETTING_KEYS = (
+    "method", "windows", "min_texture", "min_ncc", "distinctness", "lr_tolerance",
+    "speckle_size", "speckle_range", "sgm_window", "sgm_p1", "sgm_p2", "sgm_paths",
+)  # fmt: skip
+
+
+def _coerce_settings(params: dict[str, Any]) -> dict[str, Any]:
+    try:
+        return _stereo.check_settings(**{key: params[key] for key in _SETTING_KEYS})
+    except (ValueError, TypeError) as error:
+        raise ParamError(f"depth: {error}") from None
+
+
+def _match(reference: np.ndarray, other: np.ndarray, lo: int, hi: int, params: dict):
+    settings = _coerce_settings(params)
+    tile_px = int(params["tile_px"])
+    if tile_px and max(reference.shape) > tile_px:
+        return _stereo.match_tiled(
+            reference, other, tile_px=max(tile_px, 16), min_disparity=lo, max_disparity=hi,
+            **settings,
+        ), True  # fmt: skip
+    matching = _stereo.match_disparity(
+        reference, other, min_disparity=lo, max_disparity=hi, **settings
+    )
+    return matching, False
+
+
+def _pitch_deg(plane: np.ndarray) -> float:
+    if not np.all(np.isfinite(plane)):
+        return float("nan")
+    return float(math.degrees(math.atan2(-plane[2], -plane[1])))
+
+
+def run_depth(
+    inputs: dict[str, np.ndarray], *, frame: FrameContext, params: dict[str, Any]
+) -> StageResult:
+    """Depth products of one frame.
+
+    Parameters
+    ----------
+    inputs : dict
+        ``left``, ``right``: (M, N) ndarray of uint8, rectified gray pair.
+    frame : FrameContext
+        ``frame.camera`` gives focal length, baseline, optional pose and the reference.
+    params : dict
+        Validated values of :data:`PARAMS`.
+
+    Returns
+    -------
+    StageResult
+        Arrays ``disparity``, ``range``, ``residual``, ``height`` (M, N) float32 and
+        ``ground_plane`` (4,) float64; figures ``rms_residual``, ``valid_fraction``,
+        ``lr_consistency``, ``ground_fit_inliers``, ``min_disparity``, ``max_disparity``,
+        ``ground_height_m``, ``ground_pitch_deg``, ``ground_fit``, ``median_range_m``.
+    """
+    left = np.asarray(inputs["left"])
+    right = np.asarray(inputs["right"])
+    if left.shape != right.shape or left.ndim != 2:
+        raise ValueError(
+            f"depth needs two 2-D images of one shape, got left {left.shape}, right {right.shape}"
+        )
+    camera = frame.camera
+    _coerce_settings(params)  # bad settings fail before any work
+    notes: list[str] = []
+    mirrored = camera.reference == "left"
+    if mirrored:
+        # Mirroring turns "left x matches right x - d" into "x matches x + d", the
+        # right-reference convention the matcher implements.
+        reference = np.ascontiguousarray(left[:, ::-1])
+        other = np.ascontiguousarray(right[:, ::-1])
+        notes.append("reference 'left': images mirrored for matching, products mirrored back")
+    else:
+        reference, other = right, left
+    lo, hi = resolve_disparity_range(camera, right.shape, params)
+    matching, tiled = _match(reference, other, lo, hi, params)
+    if tiled:
+        notes.append(f"matched in tiles of {params['tile_px']} px")
+    disparity_m = matching.disparity
+    pseudo = pseudo_left(reference, disparity_m)
+    diff = residual(other, pseudo)
+    disparity = disparity_m[:, ::-1] if mirrored else disparity_m
+    diff = diff[:, ::-1] if mirrored else diff
+    disparity = np.ascontiguousarray(disparity, dtype=np.float32)
+    diff = np.ascontiguousarray(diff, dtype=np.float32)
+
+    range_m = range_from_disparity(
+        disparity, focal_px=camera.focal_px, baseline_m=camera.baseline_m
+    )
+    fit = fit_ground_plane(disparity, camera=camera, inlier_px=float(params["ground_inlier_px"]))
+    if np.all(np.isfinite(fit.plane)):
+        height = height_above_plane(camera.camera_points(disparity), fit.plane)
+    else:
+        height = np.full(disparity.shape, np.nan, np.float32)
+        notes.append("no ground plane fitted: height is NaN")
+
+    defined = np.isfinite(diff)
+    rms = float(np.sqrt(np.mean(np.square(diff[defined])))) if defined.any() else float("nan")
+    finite_range = range_m[np.isfinite(range_m)]
+    figures = {
+        "rms_residual": rms,
+        "valid_fraction": matching.valid_fraction,
+        "lr_consistency": float(matching.lr_consistency),
+        "ground_fit_inliers": fit.inlier_fraction,
+        "ground_fit": fit.source,
+        "ground_height_m": float(fit.plane[3]),
+        "ground_pitch_deg": _pitch_deg(fit.plane),
+        "min_disparity": lo,
+        "max_disparity": hi,
+        "median_range_m": float(np.median(finite_range)) if finite_range.size else float("nan"),
+    }
+    return StageResult(
+        arrays={
+            "disparity": disparity,
+            "range": range_m,
+            "residual": diff,
+            "height": np.ascontiguousarray(height, dtype=np.float32),
+            "ground_plane": np.asarray(fit.plane, dtype=np.float64),
+        },
+        figures=figures,
+        notes=notes,
+    )
+
+
+STAGE = Stage(
+    name="depth",
+    version="1",
+    inputs=("left", "right"),
+    outputs=OUTPUTS,
+    params=PARAMS,
+    run=run_depth,
+    doc="stereo disparity (adaptive-window ZNCC), range, pseudo-left residual, ground height",
+)

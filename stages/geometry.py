@@ -1,0 +1,419 @@
+"""Geometry of the depth stage: range, pseudo-left image, ground plane, height above ground.
+
+Conventions are those of :mod:`pipeline.camera`: the reference (right) pixel at column ``x``
+with disparity ``d`` is at column ``x + d`` of the other (left) image; range ``Z = f b / d``;
+camera frame X right, Y down, Z forward.
+
+Ground plane
+------------
+A plane ``a X + b Y + c Z + e = 0`` in the camera frame, unit normal ``(a, b, c)`` pointing
+up (towards the camera, so ``e`` > 0 is the camera's height above the plane). Seen through a
+parallel-axis stereo camera a plane has a disparity *linear* in the pixel coordinates,
+``d = alpha x + beta y + gamma`` (``1 / Z`` is linear in the image of a plane). The plane is
+therefore fitted in disparity space, where the matching noise is about the same everywhere
+(about 0.1-0.5 px), instead of in metres, where it grows with the square of the range:
+
+* with a known camera pose (height and pitch) the pose's ground plane is the start, refined
+  by iterative least squares on the pixels within ``inlier_px`` of the current plane;
+* without a pose (or when the pose's plane explains too few pixels), RANSAC on random
+  3-pixel planes picks the plane with the most inliers, then the same least-squares
+  refinement.
+
+Rocks stand above the ground, i.e. at larger disparity than the plane, and are outliers.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from pipeline.camera import Camera
+
+__all__ = [
+    "GroundFit",
+    "range_from_disparity",
+    "disparity_from_range",
+    "pseudo_left",
+    "residual",
+    "plane_from_pose",
+    "plane_disparity_coefficients",
+    "plane_from_disparity_coefficients",
+    "fit_ground_plane",
+    "height_above_plane",
+    "ground_disparity_at_row",
+    "derive_max_disparity",
+]
+
+
+def _coerce_disparity(disparity: np.ndarray) -> np.ndarray:
+    d = np.asarray(disparity)
+    if d.ndim != 2:
+        raise ValueError(f"disparity must be a 2-D array, got shape {d.shape}")
+    if not np.issubdtype(d.dtype, np.floating):
+        raise TypeError(f"disparity must be a float array (NaN invalid), got dtype {d.dtype}")
+    return d
+
+
+def _coerce_camera(camera: Camera) -> Camera:
+    if not isinstance(camera, Camera):
+        raise TypeError(f"camera must be a pipeline.camera.Camera, got {type(camera).__name__}")
+    return camera
+
+
+def range_from_disparity(disparity: np.ndarray, *, focal_px: float, baseline_m: float):
+    """Range ``Z = f b / d`` in metres.
+
+    Parameters
+    ----------
+    disparity : (M, N) ndarray of float
+        Pixels, NaN invalid.
+    focal_px, baseline_m : float
+        Focal length (px) and baseline (m), both > 0.
+
+    Returns
+    -------
+    range : (M, N) ndarray of float32
+        Metres; NaN where the disparity is invalid or not > 0 (at or beyond infinity).
+    """
+    d = _coerce_disparity(disparity).astype(np.float64)
+    for name, value in (("focal_px", focal_px), ("baseline_m", baseline_m)):
+        if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+            raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = np.where(d > 0, focal_px * baseline_m / d, np.nan)
+    return z.astype(np.float32)
+
+
+def disparity_from_range(range_m: np.ndarray, *, focal_px: float, baseline_m: float):
+    """Inverse of :func:`range_from_disparity`: ``d = f b / Z`` (float32, NaN invalid)."""
+    z = np.asarray(range_m, dtype=np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d = np.where(z > 0, focal_px * baseline_m / z, np.nan)
+    return d.astype(np.float32)
+
+
+# ----------------------------------------------------------------------------- pseudo-left
+
+
+@njit(cache=True)
+def _forward_warp(image, disparity):  # pragma: no cover - numba
+    h, w = image.shape
+    out = np.full((h, w), np.nan, np.float32)
+    zbuf = np.full((h, w), -np.inf, np.float64)
+    for y in range(h):
+        for x in range(w):
+            d0 = disparity[y, x]
+            if not np.isfinite(d0):
+                continue
+            u0 = x + d0
+            joined = False
+            if x + 1 < w:
+                d1 = disparity[y, x + 1]
+                if np.isfinite(d1) and abs(d1 - d0) <= 1.0:
+                    # a continuous surface between two neighbours: fill the left columns
+                    # the segment covers, interpolating gray level and disparity
+                    joined = True
+                    u1 = x + 1 + d1
+                    lo, hi = (u0, u1) if u0 <= u1 else (u1, u0)
+                    c0 = max(0, int(math.ceil(lo)))
+                    c1 = min(w - 1, int(math.floor(hi)))
+                    span = u1 - u0
+                    for c in range(c0, c1 + 1):
+                        t = 0.0 if span == 0 else (c - u0) / span
+                        key = d0 + t * (d1 - d0)
+                        if key > zbuf[y, c]:
+                            zbuf[y, c] = key
+                            out[y, c] = image[y, x] + t * (
+                                np.float64(image[y, x + 1]) - image[y, x]
+                            )
+            if not joined:
+                c = int(math.floor(u0 + 0.5))
+                if 0 <= c < w and abs(c - u0) < 0.5 and d0 > zbuf[y, c]:
+                    zbuf[y, c] = d0
+                    out[y, c] = image[y, x]
+    return out
+
+
+def pseudo_left(right: np.ndarray, disparity: np.ndarray) -> np.ndarray:
+    """Move every reference (right) pixel by its disparity into the other (left) geometry.
+
+    Forward warp with a z-buffer: neighbouring right pixels whose disparities differ by at
+    most 1 px are one continuous surface, and the left columns between their two landing
+    points get linearly interpolated gray levels; where several surfaces land on the same
+    left pixel the nearer one (larger disparity) wins, as it would hide the other. Left
+    pixels no right pixel lands on (seen only by the left camera, or without valid
+    disparity) are NaN.
+
+    Parameters
+    ----------
+    right : (M, N) ndarray of uint8 or float
+        Reference image.
+    disparity : (M, N) ndarray of float
+        Reference-geometry disparity in px, NaN invalid.
+
+    Returns
+    -------
+    pseudo : (M, N) ndarray of float32
+        The left image predicted from the right image and the disparity; NaN undefined.
+    """
+    d = _coerce_disparity(disparity)
+    img = np.asarray(right)
+    if img.shape != d.shape:
+        raise ValueError(
+            f"right image and disparity must have the same shape, got {img.shape} and {d.shape}"
+        )
+    return _forward_warp(img.astype(np.float32), d.astype(np.float64))
+
+
+def residual(left: np.ndarray, pseudo: np.ndarray) -> np.ndarray:
+    """``left - pseudo`` in gray levels (float32), NaN where ``pseudo`` is undefined."""
+    lft = np.asarray(left, dtype=np.float32)
+    ps = np.asarray(pseudo, dtype=np.float32)
+    if lft.shape != ps.shape:
+        raise ValueError(f"left and pseudo must have the same shape, got {lft.shape}, {ps.shape}")
+    return (lft - ps).astype(np.float32)
+
+
+# ----------------------------------------------------------------------------- ground plane
+
+
+def plane_from_pose(*, height_m: float, pitch_deg: float) -> np.ndarray:
+    """Camera-frame ground plane ``(a, b, c, e)`` of a camera ``height_m`` up, pitched down.
+
+    The ground frame's up axis in the camera frame is ``(0, -cos p, -sin p)``, and a point's
+    height is ``e + n . P`` with ``e = height_m`` (see ``Camera.camera_to_ground``).
+    """
+    theta = math.radians(pitch_deg)
+    return np.array([0.0, -math.cos(theta), -math.sin(theta), float(height_m)])
+
+
+def plane_disparity_coefficients(
+    plane: np.ndarray, *, camera: Camera, shape: tuple[int, int]
+) -> np.ndarray:
+    """``(alpha, beta, gamma)`` with the plane's disparity ``d = alpha x + beta y + gamma``."""
+    cam = _coerce_camera(camera)
+    a, b, c, e = (float(v) for v in plane)
+    cx, cy = cam.principal_point(shape)
+    f, base = cam.focal_px, cam.baseline_m
+    # Z (a (x - cx) / f + b (y - cy) / f + c) = -e  and  d = f base / Z
+    scale = -base / e
+    alpha = scale * a
+    beta = scale * b
+    gamma = scale * (c * f - a * cx - b * cy)
+    return np.array([alpha, beta, gamma])
+
+
+def plane_from_disparity_coefficients(
+    coefficients: np.ndarray, *, camera: Camera, shape: tuple[int, int]
+) -> np.ndarray:
+    """Camera-frame plane ``(a, b, c, e)``, unit normal up (``e`` > 0), from ``(alpha, beta,
+    gamma)``; NaN when the coefficients describe no plane in front of the camera."""
+    cam = _coerce_camera(camera)
+    alpha, beta, gamma = (float(v) for v in coefficients)
+    cx, cy = cam.principal_point(shape)
+    g = (gamma + alpha * cx + beta * cy) / cam.focal_px
+    norm = math.sqrt(alpha * alpha + beta * beta + g * g)
+    if not math.isfinite(norm) or norm == 0:
+        return np.full(4, np.nan)
+    e = cam.baseline_m / norm
+    return np.array([-alpha / norm, -beta / norm, -g / norm, e])
+
+
+@dataclass(frozen=True)
+class GroundFit:
+    """Result of :func:`fit_ground_plane`.
+
+    Attributes
+    ----------
+    plane : (4,) ndarray of float64
+        ``a, b, c, e`` (camera frame, unit normal up), NaN when no fit.
+    inliers : (M, N) ndarray of bool
+        Pixels within ``inlier_px`` of the plane's disparity.
+    inlier_fraction : float
+        Inliers over pixels with valid disparity (NaN when none).
+    source : {'pose', 'ransac', 'none'}
+        Where the starting plane came from.
+    """
+
+    plane: np.ndarray
+    inliers: np.ndarray
+    inlier_fraction: float
+    source: str
+
+
+def _refine(xs, ys, ds, coef, inlier_px, iterations=5):
+    design = np.column_stack([xs, ys, np.ones_like(xs)])
+    mask = np.abs(design @ coef - ds) <= inlier_px
+    for _ in range(iterations):
+        if np.count_nonzero(mask) < 3:
+            break
+        coef, *_ = np.linalg.lstsq(design[mask], ds[mask], rcond=None)
+        new_mask = np.abs(design @ coef - ds) <= inlier_px
+        if np.array_equal(new_mask, mask):
+            break
+        mask = new_mask
+    return coef, mask
+
+
+def _ransac(xs, ys, ds, inlier_px, iterations, rng):
+    n = xs.size
+    best_coef, best_count = None, -1
+    design = np.column_stack([xs, ys, np.ones_like(xs)])
+    for _ in range(iterations):
+        pick = rng.choice(n, size=3, replace=False)
+        try:
+            coef = np.linalg.solve(design[pick], ds[pick])
+        except np.linalg.LinAlgError:
+            continue
+        count = np.count_nonzero(np.abs(design @ coef - ds) <= inlier_px)
+        if count > best_count:
+            best_coef, best_count = coef, count
+    return best_coef
+
+
+def fit_ground_plane(
+    disparity: np.ndarray,
+    *,
+    camera: Camera,
+    inlier_px: float = 1.0,
+    ransac_iterations: int = 200,
+    sample_px: int = 20000,
+    min_pose_inliers: float = 0.3,
+    seed: int = 0,
+) -> GroundFit:
+    """Fit the ground plane to a disparity map (see the module docstring).
+
+    Parameters
+    ----------
+    disparity : (M, N) ndarray of float
+        Reference-geometry disparity, NaN invalid.
+    camera : pipeline.camera.Camera
+        Focal length, baseline, optional pose (height and pitch).
+    inlier_px : float
+        Largest |disparity - plane disparity| (px) of a ground pixel, > 0.
+    ransac_iterations : int
+        Random 3-pixel planes tried without a usable pose.
+    sample_px : int
+        At most this many valid pixels (a fixed-seed random sample) enter the fit.
+    min_pose_inliers : float in [0, 1]
+        The pose's plane must explain this share of the valid pixels to be the start;
+        otherwise RANSAC is used.
+    seed : int
+        Seed of the sampling (the fit is deterministic).
+
+    Returns
+    -------
+    GroundFit
+    """
+    d = _coerce_disparity(disparity).astype(np.float64)
+    cam = _coerce_camera(camera)
+    if not (math.isfinite(inlier_px) and inlier_px > 0):
+        raise ValueError(f"inlier_px must be a finite number > 0, got {inlier_px!r}")
+    shape = d.shape
+    valid = np.isfinite(d) & (d > 0)
+    n_valid = int(np.count_nonzero(valid))
+    none = GroundFit(np.full(4, np.nan), np.zeros(shape, bool), float("nan"), "none")
+    if n_valid < 3:
+        return none
+    ys_all, xs_all = np.nonzero(valid)
+    rng = np.random.default_rng(seed)
+    if n_valid > sample_px:
+        pick = np.sort(rng.choice(n_valid, size=sample_px, replace=False))
+        ys_s, xs_s = ys_all[pick], xs_all[pick]
+    else:
+        ys_s, xs_s = ys_all, xs_all
+    xs, ys, ds = xs_s.astype(float), ys_s.astype(float), d[ys_s, xs_s]
+    coef, source = None, "none"
+    if cam.has_pose:
+        assert cam.height_m is not None and cam.pitch_deg is not None
+        start = plane_disparity_coefficients(
+            plane_from_pose(height_m=cam.height_m, pitch_deg=cam.pitch_deg),
+            camera=cam, shape=shape,
+        )  # fmt: skip
+        # a generous first band absorbs a slightly wrong pose before narrowing
+        refined, _ = _refine(xs, ys, ds, start, 3.0 * inlier_px)
+        refined, mask = _refine(xs, ys, ds, refined, inlier_px)
+        if np.count_nonzero(mask) >= min_pose_inliers * xs.size:
+            coef, source = refined, "pose"
+    if coef is None:
+        start = _ransac(xs, ys, ds, inlier_px, ransac_iterations, rng)
+        if start is None:
+            return none
+        coef, _ = _refine(xs, ys, ds, start, inlier_px)
+        source = "ransac"
+    plane = plane_from_disparity_coefficients(coef, camera=cam, shape=shape)
+    yy, xx = np.indices(shape, dtype=np.float64)
+    inliers = valid & (np.abs(coef[0] * xx + coef[1] * yy + coef[2] - d) <= inlier_px)
+    if not np.all(np.isfinite(plane)):
+        return none
+    return GroundFit(plane, inliers, float(np.count_nonzero(inliers)) / n_valid, source)
+
+
+def height_above_plane(points: np.ndarray, plane: np.ndarray) -> np.ndarray:
+    """Signed distance (m) of camera-frame points ``(..., 3)`` above ``plane`` (float32)."""
+    p = np.asarray(points, dtype=np.float64)
+    if p.shape[-1] != 3:
+        raise ValueError(f"points must have a last axis of 3 (X, Y, Z), got shape {p.shape}")
+    a, b, c, e = (float(v) for v in plane)
+    return (p[..., 0] * a + p[..., 1] * b + p[..., 2] * c + e).astype(np.float32)
+
+
+# ----------------------------------------------------------------------------- search range
+
+
+def ground_disparity_at_row(camera: Camera, *, row: float, shape: tuple[int, int]) -> float:
+    """Disparity (px) of the ground seen at image row ``row`` (pose required; <= 0 above
+    the horizon)."""
+    cam = _coerce_camera(camera)
+    if not cam.has_pose:
+        raise ValueError("ground_disparity_at_row needs camera height_m and pitch_deg")
+    assert cam.height_m is not None and cam.pitch_deg is not None
+    plane = plane_from_pose(height_m=cam.height_m, pitch_deg=cam.pitch_deg)
+    alpha, beta, gamma = plane_disparity_coefficients(plane, camera=cam, shape=shape)
+    cx, _ = cam.principal_point(shape)
+    return float(alpha * cx + beta * row + gamma)
+
+
+def derive_max_disparity(
+    camera: Camera,
+    *,
+    shape: tuple[int, int],
+    nearest_range_m: float = 0.0,
+    margin: float = 0.25,
+    fallback: int = 64,
+) -> int:
+    """Largest disparity worth searching, from the camera.
+
+    Parameters
+    ----------
+    camera : pipeline.camera.Camera
+    shape : (int, int)
+        Image shape ``(M, N)``.
+    nearest_range_m : float
+        Nearest range (m) anything can be at; 0 = unknown. Gives ``f b / nearest_range_m``.
+    margin : float
+        Relative margin for objects standing above the ground (rocks are nearer than the
+        ground behind them), applied to the pose-derived value.
+    fallback : int
+        Used when neither a nearest range nor a pose is known.
+
+    Returns
+    -------
+    max_disparity : int
+        With a nearest range: ``ceil(f b / nearest_range_m)``. Otherwise, with a pose: the
+        ground's disparity at the bottom image row (the nearest visible ground point) times
+        ``1 + margin``, plus 2 px. Otherwise ``fallback``. Never more than ``N - 1``.
+    """
+    cam = _coerce_camera(camera)
+    h, w = shape
+    if nearest_range_m > 0:
+        value = math.ceil(cam.k_m_px / nearest_range_m)
+    elif cam.has_pose:
+        bottom = ground_disparity_at_row(cam, row=h - 1, shape=shape)
+        value = math.ceil(max(bottom, 1.0) * (1.0 + margin)) + 2
+    else:
+        value = fallback
+    return int(max(3, min(value, w - 1)))

@@ -1,0 +1,163 @@
+"""The depth stage: declaration, run wrapper, reference flipping, parameter errors."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from pipeline.camera import Camera
+from pipeline.errors import ParamError
+from pipeline.stage import FrameContext
+from stages.depth import STAGE, resolve_disparity_range
+from stages.geometry import plane_disparity_coefficients, plane_from_pose
+
+CAMERA = Camera(focal_px=120.0, baseline_m=0.1, height_m=1.2, pitch_deg=38.0)
+
+
+def _ground_pair(camera: Camera = CAMERA, shape=(96, 128), seed=0):
+    """A textured ground plane seen by ``camera``: (left, right, true disparity)."""
+    assert camera.height_m is not None and camera.pitch_deg is not None
+    plane = plane_from_pose(height_m=camera.height_m, pitch_deg=camera.pitch_deg)
+    a, b, c = plane_disparity_coefficients(plane, camera=camera, shape=shape)
+    ys, xs = np.indices(shape, dtype=float)
+    disparity = a * xs + b * ys + c
+    h, w = shape
+    world = ndimage.gaussian_filter(np.random.default_rng(seed).normal(128, 45, (h, w + 40)), 1)
+    # right(x) = left(x + d): sample the left texture at x + d
+    right = ndimage.map_coordinates(world, [ys, xs + disparity], order=3)
+    left = world[:, :w]
+    as_u8 = lambda img: np.clip(np.round(img), 0, 255).astype(np.uint8)  # noqa: E731
+    return as_u8(left), as_u8(right), disparity.astype(np.float32)
+
+
+def _run(left, right, camera=CAMERA, **overrides):
+    params = STAGE.resolve_params(overrides)
+    frame = FrameContext(frame_id="f0", archive="test", camera=camera)
+    return STAGE.run({"left": left, "right": right}, frame=frame, params=params)
+
+
+def test_declaration():
+    assert STAGE.name == "depth" and STAGE.inputs == ("left", "right")
+    assert STAGE.output_names == ("disparity", "range", "residual", "height", "ground_plane")
+    for product in STAGE.outputs:
+        assert {"units", "long_name"} <= set(product.attrs)
+    plane = STAGE.outputs[-1]
+    assert plane.dims == ("frame", "coef") and plane.frame_shape((5, 7), {}) == (4,)
+    assert STAGE.defaults()["method"] == "adaptive"
+
+
+def test_run_returns_declared_shapes_dtypes_and_figures():
+    left, right, truth = _ground_pair()
+    result = _run(left, right)
+    params = STAGE.defaults()
+    for product in STAGE.outputs:
+        array = result.arrays[product.name]
+        assert array.dtype == np.dtype(product.dtype), product.name
+        assert array.shape == product.frame_shape(right.shape, params), product.name
+    for name in ("rms_residual", "valid_fraction", "lr_consistency", "ground_fit_inliers"):
+        assert np.isfinite(result.figures[name]), name
+    d = result.arrays["disparity"]
+    ok = np.isfinite(d)
+    assert result.figures["valid_fraction"] == pytest.approx(ok.mean())
+    assert np.median(np.abs(d[ok] - truth[ok])) < 0.2
+    # the ground is flat: heights near zero, fitted pose near the true one
+    assert np.nanmedian(np.abs(result.arrays["height"])) < 0.02
+    assert result.figures["ground_height_m"] == pytest.approx(1.2, abs=0.05)
+    assert result.figures["ground_pitch_deg"] == pytest.approx(38.0, abs=1.0)
+    assert result.figures["rms_residual"] < 10
+
+
+def test_range_is_f_b_over_disparity():
+    left, right, _ = _ground_pair()
+    result = _run(left, right)
+    d, z = result.arrays["disparity"], result.arrays["range"]
+    ok = np.isfinite(d)
+    np.testing.assert_allclose(z[ok], CAMERA.focal_px * CAMERA.baseline_m / d[ok], rtol=1e-6)
+    assert np.all(np.isnan(z[~ok]))
+
+
+def test_left_reference_is_the_mirrored_right_reference():
+    left, right, _ = _ground_pair()
+    as_left = Camera(focal_px=120.0, baseline_m=0.1, height_m=1.2, pitch_deg=38.0,
+                     reference="left")  # fmt: skip
+    lref = _run(left, right, camera=as_left)
+    mirrored = _run(right[:, ::-1].copy(), left[:, ::-1].copy())
+    np.testing.assert_array_equal(lref.arrays["disparity"], mirrored.arrays["disparity"][:, ::-1])
+    np.testing.assert_array_equal(lref.arrays["residual"], mirrored.arrays["residual"][:, ::-1])
+
+
+def test_left_reference_disparity_is_positive_and_in_left_geometry():
+    # left(x) = right(x - 5): the left pixel at x is at x - 5 in the right image
+    world = ndimage.gaussian_filter(np.random.default_rng(3).normal(128, 45, (64, 140)), 1)
+    world = np.clip(world, 0, 255).astype(np.uint8)
+    right, left = world[:, 5:125], world[:, 0:120]
+    bare = Camera(focal_px=100.0, baseline_m=0.1, reference="left")
+    result = _run(left, right, camera=bare, max_disparity=16)
+    d = result.arrays["disparity"]
+    assert np.nanmedian(d) == pytest.approx(5.0, abs=1e-3)
+    assert np.all(np.isnan(d[:, :5]))  # the left image's first columns have no partner
+
+
+def test_tiled_stage_equals_whole_frame():
+    left, right, _ = _ground_pair(shape=(96, 128))
+    whole = _run(left, right, tile_px=0)
+    tiled = _run(left, right, tile_px=48)
+    assert "tiles" in " ".join(tiled.notes)
+    for name in ("disparity", "range", "residual"):
+        np.testing.assert_array_equal(tiled.arrays[name], whole.arrays[name])
+
+
+@pytest.mark.parametrize("method", ["sgm", "opencv-sgbm"])
+def test_other_methods_run(method):
+    left, right, truth = _ground_pair()
+    result = _run(left, right, method=method)
+    d = result.arrays["disparity"]
+    ok = np.isfinite(d)
+    assert ok.mean() > 0.5
+    assert np.median(np.abs(d[ok] - truth[ok])) < 0.5
+
+
+def test_derived_range_and_explicit_range():
+    shape = (96, 128)
+    lo, hi = resolve_disparity_range(CAMERA, shape, STAGE.defaults())
+    assert lo == 0 and 3 <= hi < shape[1]
+    params = {**STAGE.defaults(), "max_disparity": 40}
+    assert resolve_disparity_range(CAMERA, shape, params) == (0, 40)
+    params = {**STAGE.defaults(), "nearest_range_m": 0.5}
+    assert resolve_disparity_range(CAMERA, shape, params) == (0, 24)
+
+
+@pytest.mark.parametrize(
+    ("overrides", "words"),
+    [
+        ({"method": "census"}, "must be one of"),
+        ({"max_disparity": -3}, ">= 0"),
+        ({"windows": 5}, "expects str"),
+        ({"min_ncc": 1.5}, "<= 1"),
+        ({"sgm_paths": 6}, "must be one of"),
+    ],
+)
+def test_bad_params_are_rejected_by_the_declaration(overrides, words):
+    with pytest.raises(ParamError, match=words):
+        STAGE.resolve_params(overrides)
+
+
+@pytest.mark.parametrize(
+    ("overrides", "words"),
+    [
+        ({"windows": "5,8"}, "odd"),
+        ({"windows": "a,b"}, "comma-separated"),
+        ({"min_disparity": 10, "max_disparity": 11}, "at least 2"),
+    ],
+)
+def test_bad_param_combinations_raise_param_error_on_run(overrides, words):
+    left, right, _ = _ground_pair(shape=(32, 48))
+    with pytest.raises(ParamError, match=words):
+        _run(left, right, **overrides)
+
+
+def test_mismatched_images_raise_value_error():
+    left, right, _ = _ground_pair(shape=(32, 48))
+    with pytest.raises(ValueError, match="one shape"):
+        _run(left, right[:, :40])

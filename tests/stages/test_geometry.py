@@ -1,0 +1,174 @@
+"""Geometry of the depth stage: range, pseudo-left, ground plane, search range."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy import ndimage
+
+from pipeline.camera import Camera
+from stages.geometry import (
+    derive_max_disparity,
+    disparity_from_range,
+    fit_ground_plane,
+    ground_disparity_at_row,
+    height_above_plane,
+    plane_disparity_coefficients,
+    plane_from_disparity_coefficients,
+    plane_from_pose,
+    pseudo_left,
+    range_from_disparity,
+    residual,
+)
+
+CAMERA = Camera(focal_px=100.0, baseline_m=0.1, height_m=1.2, pitch_deg=38.0)
+SHAPE = (80, 100)
+
+
+def _ground_disparity(camera: Camera, shape=SHAPE) -> np.ndarray:
+    """True disparity of the ground plane of ``camera``'s pose (NaN above the horizon)."""
+    assert camera.height_m is not None and camera.pitch_deg is not None
+    plane = plane_from_pose(height_m=camera.height_m, pitch_deg=camera.pitch_deg)
+    a, b, c = plane_disparity_coefficients(plane, camera=camera, shape=shape)
+    ys, xs = np.indices(shape, dtype=float)
+    d = a * xs + b * ys + c
+    return np.where(d > 0, d, np.nan).astype(np.float32)
+
+
+def test_range_is_f_times_b_over_d():
+    d = np.array([[1.0, 2.0, 4.0], [np.nan, 0.0, -1.0]], np.float32)
+    z = range_from_disparity(d, focal_px=400.0, baseline_m=0.1)
+    assert z.dtype == np.float32
+    np.testing.assert_allclose(z[0], [40.0, 20.0, 10.0])
+    assert np.all(np.isnan(z[1]))
+    np.testing.assert_allclose(disparity_from_range(z, focal_px=400.0, baseline_m=0.1)[0], d[0])
+
+
+@pytest.mark.parametrize("bad", [0.0, -1.0, float("nan")])
+def test_range_rejects_bad_camera(bad):
+    with pytest.raises(ValueError, match="focal_px"):
+        range_from_disparity(np.ones((2, 2), np.float32), focal_px=bad, baseline_m=0.1)
+
+
+def test_pseudo_left_of_true_disparity_reproduces_left_outside_occlusions():
+    # background at 4 px, a nearer block at 11 px; the left view is built from the scene
+    rng = np.random.default_rng(0)
+    h, w = 40, 90
+    back = rng.integers(0, 256, (h, w + 20)).astype(np.uint8)
+    front = rng.integers(0, 256, (h, w + 20)).astype(np.uint8)
+    block = np.zeros((h, w), bool)
+    block[10:30, 30:50] = True
+    right = np.where(block, front[:, :w], back[:, 4 : 4 + w])
+    left = back[:, :w].copy()
+    for y in range(10, 30):
+        left[y, 41:61] = front[y, 30:50]
+    truth = np.where(block, 11.0, 4.0).astype(np.float32)
+    pseudo = pseudo_left(right, truth)
+    defined = np.isfinite(pseudo)
+    # undefined: left pixels the right camera does not see (beside the block, the image's
+    # left edge seen only by the left camera)
+    assert defined.mean() > 0.85
+    np.testing.assert_array_equal(pseudo[defined], left[defined].astype(np.float32))
+    assert not defined[15, 2]  # left image columns < 4 are not in the right view
+    diff = residual(left, pseudo)
+    assert np.all(diff[defined] == 0) and np.all(np.isnan(diff[~defined]))
+
+
+def test_pseudo_left_interpolates_subpixel_disparity():
+    world = ndimage.gaussian_filter(np.random.default_rng(1).normal(128, 40, (30, 140)), 2.0)
+    shift = 6.4
+    left = world[:, 10:110]
+    right = ndimage.shift(world, (0, -shift), order=3)[:, 10:110]
+    pseudo = pseudo_left(right, np.full(right.shape, shift, np.float32))
+    inner = np.isfinite(pseudo)
+    inner[:, :12] = inner[:, -4:] = False
+    assert np.abs(pseudo[inner] - left[inner]).max() < 1.5
+    assert np.sqrt(np.mean((pseudo[inner] - left[inner]) ** 2)) < 0.5
+
+
+def test_nearer_surface_wins_in_pseudo_left():
+    right = np.zeros((1, 20), np.float32)
+    right[0, 5] = 100.0  # near pixel at d = 6 lands on column 11
+    right[0, 9] = 50.0  # far pixel at d = 2 lands on column 11 as well
+    d = np.full((1, 20), np.nan, np.float32)
+    d[0, 5], d[0, 9] = 6.0, 2.0
+    assert pseudo_left(right, d)[0, 11] == 100.0
+
+
+@settings(max_examples=20, deadline=None)
+@given(height=st.floats(0.3, 3.0), pitch=st.floats(5.0, 80.0))
+def test_plane_round_trips_through_disparity_coefficients(height, pitch):
+    camera = Camera(focal_px=200.0, baseline_m=0.2, height_m=height, pitch_deg=pitch)
+    plane = plane_from_pose(height_m=height, pitch_deg=pitch)
+    coef = plane_disparity_coefficients(plane, camera=camera, shape=SHAPE)
+    np.testing.assert_allclose(
+        plane_from_disparity_coefficients(coef, camera=camera, shape=SHAPE), plane, atol=1e-9
+    )
+
+
+def test_pose_plane_agrees_with_camera_to_ground():
+    d = _ground_disparity(CAMERA)
+    points = CAMERA.camera_points(d)
+    up = CAMERA.camera_to_ground(points)[..., 2]
+    ok = np.isfinite(up)
+    assert ok.mean() > 0.5
+    np.testing.assert_allclose(up[ok], 0.0, atol=1e-6)
+    plane = plane_from_pose(height_m=1.2, pitch_deg=38.0)
+    np.testing.assert_allclose(height_above_plane(points, plane)[ok], 0.0, atol=1e-5)
+    assert height_above_plane(np.zeros(3), plane) == pytest.approx(1.2)  # the camera
+
+
+def _ground_with_rocks(camera: Camera, seed=0):
+    d = _ground_disparity(camera).astype(np.float64)
+    rng = np.random.default_rng(seed)
+    d += rng.normal(0, 0.15, d.shape)
+    d[50:70, 20:40] += 6.0  # a rock: nearer than the ground
+    d[5:15, 60:90] = np.nan  # no match
+    return d.astype(np.float32)
+
+
+def test_ground_fit_from_pose_refines_and_ignores_rocks():
+    d = _ground_with_rocks(CAMERA)
+    fit = fit_ground_plane(d, camera=CAMERA)
+    assert fit.source == "pose"
+    np.testing.assert_allclose(fit.plane, plane_from_pose(height_m=1.2, pitch_deg=38.0), atol=0.02)
+    assert not fit.inliers[55, 30]
+    assert 0.85 < fit.inlier_fraction < 0.99
+
+
+def test_ground_fit_without_pose_uses_ransac_and_finds_the_same_plane():
+    d = _ground_with_rocks(CAMERA)
+    no_pose = Camera(focal_px=CAMERA.focal_px, baseline_m=CAMERA.baseline_m)
+    fit = fit_ground_plane(d, camera=no_pose)
+    assert fit.source == "ransac"
+    np.testing.assert_allclose(fit.plane, plane_from_pose(height_m=1.2, pitch_deg=38.0), atol=0.02)
+
+
+@pytest.mark.parametrize(("height", "pitch"), [(1.5, 30.0), (3.0, 10.0), (0.3, 80.0)])
+def test_wrong_pose_still_finds_the_ground(height, pitch):
+    # a roughly right pose is refined; a badly wrong one explains too little -> RANSAC
+    d = _ground_with_rocks(CAMERA)
+    wrong = Camera(focal_px=100.0, baseline_m=0.1, height_m=height, pitch_deg=pitch)
+    fit = fit_ground_plane(d, camera=wrong)
+    assert fit.source in ("pose", "ransac")
+    np.testing.assert_allclose(fit.plane, plane_from_pose(height_m=1.2, pitch_deg=38.0), atol=0.02)
+
+
+def test_ground_fit_without_data_is_nan():
+    fit = fit_ground_plane(np.full(SHAPE, np.nan, np.float32), camera=CAMERA)
+    assert fit.source == "none" and np.all(np.isnan(fit.plane))
+    assert math.isnan(fit.inlier_fraction)
+
+
+def test_max_disparity_from_pose_nearest_range_and_fallback():
+    bottom = ground_disparity_at_row(CAMERA, row=SHAPE[0] - 1, shape=SHAPE)
+    assert bottom == pytest.approx(float(np.nanmax(_ground_disparity(CAMERA))), rel=1e-6)
+    assert derive_max_disparity(CAMERA, shape=SHAPE) == math.ceil(bottom * 1.25) + 2
+    assert derive_max_disparity(CAMERA, shape=SHAPE, nearest_range_m=0.5) == 20
+    bare = Camera(focal_px=100.0, baseline_m=0.1)
+    assert derive_max_disparity(bare, shape=SHAPE) == 64
+    assert derive_max_disparity(bare, shape=(20, 30)) == 29  # never beyond the image

@@ -1,0 +1,211 @@
+"""Stereo matching (stages._stereo) on textures with known disparity."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy import ndimage
+
+from stages import _stereo
+from stages._stereo import (
+    STATUS_NO_PEAK,
+    STATUS_VALID,
+    match_disparity,
+    match_tiled,
+    remove_speckles,
+    sgbm_disparity,
+)
+
+
+def _texture(shape: tuple[int, int], seed: int, blur: float = 1.0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return ndimage.gaussian_filter(rng.normal(128.0, 45.0, shape), blur)
+
+
+def _u8(image: np.ndarray) -> np.ndarray:
+    return np.clip(np.round(image), 0, 255).astype(np.uint8)
+
+
+def _shifted_pair(shape, d, seed):
+    """(right, left) with right(x) = left(x + d) for an integer d: right is the reference."""
+    h, w = shape
+    world = _u8(_texture((h, w + d), seed))
+    left = world[:, :w]
+    right = world[:, d : d + w]
+    return right, left
+
+
+def _occlusion_scene(seed=3, shape=(64, 120), d_back=4, d_front=12, square=(20, 44, 40, 70)):
+    """Background at d_back and a foreground square at d_front, built from the left view.
+
+    Returns right, left, true disparity and the mask of right pixels the left camera cannot
+    see (background just right of the square).
+    """
+    h, w = shape
+    back = _u8(_texture((h, w + 40), seed))
+    front = _u8(_texture((h, w + 40), seed + 100))
+    y0, y1, x0, x1 = square
+    ys, xs = np.indices(shape)
+    in_square = (ys >= y0) & (ys < y1) & (xs >= x0) & (xs < x1)
+    right = np.where(in_square, front[:, :w], back[:, d_back : d_back + w])
+    left = back[:, :w].copy()
+    for y in range(y0, y1):
+        cols = np.arange(x0, x1) + d_front
+        keep = cols < w
+        left[y, cols[keep]] = front[y, np.arange(x0, x1)[keep]]
+    truth = np.where(in_square, d_front, d_back).astype(np.float32)
+    occluded = (ys >= y0) & (ys < y1) & (xs >= x1) & (xs < x1 + d_front - d_back) & ~in_square
+    return right, left, truth, occluded
+
+
+def test_integer_shift_is_recovered_exactly():
+    right, left = _shifted_pair((64, 120), 7, seed=0)
+    m = match_disparity(right, left, min_disparity=0, max_disparity=20)
+    valid = np.isfinite(m.disparity)
+    assert m.valid_fraction > 0.8
+    # interior pixels get the exact integer (the symmetric subpixel fit cancels its bias)
+    err = np.abs(m.disparity[valid] - 7)
+    assert np.mean(err < 1e-3) > 0.98
+    assert err.max() < 0.5
+
+
+@settings(max_examples=8, deadline=None)
+@given(d=st.integers(min_value=1, max_value=14), seed=st.integers(0, 1000))
+def test_any_integer_shift_in_range_is_recovered(d, seed):
+    right, left = _shifted_pair((40, 80), d, seed=seed)
+    m = match_disparity(right, left, min_disparity=0, max_disparity=15)
+    values = m.disparity[np.isfinite(m.disparity)]
+    assert values.size > 0.5 * m.disparity.size
+    assert np.median(np.abs(values - d)) < 1e-3
+
+
+@pytest.mark.parametrize("shift", [5.25, 5.5, 5.8])
+def test_subpixel_shift_is_recovered(shift):
+    world = _texture((64, 160), seed=1, blur=1.2)
+    left = _u8(world[:, 10:130])
+    right = _u8(ndimage.shift(world, (0, -shift), order=3)[:, 10:130])  # right(x) = w(x + s)
+    m = match_disparity(right, left, min_disparity=0, max_disparity=16)
+    values = m.disparity[np.isfinite(m.disparity)]
+    assert values.size > 0.8 * m.disparity.size
+    assert abs(np.mean(values) - shift) < 0.08
+    assert np.median(np.abs(values - shift)) < 0.1
+
+
+def test_occluded_pixels_are_invalid_after_the_lr_check():
+    right, left, truth, occluded = _occlusion_scene()
+    m = match_disparity(right, left, min_disparity=0, max_disparity=20, speckle_size=0)
+    assert occluded.sum() == 8 * 24
+    invalid = m.status != STATUS_VALID
+    # Away from the band's edges (half a small window) every occluded pixel is rejected;
+    # at the edges windows reach into visible surfaces, the known limit of window matching.
+    core = occluded.copy()
+    core[:22], core[42:], core[:, 76:] = False, False, False
+    assert np.mean(invalid[core]) >= 0.9
+    assert np.mean(invalid[occluded]) >= 0.7
+    seen = np.isfinite(m.disparity) & ~occluded
+    assert np.mean(np.abs(m.disparity[seen] - truth[seen]) <= 1) > 0.97
+    assert m.lr_consistency < 1.0
+
+
+def test_without_lr_check_occluded_pixels_get_matches():
+    # the control experiment: a huge tolerance disables the left-right and uniqueness tests
+    right, left, _, occluded = _occlusion_scene()
+    m = match_disparity(
+        right, left, min_disparity=0, max_disparity=20, lr_tolerance=100.0, speckle_size=0
+    )
+    assert np.mean(m.status[occluded] != STATUS_VALID) < 0.4
+
+
+def test_tiled_equals_whole_frame():
+    right, left, _, _ = _occlusion_scene(shape=(80, 130))
+    whole = match_disparity(right, left, min_disparity=0, max_disparity=20, speckle_size=20)
+    tiled = match_tiled(right, left, tile_px=32, min_disparity=0, max_disparity=20, speckle_size=20)
+    np.testing.assert_array_equal(tiled.disparity, whole.disparity)
+    np.testing.assert_array_equal(tiled.status, whole.status)
+
+
+def test_textureless_image_is_invalid_not_guessed():
+    flat = np.full((40, 60), 120, np.uint8)
+    m = match_disparity(flat, flat, min_disparity=0, max_disparity=10)
+    assert np.all(np.isnan(m.disparity))
+    assert np.all(m.status == STATUS_NO_PEAK)
+
+
+def test_sgm_recovers_a_shift():
+    right, left = _shifted_pair((48, 96), 6, seed=2)
+    m = match_disparity(right, left, min_disparity=0, max_disparity=15, method="sgm")
+    values = m.disparity[np.isfinite(m.disparity)]
+    assert values.size > 0.7 * m.disparity.size
+    assert np.median(np.abs(values - 6)) < 0.25
+
+
+def test_sgbm_gives_right_reference_disparity():
+    right, left = _shifted_pair((64, 128), 9, seed=4)
+    d = sgbm_disparity(left, right, min_disparity=0, max_disparity=30)
+    values = d[np.isfinite(d)]
+    assert values.size > 0.5 * d.size
+    assert np.median(values) == pytest.approx(9, abs=0.1)
+    # right-reference: the right image's last columns have no partner in the left image
+    assert np.all(np.isnan(d[:, -8:]))
+
+
+def test_opencv_method_matches_sgbm_function():
+    right, left = _shifted_pair((48, 96), 5, seed=5)
+    m = match_disparity(
+        right, left, min_disparity=0, max_disparity=20, method="opencv-sgbm", speckle_size=0
+    )
+    np.testing.assert_array_equal(
+        m.disparity, sgbm_disparity(left, right, min_disparity=0, max_disparity=20)
+    )
+
+
+def test_speckles_are_removed_and_large_regions_kept():
+    d = np.full((30, 30), 10.0, np.float32)
+    d[5:8, 5:8] = 20.0  # 9-pixel island
+    d[15:30, 15:30] = 3.0  # 225-pixel region
+    cleaned, removed = remove_speckles(d, max_size=20, max_diff=1.0)
+    assert removed.sum() == 9 and np.all(removed[5:8, 5:8])
+    assert np.all(np.isnan(cleaned[5:8, 5:8]))
+    assert np.all(cleaned[15:30, 15:30] == 3.0)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "error", "words"),
+    [
+        ({"method": "census"}, ValueError, "method must be one of"),
+        ({"windows": "5,8"}, ValueError, "odd"),
+        ({"windows": "9,5"}, ValueError, "increasing"),
+        ({"windows": "5,x"}, ValueError, "comma-separated"),
+        ({"windows": (5, 41)}, ValueError, "at most 31"),
+        ({"max_disparity": 1}, ValueError, "at least 2"),
+        ({"max_disparity": 10.5}, TypeError, "must be an int"),
+        ({"min_ncc": 2.0}, ValueError, "min_ncc"),
+        ({"speckle_size": -1}, ValueError, "speckle_size"),
+        ({"sgm_paths": 3}, ValueError, "sgm_paths"),
+        ({"min_texture": float("nan")}, ValueError, "min_texture"),
+    ],
+)
+def test_bad_settings_raise_clear_errors(kwargs, error, words):
+    right, left = _shifted_pair((24, 40), 3, seed=0)
+    args = {"min_disparity": 0, "max_disparity": 8, **kwargs}
+    with pytest.raises(error, match=words):
+        match_disparity(right, left, **args)
+
+
+def test_bad_images_raise_clear_errors():
+    img = np.zeros((20, 30), np.uint8)
+    with pytest.raises(ValueError, match="same shape"):
+        match_disparity(img, img[:, :20], min_disparity=0, max_disparity=5)
+    with pytest.raises(TypeError, match="uint8"):
+        match_disparity(img.astype(float), img, min_disparity=0, max_disparity=5)
+    with pytest.raises(ValueError, match="2-D"):
+        match_disparity(img[None], img[None], min_disparity=0, max_disparity=5)
+    with pytest.raises(ValueError, match=r"\[0, 255\]"):
+        match_disparity(img.astype(np.int32) - 1, img, min_disparity=0, max_disparity=5)
+
+
+def test_check_settings_rejects_unknown_keys():
+    with pytest.raises(TypeError, match="unknown matching settings"):
+        _stereo.check_settings(window=5)
