@@ -27,6 +27,7 @@ from collections.abc import Callable
 import cv2
 import numpy as np
 
+from pipeline.camera import Camera
 from pipeline.metrics import pool_segmentation_scores, segmentation_scores
 from stages.segment import segment_image
 
@@ -47,10 +48,8 @@ def _handmade_frame(size: int = 500, seed: int = 0) -> np.ndarray:
 def _render(archetype: str, seed: int, size: int):
     from pipeline.synth import render_pair
 
-    rendered = render_pair(archetype, seed=seed, size=size)
-    left, right, truth = rendered[0], rendered[1], rendered[2]
-    camera = rendered[4] if len(rendered) > 4 else None
-    return left, right, truth, camera
+    left, right, truth, _, camera = render_pair(archetype, seed=seed, size=size)
+    return left, right, truth, Camera(**camera)
 
 
 def _time_ms(fn: Callable[[], object], repeats: int) -> float:

@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
-from scipy.ndimage import distance_transform_edt
+from scipy.ndimage import distance_transform_edt, median_filter
 
 __all__ = [
     "DepthRuleStats",
@@ -37,6 +37,7 @@ __all__ = [
     "fill_holes",
     "smooth_height",
     "depth_edges",
+    "local_ground",
     "apply_depth_rules",
     "label_objects",
 ]
@@ -49,6 +50,8 @@ class DepthRuleStats:
     raised_added_px: int = 0
     flat_removed_px: int = 0
     depth_valid_fraction: float = 0.0
+    raise_threshold_m: float = float("nan")
+    flat_threshold_m: float = float("nan")
     notes: list[str] = field(default_factory=list)
 
 
@@ -173,16 +176,53 @@ def depth_edges(disparity: np.ndarray, *, jump_px: float) -> np.ndarray:
     return edges
 
 
+def local_ground(height: np.ndarray, *, window_px: int = 72) -> np.ndarray:
+    """Large-scale ground level of a height map: a coarse NaN-aware median.
+
+    Parameters
+    ----------
+    height : (M, N) ndarray of float32
+        Metres above the fitted plane, NaN where invalid.
+    window_px : int
+        ``>= 9``; side of the median window in pixels. Objects narrower than half of it do
+        not lift the estimate.
+
+    Returns
+    -------
+    ground : (M, N) ndarray of float32
+        Finite everywhere (0, the plane, where no valid height is near).
+    """
+    if window_px < 9:
+        raise ValueError(f"window_px must be >= 9, got {window_px}")
+    rows, cols = height.shape
+    factor = max(1, window_px // 9)
+    small_shape = (max(1, rows // factor), max(1, cols // factor))
+    valid = np.isfinite(height)
+    filled = np.where(valid, height, np.float32(0.0)).astype(np.float32)
+    # invalid pixels vote for the plane itself: the fit already describes the ground
+    small = cv2.resize(filled, small_shape[::-1], interpolation=cv2.INTER_AREA)
+    coarse = median_filter(small, size=min(9, *small_shape), mode="nearest")
+    return cv2.resize(coarse, (cols, rows), interpolation=cv2.INTER_LINEAR)
+
+
+def _robust_sigma(values: np.ndarray) -> float:
+    if values.size < 10:
+        return 0.0
+    return float(1.4826 * np.median(np.abs(values - np.median(values))))
+
+
 def apply_depth_rules(
     mask: np.ndarray,
     height: np.ndarray,
     *,
-    min_height_m: float = 0.025,
-    flat_tol_m: float = 0.01,
+    min_height_m: float = 0.015,
+    flat_tol_m: float = 0.003,
     base_px: int = 2,
     smoothing_px: int = 5,
+    ground_window_px: int = 72,
+    min_raised_fraction: float = 0.1,
 ) -> tuple[np.ndarray, DepthRuleStats]:
-    """Combine an intensity mask with height above ground (rules R1-R3 of the module doc).
+    """Combine an intensity mask with height above ground (rules R0-R3 of the module doc).
 
     Parameters
     ----------
@@ -191,13 +231,18 @@ def apply_depth_rules(
     height : (M, N) ndarray of float32
         Metres above the ground plane, NaN where invalid.
     min_height_m : float
-        ``> 0``; R1 threshold.
+        ``> 0``; floor of the R1 threshold.
     flat_tol_m : float
-        ``>= 0``, below ``min_height_m``; R2 tolerance.
+        ``>= 0``, below ``min_height_m``; floor of the R2 tolerance.
     base_px : int
         ``>= 0``; R2 spares flat pixels this close to a raised pixel.
     smoothing_px : {1, 3, 5}
         Median window of the height map.
+    ground_window_px : int
+        ``>= 9``; window of the local ground level (R0).
+    min_raised_fraction : float
+        In ``[0, 1]``; R2 removes a whole intensity object with fewer raised pixels than this
+        fraction of its valid pixels and a median height within the raise threshold's half.
 
     Returns
     -------
@@ -214,11 +259,19 @@ def apply_depth_rules(
         )
     if base_px < 0:
         raise ValueError(f"base_px must be >= 0, got {base_px}")
+    if not 0 <= min_raised_fraction <= 1:
+        raise ValueError(f"min_raised_fraction must be in [0, 1], got {min_raised_fraction}")
     smoothed = smooth_height(height, window=smoothing_px)
     valid = np.isfinite(smoothed)
+    relative = smoothed - local_ground(smoothed, window_px=ground_window_px)
+    sigma = _robust_sigma(relative[valid & ~mask])
+    raise_m = max(min_height_m, 3.0 * sigma)
+    flat_m = min(max(flat_tol_m, 2.0 * sigma), 0.5 * raise_m)
     with np.errstate(invalid="ignore"):
-        raised = smoothed > min_height_m
-        flat = np.abs(smoothed) < flat_tol_m
+        raised = relative > raise_m
+        flat = relative < flat_m  # at or below the local ground: shadows, stains, pits
+
+    # R2, pixels: flat pixels away from the raised core (shadows, attached or not)
     if base_px > 0 and raised.any():
         size = 2 * base_px + 1
         kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
@@ -226,11 +279,27 @@ def apply_depth_rules(
     else:
         near_raised = raised
     removed = mask & flat & ~near_raised
+    # R2, whole objects: of what is left, an object where nothing stands up lies on the ground
+    remaining = mask & ~removed
+    count, components = cv2.connectedComponents(remaining.view(np.uint8), connectivity=8)
+    n_valid = np.bincount(components[valid], minlength=count)
+    n_raised = np.bincount(components[raised], minlength=count)
+    n_pixels = np.bincount(components.ravel(), minlength=count)
+    n_low = np.bincount(components[valid & (relative < 0.5 * raise_m)], minlength=count)
+    lying = (
+        (n_valid >= 0.5 * n_pixels)
+        & (n_raised < min_raised_fraction * np.maximum(n_valid, 1))
+        & (n_low >= 0.5 * np.maximum(n_valid, 1))
+    )
+    lying[0] = False
+    removed |= lying[components]
     combined = (mask & ~removed) | raised
     stats = DepthRuleStats(
         raised_added_px=int(np.count_nonzero(raised & ~mask)),
         flat_removed_px=int(np.count_nonzero(removed)),
         depth_valid_fraction=float(valid.mean()),
+        raise_threshold_m=raise_m,
+        flat_threshold_m=flat_m,
     )
     return combined, stats
 

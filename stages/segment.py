@@ -110,8 +110,10 @@ def segment_image(
     min_band: float = 6.0,
     min_area_px: int = 30,
     fill_holes: bool = True,
-    min_height_m: float = 0.025,
-    flat_tol_m: float = 0.01,
+    min_height_m: float = 0.015,
+    flat_tol_m: float = 0.003,
+    ground_window_px: int = 72,
+    min_raised_fraction: float = 0.1,
     base_px: int = 2,
     height_smoothing_px: int = 5,
     split_disparity_px: float = 1.5,
@@ -138,7 +140,8 @@ def segment_image(
         ``>= 1``; smaller objects are specks.
     fill_holes : bool
         Fill enclosed background pockets.
-    min_height_m, flat_tol_m, base_px, height_smoothing_px
+    min_height_m, flat_tol_m, base_px, height_smoothing_px, ground_window_px
+    min_raised_fraction
         See :func:`stages._regions.apply_depth_rules`.
     split_disparity_px : float
         ``>= 0`` px; disparity jump that splits touching objects; 0 disables the split.
@@ -198,6 +201,8 @@ def segment_image(
                 flat_tol_m=flat_tol_m,
                 base_px=base_px,
                 smoothing_px=height_smoothing_px,
+                ground_window_px=ground_window_px,
+                min_raised_fraction=min_raised_fraction,
             )
         else:
             notes.append("no valid height above ground: intensity rules only")
@@ -362,8 +367,12 @@ STAGE = Stage(
         Param("min_band", float, 6.0, "smallest threshold distance, gray levels", None, 0, 128),
         Param("min_area_px", int, 30, "objects smaller than this are specks", None, 1),
         Param("fill_holes", bool, True, "fill background pockets inside objects"),
-        Param("min_height_m", float, 0.025, "depth: raised above ground is object", None, 1e-4),
-        Param("flat_tol_m", float, 0.01, "depth: flat intensity objects are background", None, 0),
+        Param("min_height_m", float, 0.015, "depth: floor of the raised threshold", None, 1e-4),
+        Param("flat_tol_m", float, 0.003, "depth: floor of the flat tolerance", None, 0),
+        Param("ground_window_px", int, 72, "depth: window of the local ground level", None, 9),
+        Param(
+            "min_raised_fraction", float, 0.1, "depth: below this an object lies flat", None, 0, 1
+        ),
         Param(
             "base_px", int, 2, "depth: flat pixels this close to raised ones are kept", None, 0, 50
         ),
