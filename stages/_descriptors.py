@@ -33,6 +33,7 @@ __all__ = [
     "polarity_against",
     "top_height",
     "widest_row_width_m",
+    "footprint_dimensions",
     "classify_size",
     "background_jump_fraction",
     "describe_objects",
@@ -338,18 +339,65 @@ def widest_row_width_m(
     return float(np.nanmax(widths))
 
 
+def footprint_dimensions(
+    x_m: np.ndarray, y_m: np.ndarray, *, pixel_m: float, step_deg: float = 3.0
+) -> tuple[float, float]:
+    """Largest horizontal dimension of a point set and its dimension across that direction.
+
+    The points (ground-frame x, y of the object's visible surface) are projected on
+    directions every ``step_deg`` degrees; the width is the largest spread, the length the
+    spread at right angles to it. Each spread gets one ``pixel_m`` added (a point stands for
+    a pixel's footprint). Points farther than 4 scaled MADs from the median in x or y (for
+    example ground behind the silhouette that took the object's label) are dropped first;
+    that rule keeps every point of a uniformly filled extent.
+
+    Parameters
+    ----------
+    x_m, y_m : (K,) ndarray of float
+        Ground coordinates, metres; NaN entries are ignored.
+    pixel_m : float
+        Size of one pixel at the object's range (Z / f), metres.
+    step_deg : float
+        Angular step, degrees, in (0, 90].
+
+    Returns
+    -------
+    width_m, length_m : float
+        NaN when fewer than two finite points remain.
+    """
+    x = np.asarray(x_m, dtype=np.float64)
+    y = np.asarray(y_m, dtype=np.float64)
+    keep = np.isfinite(x) & np.isfinite(y)
+    x, y = x[keep], y[keep]
+    for axis in (0, 1):
+        values = (x, y)[axis]
+        if values.size:
+            centre = np.median(values)
+            mad = 1.4826 * np.median(np.abs(values - centre))
+            inlier = np.abs(values - centre) <= 4.0 * mad + 1e-12
+            x, y = x[inlier], y[inlier]
+    if x.size < 2:
+        return math.nan, math.nan
+    angles = np.radians(np.arange(0.0, 180.0, step_deg))
+    proj = x[:, None] * np.cos(angles)[None, :] + y[:, None] * np.sin(angles)[None, :]
+    spread = proj.max(axis=0) - proj.min(axis=0)
+    k = int(np.argmax(spread))
+    across = int(np.argmin(np.abs(((angles - angles[k]) % np.pi) - np.pi / 2)))
+    return float(spread[k] + pixel_m), float(spread[across] + pixel_m)
+
+
 def classify_size(
     largest_m: float, height_m: float, *, sample_max_m: float, rover_clearance_m: float
 ) -> str:
     """``'sample'`` or ``'obstacle'``.
 
     A sample is small enough to pick up (largest cross-section <= ``sample_max_m``) and low
-    enough to drive over (height < ``rover_clearance_m``). Unknown sizes (NaN, no depth)
+    enough to drive over (height <= ``rover_clearance_m``). Unknown sizes (NaN, no depth)
     give ``'obstacle'``: a rover must not assume it can drive over what it cannot measure.
     """
     if not (math.isfinite(largest_m) and math.isfinite(height_m)):
         return "obstacle"
-    if largest_m <= sample_max_m and height_m < rover_clearance_m:
+    if largest_m <= sample_max_m and height_m <= rover_clearance_m:
         return "sample"
     return "obstacle"
 
@@ -468,7 +516,7 @@ def describe_objects(
     sample_max_m: float = 0.10,
     rover_clearance_m: float = 0.10,
     min_valid_fraction: float = 0.5,
-    occlusion_jump_px: float = 1.0,
+    background_jump_px: float = 1.0,
     disparity_error_px: float = 0.5,
     ring_px: int = 3,
 ) -> dict[str, np.ndarray]:
@@ -494,8 +542,9 @@ def describe_objects(
         Size classes, see :func:`classify_size`.
     min_valid_fraction : float
         ``depth_unreliable`` when less than this share of the object has valid disparity.
-    occlusion_jump_px : float
-        Disparity jump (pixels) that counts as a depth discontinuity.
+    background_jump_px : float
+        Disparity jump (pixels) by which nearer background just outside the object counts as
+        hiding it (``occluded`` when more than 10 % of the boundary pairs show one).
     disparity_error_px : float
         Disparity uncertainty behind ``range_err_m`` (0.5 px: half a pixel of matching).
     ring_px : int
@@ -545,10 +594,6 @@ def describe_objects(
         h_top, top_row = top_height(rows, heights)
         finite_h = heights[np.isfinite(heights)]
         h_max = float(np.percentile(finite_h, 98)) if finite_h.size else math.nan
-        width = widest_row_width_m(
-            rows, cols, np.where(valid, range_px, np.nan), focal_px=f, fallback_z=z_med
-        )
-        width_err = math.hypot(width * range_err / z_med, z_med / f) if valid.any() else math.nan
         x_m = y_m = z_m = length = height_err = math.nan
         if ground_pts is not None and valid.any():
             gp = ground_pts[crop][mask][valid]
@@ -556,21 +601,22 @@ def describe_objects(
             ground_level = gp[:, 2] - heights[valid]
             ground_level = ground_level[np.isfinite(ground_level)]
             z_m = float(np.median(ground_level)) if ground_level.size else 0.0
-            length = robust_extent(gp[:, 1])
+            width, length = footprint_dimensions(gp[:, 0], gp[:, 1], pixel_m=z_med / f)
+        else:  # no ground frame: the widest image row at its own depth
+            width = widest_row_width_m(
+                rows, cols, np.where(valid, range_px, np.nan), focal_px=f, fallback_z=z_med
+            )
+        width_err = math.hypot(width * range_err / z_med, z_med / f) if valid.any() else math.nan
         if ground is not None and top_row >= 0 and math.isfinite(h_top):
             top = rows == top_row
-            z_top = (
-                np.nanmedian(np.where(valid[top], range_px[top], np.nan))
-                if (valid[top].any())
-                else z_med
-            )
+            z_top = float(np.median(range_px[top][valid[top]])) if valid[top].any() else z_med
             ray = np.array([(np.mean(cols[top]) - cx) / f, (top_row - cy) / f, 1.0])
             height_err = abs(float(ray @ ground.up)) * z_top**2 / kb * disparity_error_px
         mean_gray = float(gray_px.mean())
         ring = ndimage.binary_dilation(mask, iterations=ring_px) & (lab_c == 0)
         major, minor, angle = second_moment_ellipse(rows, cols)
         largest = np.nanmax([width, length]) if np.isfinite([width, length]).any() else math.nan
-        jump = background_jump_fraction(mask, lab_c, disp[crop], jump_px=occlusion_jump_px)
+        jump = background_jump_fraction(mask, lab_c, disp[crop], jump_px=background_jump_px)
         rows_out.append(
             {
                 "object_id": index,

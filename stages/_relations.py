@@ -17,10 +17,16 @@ Every edge reads "subject RELATION object". Definitions:
     (chessboard distance between the pixel sets <= ``gap_px + 1``, a dilation test).
     Symmetric: emitted in both directions.
 ``occludes``
-    Subject and object are adjacent and, along their shared boundary, the subject is
+    Subject and object are in contact (at least 3 of the subject's pixels lie within
+    ``contact_gap_px + 1`` 4-connected steps of the object: touching, or split by a line of
+    at most ``contact_gap_px`` background pixels, as segmentation does at a depth edge; ground
+    visible between them means no occlusion) and, along their shared boundary, the subject is
     nearer: the median disparity of the subject's pixels within ``band_px`` of the object
     exceeds that of the object's pixels within ``band_px`` of the subject by more than
-    ``occlusion_jump_px``. Emitted once, from the nearer object.
+    ``occlusion_jump_px``. Emitted once, from the nearer object. Rocks touching in the image
+    at different depths are always an occlusion, and their depth difference at the contact
+    is often a fraction of a pixel of disparity, so the default jump is small (0.1 px); the
+    band medians keep it robust to matching noise.
 
 Attributes of every edge:
 
@@ -49,6 +55,7 @@ __all__ = [
     "horizontal_overlap",
     "region_neighbours",
     "boundary_disparity_difference",
+    "contact_pixels",
     "relate_objects",
 ]
 
@@ -72,6 +79,8 @@ RELATION_COLUMNS: dict[str, str] = {
 """Relation column names and NumPy dtypes (``'str'``: unicode strings)."""
 
 _SQUARE = np.ones((3, 3), dtype=bool)
+_CROSS = ndimage.generate_binary_structure(2, 1)
+_MIN_CONTACT_PX = 3
 
 
 def ordering_matrices(
@@ -193,6 +202,24 @@ def boundary_disparity_difference(
     return float(np.median(side_a) - np.median(side_b))
 
 
+def contact_pixels(mask_a: np.ndarray, mask_b: np.ndarray, *, gap_px: int) -> int:
+    """Number of A's pixels within ``gap_px + 1`` 4-connected steps of B.
+
+    With ``gap_px = 0`` these are A's pixels with a 4-neighbour in B (the contact line).
+
+    Parameters
+    ----------
+    mask_a, mask_b : (M, N) ndarray of bool
+        Two disjoint regions.
+    gap_px : int
+        Background pixels allowed between the regions, >= 0.
+    """
+    if gap_px < 0:
+        raise ValueError(f"gap_px must be >= 0, got {gap_px!r}")
+    near_b = ndimage.binary_dilation(np.asarray(mask_b, bool), _CROSS, iterations=gap_px + 1)
+    return int(np.count_nonzero(np.asarray(mask_a, bool) & near_b))
+
+
 def _empty_columns() -> dict[str, np.ndarray]:
     return {
         name: np.array([], dtype=str if kind == "str" else kind)
@@ -212,7 +239,8 @@ def relate_objects(
     margin_m: float = 0.05,
     gap_px: int = 2,
     band_px: int = 3,
-    occlusion_jump_px: float = 1.0,
+    contact_gap_px: int = 0,
+    occlusion_jump_px: float = 0.1,
 ) -> dict[str, np.ndarray]:
     """Edge table of one frame.
 
@@ -230,6 +258,8 @@ def relate_objects(
         Adjacency gap, pixels.
     band_px : int
         Band width for the occlusion test, pixels.
+    contact_gap_px : int
+        Background pixels allowed between two regions in contact, <= ``gap_px``.
     occlusion_jump_px : float
         Disparity difference (pixels) above which the nearer region occludes the other.
 
@@ -245,6 +275,11 @@ def relate_objects(
         raise ValueError(
             f"labels and disparity must be 2-D arrays of one shape, got {lab.shape} and "
             f"{disp.shape}"
+        )
+    if not 0 <= contact_gap_px <= gap_px:
+        raise ValueError(
+            f"contact_gap_px must be in [0, gap_px={gap_px}], got {contact_gap_px!r}; "
+            "regions in contact must also be adjacent"
         )
     ids = np.asarray(object_ids, dtype=np.int64)
     k = ids.size
@@ -284,9 +319,10 @@ def relate_objects(
             shared[i, j] = share
             if j < i:
                 continue  # each unordered pair is tested for occlusion once
-            diff = boundary_disparity_difference(
-                disp[crop], lab_c == obj, lab_c == other, band_px=band_px
-            )
+            mask_a, mask_b = lab_c == obj, lab_c == other
+            if contact_pixels(mask_a, mask_b, gap_px=contact_gap_px) < _MIN_CONTACT_PX:
+                continue
+            diff = boundary_disparity_difference(disp[crop], mask_a, mask_b, band_px=band_px)
             if diff > occlusion_jump_px:
                 occludes[i, j] = True
             elif -diff > occlusion_jump_px:

@@ -82,9 +82,11 @@ def describe_frame(
     sample_max_m: float = 0.10,
     rover_clearance_m: float = 0.10,
     min_valid_fraction: float = 0.5,
-    occlusion_jump_px: float = 1.0,
+    background_jump_px: float = 1.0,
+    occlusion_jump_px: float = 0.1,
     margin_m: float = 0.05,
     gap_px: int = 2,
+    contact_gap_px: int = 0,
     band_px: int = 3,
     sfd_max_range_m: float = 5.0,
     sfd_min_diameter_m: float = 0.0,
@@ -102,12 +104,15 @@ def describe_frame(
     camera : Camera
     ground_plane : (4,) ndarray of float64, optional
         Fitted ground plane (camera frame, unit normal up); NaN or None when not fitted.
-    sample_max_m, rover_clearance_m, min_valid_fraction, occlusion_jump_px : float
+    sample_max_m, rover_clearance_m, min_valid_fraction, background_jump_px : float
         See :func:`stages._descriptors.describe_objects`.
+    occlusion_jump_px : float
+        Disparity difference (px) across a contact that makes the nearer region occlude.
     margin_m : float
         Near-tie margin of left/right and front/behind, metres.
-    gap_px, band_px : int
-        Adjacency gap and occlusion band, pixels.
+    gap_px, contact_gap_px, band_px : int
+        Adjacency gap, contact gap and occlusion band, pixels
+        (see :mod:`stages._relations`).
     sfd_max_range_m : float
         Ground area and rocks beyond this range are left out of the size-frequency figures
         (far rocks are under-resolved and would bias ``k`` low).
@@ -135,7 +140,7 @@ def describe_frame(
         sample_max_m=sample_max_m,
         rover_clearance_m=rover_clearance_m,
         min_valid_fraction=min_valid_fraction,
-        occlusion_jump_px=occlusion_jump_px,
+        background_jump_px=background_jump_px,
     )
     disp = np.asarray(disparity, dtype=np.float64)
     rel = relate_objects(
@@ -149,6 +154,7 @@ def describe_frame(
         margin_m=margin_m,
         gap_px=gap_px,
         band_px=band_px,
+        contact_gap_px=contact_gap_px,
         occlusion_jump_px=occlusion_jump_px,
     )
     hidden = np.unique(rel["object_id"][rel["relation"] == "occludes"])
@@ -249,7 +255,7 @@ STAGE = Stage(
             "rover_clearance_m",
             float,
             0.10,
-            "rocks at least this high are obstacles, m",
+            "rocks higher than this are obstacles, m",
             minimum=0,
         ),
         Param(
@@ -260,9 +266,23 @@ STAGE = Stage(
             minimum=0,
             maximum=1,
         ),
-        Param("occlusion_jump_px", float, 1.0, "disparity jump meaning occlusion, px", minimum=0),
+        Param(
+            "background_jump_px",
+            float,
+            1.0,
+            "nearer background by this much: occluded, px",
+            minimum=0,
+        ),
+        Param(
+            "occlusion_jump_px",
+            float,
+            0.1,
+            "disparity step across a contact: occludes, px",
+            minimum=0,
+        ),
         Param("margin_m", float, 0.05, "near-tie margin of left_of/behind..., m", minimum=0),
         Param("gap_px", int, 2, "largest gap between adjacent regions, px", minimum=0),
+        Param("contact_gap_px", int, 0, "gap still counted as contact, px", minimum=0),
         Param("band_px", int, 3, "boundary band of the occlusion test, px", minimum=1),
         Param(
             "sfd_max_range_m",

@@ -85,7 +85,8 @@ def test_single_plate_metric_fields():
     assert row["x_m"] == pytest.approx(x0, abs=pixel_m)
     assert row["y_m"] == pytest.approx(y0, abs=1e-6)
     assert row["z_m"] == pytest.approx(0.0, abs=1e-6)
-    assert row["length_m"] == pytest.approx(0.0, abs=1e-6)  # a plate has no depth extent
+    # width: the plate's largest horizontal dimension; length across it: one pixel (a plate)
+    assert row["length_m"] == pytest.approx(pixel_m, rel=0.05)
     assert 0 < row["height_err_m"] < row["range_err_m"]
     assert 0 < row["width_err_m"] < 0.05
     assert row["depth_valid_fraction"] == 1.0

@@ -17,6 +17,7 @@ from stages._descriptors import (
     classify_size,
     cooccurrence_contrast,
     describe_objects,
+    footprint_dimensions,
     frame_ground,
     polarity_against,
     robust_extent,
@@ -187,7 +188,8 @@ def test_widest_row_width():
         (0.05, 0.04, "sample"),
         (0.10, 0.09, "sample"),
         (0.11, 0.05, "obstacle"),
-        (0.08, 0.10, "obstacle"),
+        (0.08, 0.10, "sample"),
+        (0.08, 0.11, "obstacle"),
         (math.nan, 0.02, "obstacle"),
         (0.05, math.nan, "obstacle"),
     ],
@@ -276,3 +278,26 @@ def test_describe_objects_image_fields_and_appearance():
     np.testing.assert_array_equal(cols["depth_valid_fraction"], [0.0, 0.0])
     np.testing.assert_array_equal(cols["depth_unreliable"], [True, True])
     np.testing.assert_array_equal(cols["size_class"], ["obstacle", "obstacle"])
+
+
+def test_footprint_dimensions_of_a_rotated_rectangle():
+    # a filled 0.30 x 0.10 m rectangle of points, long side at 30 degrees
+    u, v = np.meshgrid(np.linspace(-0.15, 0.15, 61), np.linspace(-0.05, 0.05, 21))
+    angle = math.radians(30.0)
+    x = 1.0 + u * math.cos(angle) - v * math.sin(angle)
+    y = 2.0 + u * math.sin(angle) + v * math.cos(angle)
+    width, length = footprint_dimensions(x.ravel(), y.ravel(), pixel_m=0.005)
+    # the largest horizontal dimension of a rectangle is its diagonal (as in the synth truth);
+    # across it, the rectangle spans 2 * area / diagonal
+    diagonal = math.hypot(0.30, 0.10)
+    assert width == pytest.approx(diagonal + 0.005, rel=0.01)
+    assert length == pytest.approx(2 * 0.30 * 0.10 / diagonal + 0.005, rel=0.03)
+
+
+def test_footprint_dimensions_drop_far_outliers():
+    u, v = np.meshgrid(np.linspace(0, 0.1, 11), np.linspace(0, 0.1, 11))
+    x, y = u.ravel(), v.ravel()
+    clean = footprint_dimensions(x, y, pixel_m=0.01)
+    x_out, y_out = np.r_[x, 0.05], np.r_[y, 3.0]  # a ground point far behind the rock
+    assert footprint_dimensions(x_out, y_out, pixel_m=0.01) == pytest.approx(clean)
+    assert all(math.isnan(v) for v in footprint_dimensions([1.0], [2.0], pixel_m=0.01))

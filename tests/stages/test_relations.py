@@ -12,6 +12,7 @@ from hypothesis import strategies as st
 from stages._relations import (
     RELATION_COLUMNS,
     boundary_disparity_difference,
+    contact_pixels,
     horizontal_overlap,
     ordering_matrices,
     region_neighbours,
@@ -193,3 +194,45 @@ def test_relate_objects_validates():
             labels, np.zeros((10, 10)), object_ids=np.array([1, 2]), x_m=np.array([0.0]),
             y_m=np.zeros(2), bbox_x_min=np.zeros(2), bbox_x_max=np.zeros(2),
         )  # fmt: skip
+
+
+def test_contact_pixels():
+    assert contact_pixels(_squares(0) == 1, _squares(0) == 2, gap_px=0) == 5
+    assert contact_pixels(_squares(1) == 1, _squares(1) == 2, gap_px=0) == 0
+    assert contact_pixels(_squares(1) == 1, _squares(1) == 2, gap_px=1) == 5
+    diagonal = np.zeros((4, 4), dtype=bool)
+    other = np.zeros((4, 4), dtype=bool)
+    diagonal[0, 0], other[1, 1] = True, True
+    assert contact_pixels(diagonal, other, gap_px=0) == 0  # corners do not touch
+    with pytest.raises(ValueError, match="gap_px"):
+        contact_pixels(diagonal, other, gap_px=-1)
+
+
+def _pair_columns(labels, disparity, **kwargs):
+    return relate_objects(
+        labels,
+        disparity,
+        object_ids=np.array([1, 2]),
+        x_m=np.array([0.0, 0.0]),
+        y_m=np.array([1.0, 1.0]),
+        bbox_x_min=np.array([2, 8]),
+        bbox_x_max=np.array([6, 12]),
+        **kwargs,
+    )
+
+
+def test_occludes_needs_contact():
+    labels = _squares(1)  # one background column between the regions
+    disparity = np.where(labels == 1, 12.0, np.where(labels == 2, 10.0, 4.0))
+    assert "occludes" not in _pair_columns(labels, disparity)["relation"]
+    split = _pair_columns(labels, disparity, contact_gap_px=1)
+    assert (1, "occludes", 2) in _edges(split)
+    with pytest.raises(ValueError, match="contact_gap_px"):
+        _pair_columns(labels, disparity, gap_px=1, contact_gap_px=2)
+
+
+def test_small_disparity_step_at_a_contact_is_an_occlusion():
+    labels = _squares(0)
+    disparity = np.where(labels == 1, 10.0, np.where(labels == 2, 10.3, 4.0))
+    assert (2, "occludes", 1) in _edges(_pair_columns(labels, disparity))
+    assert "occludes" not in _pair_columns(labels, disparity, occlusion_jump_px=0.5)["relation"]
