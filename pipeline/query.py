@@ -96,6 +96,8 @@ class RunInfo:
         From ``run.json``.
     files : dict of str to list of Path
         View name -> Parquet files it reads (possibly empty).
+    meta : dict
+        The whole ``run.json``.
     """
 
     path: Path
@@ -104,6 +106,7 @@ class RunInfo:
     archive: str
     status: str
     files: dict[str, list[Path]] = field(default_factory=dict)
+    meta: dict[str, Any] = field(default_factory=dict)
 
 
 # -- run directories ----------------------------------------------------------------------
@@ -228,6 +231,7 @@ def load_runs(rundirs: Any, *, allow_running: bool = False) -> list[RunInfo]:
                 archive=str(meta.get("archive", "")),
                 status=str(meta.get("status", "")),
                 files=files,
+                meta=meta,
             )
         )
     return runs

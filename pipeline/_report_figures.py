@@ -1,0 +1,276 @@
+"""Figures of the run report as PNG bytes: per-archive rock plots (matplotlib, no pyplot
+state, Agg canvas) and per-frame quicklooks (the quicklook stage's PNGs, or drawn from
+``products.zarr`` with the same functions when the stage did not write them)."""
+
+from __future__ import annotations
+
+import io
+import math
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+from matplotlib.ticker import FuncFormatter, NullFormatter
+
+from stages._sizefreq import SizeFrequencyFit, cumulative_fractional_area, model_cfa
+
+__all__ = [
+    "QUICKLOOKS",
+    "size_frequency_png",
+    "histograms_png",
+    "top_view_png",
+    "frame_quicklooks",
+]
+
+#: quicklook file name -> caption, in display order
+QUICKLOOKS = {
+    "objects": "reference image, object outlines and ids",
+    "range_contours": "contours of equal range",
+    "residual": "left − right | left − pseudo-left",
+}
+_CLASS_COLORS = {"sample": "#1f77b4", "obstacle": "#d62728"}
+_OTHER_COLOR = "#7f7f7f"
+_REFERENCE_K = (0.05, 0.1, 0.2)
+_DPI = 100
+
+
+def _png(fig: Figure) -> bytes:
+    FigureCanvasAgg(fig)
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=_DPI)
+    return buffer.getvalue()
+
+
+def _finite(values: Any) -> np.ndarray:
+    a = np.asarray(values, dtype=np.float64).reshape(-1)
+    return a[np.isfinite(a)]
+
+
+def size_frequency_png(
+    diameters_m: np.ndarray,
+    *,
+    ground_area_m2: float,
+    fit: SizeFrequencyFit | None,
+    title: str,
+) -> bytes:
+    """Cumulative fractional area against rock diameter with the fitted Golombek-Rapp model.
+
+    Parameters
+    ----------
+    diameters_m : (K,) ndarray of float
+        Rock diameters, metres (NaN ignored).
+    ground_area_m2 : float
+        Ground area the rocks were counted on, m^2 (> 0, else only a note is drawn).
+    fit : SizeFrequencyFit, optional
+        Fitted model; drawn when its ``k`` is finite.
+    title : str
+    """
+    fig = Figure(figsize=(5.2, 3.8))
+    fig.subplots_adjust(left=0.15, right=0.97, bottom=0.13, top=0.92)
+    ax = fig.add_subplot()
+    d = _finite(diameters_m)
+    if not (math.isfinite(ground_area_m2) and ground_area_m2 > 0) or d.size == 0:
+        ax.text(0.5, 0.5, "no rocks with a known ground area", ha="center", va="center")
+        ax.set_axis_off()
+        ax.set_title(title, fontsize=10)
+        return _png(fig)
+    diam, cfa = cumulative_fractional_area(d, ground_area_m2=ground_area_m2)
+    grid = np.linspace(0, max(float(diam.max()) * 1.15, 0.05), 200)
+    for k in _REFERENCE_K:
+        ax.plot(grid, model_cfa(grid, k), color="0.8", lw=0.8, zorder=1)
+        ax.annotate(
+            f"k={k:g}",
+            (grid[-1], float(model_cfa(grid[-1:], k)[0])),
+            fontsize=7,
+            color="0.55",
+            ha="right",
+            va="bottom",
+        )
+    ax.plot(diam, cfa, "o", ms=4, color="#1f77b4", label=f"observed ({d.size} rocks)", zorder=3)
+    if fit is not None and math.isfinite(fit.k):
+        ax.plot(
+            grid,
+            model_cfa(grid, fit.k),
+            color="#d62728",
+            lw=1.8,
+            label=f"fit k = {fit.k:.3f}, q = {fit.q:.2f} /m",
+            zorder=2,
+        )
+    ax.set_yscale("log")
+    # plain tick labels: mathtext (10^-2) costs a parser run per report
+    ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _pos: f"{v:g}"))
+    ax.yaxis.set_minor_formatter(NullFormatter())
+    low = min(float(cfa.min()), 1e-3)
+    ax.set_ylim(low / 2, 1.0)
+    ax.set_xlim(0, grid[-1])
+    ax.set_xlabel("rock diameter D (m)")
+    ax.set_ylabel("cumulative fractional area F(D)")
+    ax.set_title(title, fontsize=10)
+    ax.grid(True, which="major", color="0.92")
+    ax.legend(fontsize=8, loc="upper right")
+    return _png(fig)
+
+
+def histograms_png(height_m: np.ndarray, range_m: np.ndarray, size_class: np.ndarray) -> bytes:
+    """Histograms of rock heights and ranges, stacked by size class.
+
+    Parameters
+    ----------
+    height_m, range_m : (K,) ndarray of float
+        Metres, NaN ignored.
+    size_class : (K,) ndarray of str
+        'sample' | 'obstacle' (others drawn gray).
+    """
+    fig = Figure(figsize=(6.4, 3.0))
+    fig.subplots_adjust(left=0.09, right=0.98, bottom=0.17, top=0.95, wspace=0.3)
+    classes = np.asarray(size_class, dtype=object)
+    for i, (values, label) in enumerate(
+        ((height_m, "height above ground (m)"), (range_m, "range (m)"))
+    ):
+        ax = fig.add_subplot(1, 2, i + 1)
+        v = np.asarray(values, dtype=np.float64)
+        finite = np.isfinite(v)
+        if not finite.any():
+            ax.text(0.5, 0.5, "no values", ha="center", va="center", transform=ax.transAxes)
+        else:
+            bins = np.histogram_bin_edges(
+                v[finite], bins=min(30, max(5, int(finite.sum() ** 0.5) * 2))
+            )
+            groups, colors, names = [], [], []
+            for name in ("sample", "obstacle"):
+                groups.append(v[finite & (classes == name)])
+                colors.append(_CLASS_COLORS[name])
+                names.append(name)
+            other = finite & ~np.isin(classes, ("sample", "obstacle"))
+            if other.any():
+                groups.append(v[other])
+                colors.append(_OTHER_COLOR)
+                names.append("unclassified")
+            ax.hist(groups, bins=bins, stacked=True, color=colors, label=names)
+            ax.legend(fontsize=7)
+        ax.set_xlabel(label)
+        ax.set_ylabel("rocks")
+        ax.grid(True, axis="y", color="0.92")
+    return _png(fig)
+
+
+def top_view_png(
+    x_m: np.ndarray, y_m: np.ndarray, width_m: np.ndarray, size_class: np.ndarray
+) -> bytes:
+    """Rock positions on the ground plane seen from above (camera at the origin).
+
+    Parameters
+    ----------
+    x_m, y_m : (K,) ndarray of float
+        Ground frame: x right, y forward, metres (NaN: not placed).
+    width_m : (K,) ndarray of float
+        Marker size scales with the rock's width.
+    size_class : (K,) ndarray of str
+    """
+    fig = Figure(figsize=(5.0, 4.2))
+    fig.subplots_adjust(left=0.14, right=0.97, bottom=0.12, top=0.92)
+    ax = fig.add_subplot()
+    x, y = np.asarray(x_m, np.float64), np.asarray(y_m, np.float64)
+    w = np.asarray(width_m, np.float64)
+    classes = np.asarray(size_class, dtype=object)
+    placed = np.isfinite(x) & np.isfinite(y)
+    size = np.where(np.isfinite(w), np.clip(w, 0.01, None), 0.05)
+    size = 8 + 400 * size / max(float(np.nanmax(size[placed])) if placed.any() else 1.0, 1e-6)
+    for name in ("sample", "obstacle"):
+        sel = placed & (classes == name)
+        if sel.any():
+            ax.scatter(
+                x[sel],
+                y[sel],
+                s=size[sel],
+                c=_CLASS_COLORS[name],
+                alpha=0.55,
+                edgecolors="none",
+                label=f"{name} ({int(sel.sum())})",
+            )
+    other = placed & ~np.isin(classes, ("sample", "obstacle"))
+    if other.any():
+        ax.scatter(
+            x[other],
+            y[other],
+            s=size[other],
+            c=_OTHER_COLOR,
+            alpha=0.55,
+            edgecolors="none",
+            label=f"unclassified ({int(other.sum())})",
+        )
+    ax.plot([0], [0], marker="^", color="k", ms=9, ls="none", label="camera")
+    ax.set_xlabel("x, right (m)")
+    ax.set_ylabel("y, forward (m)")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.grid(True, color="0.92")
+    ax.legend(fontsize=8, loc="upper left")
+    n_missing = int((~placed).sum())
+    title = "rock positions, top view"
+    if n_missing:
+        title += f" ({n_missing} without depth not shown)"
+    ax.set_title(title, fontsize=10)
+    return _png(fig)
+
+
+def frame_quicklooks(
+    rundir: Path,
+    frame_id: str,
+    index: int,
+    *,
+    products: Any,
+    range_step_m: float,
+) -> dict[str, bytes]:
+    """The frame's three quicklook PNGs: the stage's files when present, else drawn from
+    the products (``products``: the run's ``zarr.Group`` or None); missing inputs skip a
+    figure.
+
+    Returns
+    -------
+    dict of str to bytes
+        Keys of :data:`QUICKLOOKS` that could be made.
+    """
+    from stages.quicklook import (
+        encode_png,
+        objects_image,
+        range_contours_image,
+        residual_image,
+    )
+
+    folder = Path(rundir) / "quicklooks" / frame_id
+    out: dict[str, bytes] = {}
+    cache: dict[str, np.ndarray | None] = {}
+
+    def array(name: str) -> np.ndarray | None:
+        if name not in cache:
+            cache[name] = None
+            if products is not None and name in products:
+                cache[name] = np.asarray(products[name][index])
+        return cache[name]
+
+    draw = {
+        "objects": (("right", "labels"), lambda a: objects_image(a["right"], a["labels"])),
+        "range_contours": (
+            ("right", "range"),
+            lambda a: range_contours_image(a["right"], a["range"], step_m=range_step_m),
+        ),
+        "residual": (
+            ("left", "right", "residual"),
+            lambda a: residual_image(a["left"], a["right"], a["residual"]),
+        ),
+    }
+    for name, (inputs, render) in draw.items():
+        path = folder / f"{name}.png"
+        if path.is_file():
+            out[name] = path.read_bytes()
+            continue
+        arrays: Mapping[str, np.ndarray | None] = {n: array(n) for n in inputs}
+        if any(v is None for v in arrays.values()):
+            continue
+        if name != "objects" and not np.isfinite(arrays[inputs[-1]]).any():
+            continue  # depth never ran for this frame: nothing to draw over the image
+        out[name] = encode_png(render(arrays))
+    return out

@@ -1,0 +1,173 @@
+"""arroyo report: one self-contained HTML page per run, for runs with failed frames, without
+rocks, with many frames, and while a run is writing."""
+
+from __future__ import annotations
+
+import base64
+import re
+import statistics
+from html.parser import HTMLParser
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+from test_query import make_run
+
+from pipeline.cli import main
+from pipeline.errors import ParamError, RunDirError
+from pipeline.lock import RunLock
+from pipeline.report import build_report
+
+
+class _Page(HTMLParser):
+    """Collects the elements the assertions look at."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.images: list[dict[str, str]] = []
+        self.frames: list[dict[str, str]] = []
+        self.external: list[str] = []
+        self.tags: list[str] = []
+        self.rows_in_frame: dict[str, int] = {}
+        self._frame: str | None = None
+        self._in_rocks = False
+
+    def handle_starttag(self, tag, attrs):
+        a = {k: v or "" for k, v in attrs}
+        self.tags.append(tag)
+        if tag == "img":
+            self.images.append({**a, "frame": self._frame or ""})
+        if tag == "details" and "frame" in a.get("class", ""):
+            self.frames.append(a)
+            self._frame = a["data-id"]
+            self.rows_in_frame[self._frame] = 0
+        for key in ("src", "href"):
+            value = a.get(key, "")
+            if value and not value.startswith(("data:", "#")):
+                self.external.append(value)
+        if tag == "tbody" and self._frame is not None:
+            self._in_rocks = True
+        if tag == "tr" and self._in_rocks and self._frame is not None:
+            self.rows_in_frame[self._frame] += 1
+
+    def handle_endtag(self, tag):
+        if tag == "tbody":
+            self._in_rocks = False
+        if tag == "details":
+            self._frame = None
+
+
+def _parse(path: Path) -> tuple[str, _Page]:
+    text = path.read_text()
+    page = _Page()
+    page.feed(text)
+    return text, page
+
+
+def _decode_png(src: str) -> np.ndarray:
+    assert src.startswith("data:image/png;base64,")
+    data = base64.b64decode(src.split(",", 1)[1])
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    assert image is not None and image.size > 0
+    return image
+
+
+def test_report_of_a_run_with_failed_frames(tmp_path):
+    run = make_run(tmp_path / "lab", frames=4, failed=(1,), rocks=5, evaluation=True)
+    path = build_report(run)
+    assert path == run / "report.html"
+    text, page = _parse(path)
+    frames = pq.read_table(run / "frames.parquet").to_pylist()
+    # summary: counts, the failure with its error, stage versions, time per stage
+    assert re.search(r'<div class="value">3</div><div class="label">done</div>', text)
+    assert re.search(r'<div class="value">1</div><div class="label">failed</div>', text)
+    assert "depth: no valid disparity in frame lab_001" in text
+    depth_times = [f["depth_seconds"] for f in frames if f["depth_seconds"] is not None]
+    assert f"{statistics.fmean(depth_times):.3f}" in text
+    assert "<code>{&quot;step&quot;: 0.25}</code>" in text
+    # evaluation pivot: one column per method
+    assert '<th class="num">opencv-sgbm</th>' in text
+    # every frame listed, the failed one flagged, rock tables match the descriptors
+    assert [f["data-id"] for f in page.frames] == [f["frame_id"] for f in frames]
+    assert [f["data-status"] for f in page.frames] == [f["status"] for f in frames]
+    desc = pq.read_table(run / "descriptors.parquet", partitioning=None).to_pylist()
+    for f in frames:
+        want = sum(1 for d in desc if d["frame_id"] == f["frame_id"])
+        assert page.rows_in_frame[f["frame_id"]] == want
+    # images: all decodable PNG data URIs; nothing fetched from the network
+    assert page.external == [] and "<link" not in text and "<script src" not in text
+    for img in page.images:
+        _decode_png(img["src"])
+    per_frame = {
+        f["frame_id"]: [i for i in page.images if i["frame"] == f["frame_id"]] for f in frames
+    }
+    assert len(per_frame["lab_000"]) == 3  # quicklook files embedded
+    assert len(per_frame["lab_003"]) == 3  # no files: drawn from products.zarr
+    assert len(per_frame["lab_001"]) == 1  # failed in depth: only the reference image
+    residual = _decode_png(per_frame["lab_003"][2]["src"])
+    assert residual.shape[1] == 2 * 64 + 4  # left - right beside left - pseudo-left
+    per_archive = [i for i in page.images if not i["frame"]]
+    assert len(per_archive) == 3  # size-frequency, top view, histograms
+
+
+def test_quicklook_file_is_embedded_byte_for_byte(tmp_path):
+    run = make_run(tmp_path / "lab", frames=1)
+    _, page = _parse(build_report(run))
+    stored = (run / "quicklooks" / "lab_000" / "objects.png").read_bytes()
+    first = next(i for i in page.images if i["frame"] == "lab_000")
+    assert base64.b64decode(first["src"].split(",", 1)[1]) == stored
+
+
+def test_report_of_a_run_without_rocks(tmp_path):
+    run = make_run(tmp_path / "bare", frames=2, rocks=0)
+    text, page = _parse(build_report(run))
+    assert "No rocks were described in this run." in text
+    assert text.count("No rocks in this frame.") == 2
+    assert "No evaluation" in text
+    assert all(i["frame"] for i in page.images)  # no per-archive plots without rocks
+
+
+def test_report_of_a_run_where_every_frame_failed(tmp_path):
+    run = make_run(tmp_path / "broken", frames=2, failed=(0, 1))
+    text, page = _parse(build_report(run))
+    assert re.search(r'<div class="value">2</div><div class="label">failed</div>', text)
+    assert [f["data-status"] for f in page.frames] == ["failed", "failed"]
+
+
+def test_frames_beyond_the_cap_are_summarised(tmp_path):
+    run = make_run(tmp_path / "many", frames=3, rocks=1)
+    text, page = _parse(build_report(run, max_frames=1))
+    assert len(page.frames) == 1 and "Showing the first 1 of 3 frames" in text
+    with pytest.raises(ValueError, match="max_frames"):
+        build_report(run, max_frames=-1)
+
+
+def test_output_locations(tmp_path):
+    run = make_run(tmp_path / "lab", frames=1, rocks=2)
+    assert build_report(run, tmp_path / "r.html") == tmp_path / "r.html"
+    (tmp_path / "out").mkdir()
+    assert build_report(run, tmp_path / "out") == tmp_path / "out" / "report.html"
+    with pytest.raises(ParamError, match="does not exist"):
+        build_report(run, tmp_path / "nope" / "r.html")
+    assert [p.name for p in tmp_path.iterdir() if ".tmp-" in p.name] == []
+
+
+def test_cli_report_and_its_errors(tmp_path, capsys):
+    run = make_run(tmp_path / "lab", frames=1, rocks=2)
+    assert main(["report", str(run)]) == 0
+    assert capsys.readouterr().out.strip() == f"arroyo: wrote {run / 'report.html'}"
+    assert main(["report", str(tmp_path / "missing")]) == 2
+    assert "does not exist" in capsys.readouterr().err
+
+
+def test_run_in_progress_needs_allow_running_and_says_so(tmp_path):
+    run = make_run(tmp_path / "live", frames=2, rocks=2, status="running")
+    with RunLock(run):
+        with pytest.raises(RunDirError, match="still in progress"):
+            build_report(run)
+        assert not (run / "report.html").exists()
+        text = build_report(run, allow_running=True).read_text()
+    assert "still in progress" in text
