@@ -7,6 +7,7 @@ a local synchronous run, also after a worker is SIGKILLed mid-run.
 
 from __future__ import annotations
 
+import math
 import os
 import signal
 import subprocess
@@ -38,7 +39,13 @@ class _Cluster:
 
     address: str
     scheduler: subprocess.Popen
+    home: Path
     workers: list[subprocess.Popen] = field(default_factory=list)
+
+    @property
+    def packages(self) -> Path:
+        """Directory on the workers' PYTHONPATH for stage packages written by a test."""
+        return self.home / "packages"
 
     def kill_worker(self, k: int) -> None:
         """SIGKILL worker ``k`` and its nanny'd child: the whole process group, no cleanup."""
@@ -48,7 +55,8 @@ class _Cluster:
 
 def _popen(args: list[str], cwd: Path, log: Path) -> subprocess.Popen:
     env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join([str(ROOT), str(HERE), env.get("PYTHONPATH", "")])
+    paths = [str(ROOT), str(HERE), str(cwd / "packages"), env.get("PYTHONPATH", "")]
+    env["PYTHONPATH"] = os.pathsep.join(paths)
     # the warnings-as-errors of pytest must not leak into the cluster processes
     env.pop("PYTHONWARNINGS", None)
     with open(log, "ab") as sink:
@@ -91,7 +99,7 @@ def cluster(tmp_path: Path) -> Iterator[_Cluster]:
     if not DASK.is_file():
         pytest.skip(f"no dask command-line tool next to {sys.executable}")
     home = tmp_path / "cluster"
-    home.mkdir()
+    (home / "packages").mkdir(parents=True)
     log = home / "cluster.log"
     info = home / "scheduler.json"
     scheduler = _popen(
@@ -108,7 +116,7 @@ def cluster(tmp_path: Path) -> Iterator[_Cluster]:
         home,
         log,
     )
-    started = _Cluster(address="", scheduler=scheduler)
+    started = _Cluster(address="", scheduler=scheduler, home=home)
     try:
         _wait_for_file(info, scheduler, log)
         started.address = json.loads(info.read_text())["address"]
@@ -146,6 +154,11 @@ def cluster(tmp_path: Path) -> Iterator[_Cluster]:
 
 
 # -- comparing run directories -------------------------------------------------------------
+def _nan_as_text(value: object) -> object:
+    """NaN != NaN would make equal rows compare unequal."""
+    return "NaN" if isinstance(value, float) and math.isnan(value) else value
+
+
 def _snapshot(out: Path, tables: tuple[str, ...]) -> tuple[dict[str, np.ndarray], dict]:
     group = zarr.open_group(out / "products.zarr", mode="r")
     arrays = {name: np.asarray(arr[:]) for name, arr in group.arrays()}
@@ -153,9 +166,8 @@ def _snapshot(out: Path, tables: tuple[str, ...]) -> tuple[dict[str, np.ndarray]
     for name in tables:
         table = ds.dataset(out / f"{name}.parquet").to_table().drop_columns(["run_id"])
         ids = [c for c in ("object_id", "subject_id", "relation") if c in table.column_names]
-        rows[name] = sorted(
-            table.to_pylist(), key=lambda r: (r["frame_id"], *(str(r[c]) for c in ids))
-        )
+        canonical = [{k: _nan_as_text(v) for k, v in r.items()} for r in table.to_pylist()]
+        rows[name] = sorted(canonical, key=lambda r: (r["frame_id"], *(str(r[c]) for c in ids)))
     return arrays, rows
 
 
@@ -229,6 +241,60 @@ def test_worker_killed_mid_run_and_a_corrupt_frame(cluster, tmp_path):
     again = run(catalog, remote, scheduler=cluster.address, stage_package=FAKE, overrides=slow)
     assert (again.done, again.failed) == (frames - 1, 1)
     _assert_same_products(local, remote, ("tallies",))
+
+
+_POISON_INGEST = """
+import os
+import numpy as np
+from pipeline.stage import Param, Product, Stage, StageResult
+
+
+def run(inputs, *, frame, params):
+    if frame.frame_id == params["poison"]:
+        os._exit(70)  # what a segfault in native code looks like from outside
+    value = np.full(frame.image_shape, int(frame.frame_id[1:]), np.uint8)
+    return StageResult(arrays={"left": value, "right": value})
+
+
+STAGE = Stage(
+    name="ingest", version="1", inputs=(),
+    outputs=(Product("left", dtype="uint8"), Product("right", dtype="uint8")),
+    params=(Param("poison", str, "", "frame id that kills its worker"),),
+    run=run,
+)
+"""
+
+
+@pytest.mark.slow
+def test_a_frame_that_kills_every_worker_is_recorded_failed_not_retried_forever(cluster, tmp_path):
+    package = cluster.packages / "arroyo_poison_stages"
+    package.mkdir()
+    (package / "__init__.py").write_text("")
+    (package / "ingest.py").write_text(_POISON_INGEST)
+    sys.path.insert(0, str(cluster.packages))
+    try:
+        catalog = write_archive(tmp_path / "archive", frames=6, shape=(16, 16))
+        summary = run(
+            catalog,
+            tmp_path / "run",
+            scheduler=cluster.address,
+            stage_package="arroyo_poison_stages",
+            overrides=["ingest.poison=f002"],
+        )
+    finally:
+        sys.path.remove(str(cluster.packages))
+    # dask gives up after `distributed.scheduler.allowed-failures` worker deaths (KilledWorker)
+    assert "f002" in summary.failures
+    assert "KilledWorker" in summary.failures["f002"]
+    assert summary.exit_code == 1
+    assert summary.done + summary.failed == 6 and summary.pending == 0
+    statuses = _statuses(tmp_path / "run")
+    assert statuses["f002"] == "failed"
+    group = zarr.open_group(tmp_path / "run" / "products.zarr", mode="r")
+    for frame_id, status in statuses.items():
+        if status == "done":
+            k = int(frame_id[1:])
+            assert (np.asarray(group["left"][k]) == k).all(), frame_id
 
 
 def _real_stages_ready() -> str | None:
