@@ -433,21 +433,15 @@ def background_jump_fraction(
     d = np.asarray(disparity, dtype=np.float64)
     total = 0
     hidden = 0
-    for axis in (0, 1):
-        for step in (1, -1):
-            inside = m
-            outside = np.roll(bg, -step, axis=axis)
-            d_out = np.roll(d, -step, axis=axis)
-            pair = inside & outside
-            # np.roll wraps around: drop pairs that crossed the crop edge
-            if step == 1:
-                edge = (slice(None), slice(-1, None)) if axis == 1 else (slice(-1, None),)
-            else:
-                edge = (slice(None), slice(0, 1)) if axis == 1 else (slice(0, 1),)
-            pair[edge] = False
-            ok = pair & np.isfinite(d) & np.isfinite(d_out)
-            total += int(ok.sum())
-            hidden += int(np.sum((d_out - d)[ok] > jump_px))
+    for first, second in (
+        ((slice(None), slice(None, -1)), (slice(None), slice(1, None))),  # left, right pixel
+        ((slice(None, -1), slice(None)), (slice(1, None), slice(None))),  # upper, lower pixel
+    ):
+        for inside, outside in ((first, second), (second, first)):
+            d_in, d_out = d[inside], d[outside]
+            ok = m[inside] & bg[outside] & np.isfinite(d_in) & np.isfinite(d_out)
+            total += int(np.count_nonzero(ok))
+            hidden += int(np.count_nonzero((d_out - d_in)[ok] > jump_px))
     return hidden / total if total else 0.0
 
 
