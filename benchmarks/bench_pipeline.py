@@ -1,0 +1,496 @@
+"""End-to-end benchmarks of the engine: throughput, overhead, memory, task granularity.
+
+Usage (from the repository root; numbers go to BENCHMARKS.md)::
+
+    PYTHONPATH=. .venv/bin/python benchmarks/bench_pipeline.py throughput --frames 200
+    PYTHONPATH=. .venv/bin/python benchmarks/bench_pipeline.py overhead --frames 40
+    PYTHONPATH=. .venv/bin/python benchmarks/bench_pipeline.py memory --frames 200 2000
+    PYTHONPATH=. .venv/bin/python benchmarks/bench_pipeline.py machine
+
+``throughput`` runs a rendered ``mojave`` archive (``--size`` px square, default 500) with the
+default methods through ``arroyo run`` (``pipeline.runner.run``) on a local cluster of 1 and
+2 worker processes (and ``--threads``: one process, 2 threads), reports pairs/s (whole run and
+steady state after the first frame), parallel efficiency, mean seconds per stage from
+``frames.parquet`` and the peak RSS of driver + workers (sampled every 50 ms with psutil).
+
+``overhead`` times, in this process, the same stages called directly on numpy arrays in a loop
+(``STAGE.run`` in graph order, same effective params, nothing written), the engine on one core
+(``scheduler='synchronous'``: zarr, Parquet, SQLite journal, provenance) and OpenCV StereoSGBM
+alone (``pipeline._baselines.sgbm_disparity``) on the same frames.
+
+``memory`` runs archives of each ``--frames`` count on 2 worker processes and compares peak
+RSS. Rendering thousands of frames takes long, so ``--unique`` frames are rendered once and
+the frame index repeats them under new frame ids (the engine neither knows nor cares).
+
+Archives are rendered once into ``--workdir`` (default /tmp/arroyo-bench) and reused.
+``--catalog PATH --stage-package NAME`` benchmark any catalog / stage package instead
+(e.g. the fake stages of the engine tests, to measure pure engine cost).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import os
+import platform
+import shutil
+import statistics
+import sys
+import threading
+import time
+import tomllib
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+import psutil
+import pyarrow.parquet as pq
+
+from pipeline.catalog import load_catalog
+from pipeline.graph import build_graph, discover_stages, resolve_stage_params
+from pipeline.runner import run
+from pipeline.stage import FrameContext
+
+__all__ = [
+    "PeakRSS",
+    "ensure_archive",
+    "repeat_catalog",
+    "timed_run",
+    "pure_compute",
+    "sgbm_alone",
+    "machine",
+]
+
+_MB = 1024 * 1024
+
+
+# -- measuring -------------------------------------------------------------------------------
+class PeakRSS:
+    """Peak resident memory of this process and all its descendants, sampled in a thread.
+
+    ``total`` sums RSS over the tree (shared pages counted once per process, so it
+    overestimates); ``driver`` is this process alone; ``worker`` the largest descendant.
+    """
+
+    def __init__(self, interval: float = 0.05) -> None:
+        self.interval = interval
+        self.total = self.driver = self.worker = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._sample, daemon=True)
+
+    def __enter__(self) -> PeakRSS:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join()
+
+    def _sample(self) -> None:
+        me = psutil.Process()
+        while not self._stop.is_set():
+            rss = {}
+            for proc in [me, *me.children(recursive=True)]:
+                try:
+                    rss[proc.pid] = proc.memory_info().rss
+                except psutil.Error:  # a worker exiting between listing and reading
+                    continue
+            self.total = max(self.total, sum(rss.values()))
+            self.driver = max(self.driver, rss.get(me.pid, 0))
+            others = [v for k, v in rss.items() if k != me.pid]
+            self.worker = max(self.worker, max(others, default=0))
+            self._stop.wait(self.interval)
+
+    def as_dict(self) -> dict[str, float]:
+        return {
+            "peak_rss_total_mb": round(self.total / _MB, 1),
+            "peak_rss_driver_mb": round(self.driver / _MB, 1),
+            "peak_rss_worker_mb": round(self.worker / _MB, 1),
+        }
+
+
+def machine() -> dict[str, Any]:
+    """Where the numbers come from: cores, CPU model, load, versions, date."""
+    model = "unknown"
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    versions = {}
+    for dist in (
+        "dask",
+        "distributed",
+        "numpy",
+        "numba",
+        "opencv-python-headless",
+        "zarr",
+        "pyarrow",
+        "scipy",
+    ):
+        try:
+            versions[dist] = metadata.version(dist)
+        except metadata.PackageNotFoundError:
+            versions[dist] = None
+    return {
+        "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+        "nproc": os.cpu_count(),
+        "cpu": model,
+        "memory_gb": round(psutil.virtual_memory().total / 1024**3, 1),
+        "loadavg": [round(x, 2) for x in os.getloadavg()],
+        "python": platform.python_version(),
+        "versions": versions,
+    }
+
+
+# -- archives --------------------------------------------------------------------------------
+def ensure_archive(workdir: Path, archetype: str, frames: int, size: int, seed: int) -> Path:
+    """Render (once) a built-in archive; return its catalog.toml.
+
+    Uses ``pipeline.synth.synthesize_archive`` when it exists, else writes the same layout
+    (images, frames.csv, catalog.toml; no truth) from ``pipeline.synth.render_pair``.
+    """
+    out = workdir / f"{archetype}-{frames}f-{size}px-s{seed}"
+    catalog = out / "catalog.toml"
+    if not (out / ".complete").is_file():
+        shutil.rmtree(out, ignore_errors=True)
+        start = time.perf_counter()
+        try:
+            from pipeline.synth import synthesize_archive
+        except ImportError:
+            _render_archive(out, archetype, frames, size, seed)
+        else:
+            synthesize_archive(archetype, out, frames=frames, seed=seed, size=size)
+        print(f"rendered {frames} frames of {archetype} in {time.perf_counter() - start:.0f} s")
+        (out / ".complete").write_text("ok\n")
+    return catalog
+
+
+def _render_archive(out: Path, archetype: str, frames: int, size: int, seed: int) -> None:
+    import cv2
+
+    from pipeline.synth import render_pair
+
+    (out / "images").mkdir(parents=True)
+    rows = ["frame_id,left,right,archetype,seed"]
+    camera: dict[str, Any] = {}
+    for k in range(frames):
+        left, right, _truth, _rocks, camera = render_pair(archetype, seed=seed + k, size=size)
+        fid = f"{archetype}-{seed + k:05d}"
+        cv2.imwrite(str(out / "images" / f"{fid}_left.png"), left)
+        cv2.imwrite(str(out / "images" / f"{fid}_right.png"), right)
+        rows.append(f"{fid},images/{fid}_left.png,images/{fid}_right.png,{archetype},{seed + k}")
+    (out / "frames.csv").write_text("\n".join(rows) + "\n")
+    lines = ["[archive]", f'name = "{archetype}"', "", "[camera]"]
+    lines += [f"{key} = {_toml_value(value)}" for key, value in camera.items()]
+    lines += ["", "[frames]", 'index = "frames.csv"', f"shape = [{size}, {size}]", ""]
+    (out / "catalog.toml").write_text("\n".join(lines))
+
+
+def repeat_catalog(catalog: Path, frames: int) -> Path:
+    """A catalog of ``frames`` frames cycling through ``catalog``'s pairs under new ids.
+
+    Only ``[archive]``, ``[camera]``, ``[frames]`` and ``[params]`` are kept: the truth no
+    longer matches the frame ids.
+    """
+    doc = tomllib.loads(catalog.read_text())
+    index = catalog.parent / doc["frames"]["index"]
+    with open(index, newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    out_index = catalog.parent / f"frames-x{frames}.csv"
+    with open(out_index, "w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        writer.writeheader()
+        for k in range(frames):
+            row = dict(rows[k % len(rows)])
+            row["frame_id"] = f"{row['frame_id']}-r{k // len(rows):04d}"
+            writer.writerow(row)
+    lines = []
+    for section in ("archive", "camera", "frames", "params"):
+        if section not in doc:
+            continue
+        table = dict(doc[section])
+        if section == "frames":
+            table["index"] = out_index.name
+        if section == "archive":
+            table["name"] = f"{table['name']}-x{frames}"
+        lines.append(f"[{section}]")
+        lines += [f"{key} = {_toml_value(value)}" for key, value in table.items()]
+        lines.append("")
+    out = catalog.parent / f"catalog-x{frames}.toml"
+    out.write_text("\n".join(lines))
+    return out
+
+
+def _toml_value(value: Any) -> str:
+    if isinstance(value, dict):
+        return "{ " + ", ".join(f"{k} = {_toml_value(v)}" for k, v in value.items()) + " }"
+    return json.dumps(value)  # strings, numbers, booleans and lists read back as TOML
+
+
+# -- runs ------------------------------------------------------------------------------------
+def timed_run(
+    catalog: Path,
+    rundir: Path,
+    *,
+    scheduler: str | None,
+    workers: int | None,
+    stage_package: str,
+) -> dict[str, Any]:
+    """One fresh ``run`` with wall time, steady-state rate, per-stage seconds and peak RSS."""
+    shutil.rmtree(rundir, ignore_errors=True)
+    finished: list[float] = []
+
+    def progress(done: int, total: int, frame_id: str) -> None:
+        finished.append(time.perf_counter())
+
+    with PeakRSS() as memory:
+        start = time.perf_counter()
+        summary = run(
+            catalog,
+            rundir,
+            scheduler=scheduler,
+            workers=workers,
+            stage_package=stage_package,
+            progress=progress,
+        )
+        wall = time.perf_counter() - start
+    frames = pq.read_table(rundir / "frames.parquet").to_pylist()
+    stages = [k[: -len("_seconds")] for k in frames[0] if k.endswith("_seconds")]
+    per_stage = {
+        s: statistics.fmean(f[f"{s}_seconds"] for f in frames if f[f"{s}_seconds"] is not None)
+        for s in stages
+    }
+    n = summary.done + summary.failed
+    steady = (len(finished) - 1) / (finished[-1] - finished[0]) if len(finished) > 2 else None
+    return {
+        "scheduler": scheduler or "local processes",
+        "workers": workers,
+        "frames": n,
+        "done": summary.done,
+        "failed": summary.failed,
+        "wall_s": round(wall, 2),
+        "pairs_per_s": round(n / wall, 3),
+        "steady_pairs_per_s": round(steady, 3) if steady else None,
+        "time_to_first_frame_s": round(finished[0] - start, 2) if finished else None,
+        "stage_seconds_mean": {s: round(v, 4) for s, v in per_stage.items()},
+        "task_seconds_mean": round(sum(per_stage.values()), 4),
+        "tasks_per_frame": 1,  # process_frame: one task runs every pending stage of a frame
+        **memory.as_dict(),
+    }
+
+
+def _load_frames(catalog: Path, stage_package: str, limit: int):
+    cat = load_catalog(catalog)
+    graph = build_graph(discover_stages(stage_package))
+    params = resolve_stage_params(graph, cat.params)
+    shape = cat.shape
+    contexts = []
+    for frame in cat.frames[:limit]:
+        contexts.append(
+            FrameContext(
+                frame_id=frame.frame_id,
+                archive=cat.name,
+                camera=frame.camera,
+                metadata=dict(frame.metadata),
+                left_path=frame.left,
+                right_path=frame.right,
+                image_shape=shape,
+            )
+        )
+    return graph, params, contexts
+
+
+def pure_compute(catalog: Path, stage_package: str, limit: int) -> dict[str, Any]:
+    """Every stage's ``run`` in graph order on numpy arrays, in this process, nothing stored.
+
+    One warm-up frame first (numba compilation, imports), then the timed loop.
+    """
+    graph, params, contexts = _load_frames(catalog, stage_package, limit)
+    per_stage = {s.name: 0.0 for s in graph.stages}
+
+    def one(ctx: FrameContext) -> None:
+        produced: dict[str, Any] = {}
+        for stage in graph.stages:
+            inputs = {n: produced[n] for n in stage.inputs + stage.optional_inputs if n in produced}
+            t = time.perf_counter()
+            result = stage.run(inputs, frame=ctx, params=dict(params[stage.name]))
+            per_stage[stage.name] += time.perf_counter() - t
+            produced.update(result.arrays)
+
+    one(contexts[0])
+    per_stage = dict.fromkeys(per_stage, 0.0)
+    start = time.perf_counter()
+    for ctx in contexts:
+        one(ctx)
+    wall = time.perf_counter() - start
+    n = len(contexts)
+    return {
+        "frames": n,
+        "wall_s": round(wall, 2),
+        "pairs_per_s": round(n / wall, 3),
+        "stage_seconds_mean": {s: round(v / n, 4) for s, v in per_stage.items()},
+    }
+
+
+def sgbm_alone(catalog: Path, stage_package: str, limit: int) -> dict[str, Any] | None:
+    """OpenCV StereoSGBM (the evaluation baseline) on the same frames, images preloaded."""
+    import cv2
+
+    from pipeline._baselines import sgbm_disparity
+
+    _graph, params, contexts = _load_frames(catalog, stage_package, limit)
+    cv2.setNumThreads(1)  # the engine's workers run OpenCV on one thread each
+    jobs = []
+    for ctx in contexts:
+        left = cv2.imread(str(ctx.left_path), cv2.IMREAD_GRAYSCALE)
+        right = cv2.imread(str(ctx.right_path), cv2.IMREAD_GRAYSCALE)
+        jobs.append((left, right, _disparity_range(ctx, left.shape, params.get("depth", {}))))
+    sgbm_disparity(jobs[0][0], jobs[0][1], min_disparity=jobs[0][2][0], max_disparity=jobs[0][2][1])
+    start = time.perf_counter()
+    for left, right, (lo, hi) in jobs:
+        sgbm_disparity(left, right, min_disparity=lo, max_disparity=hi)
+    wall = time.perf_counter() - start
+    pairs = jobs
+    kwargs = {"disparity_range_first_frame": jobs[0][2]}
+    return {
+        "frames": len(pairs),
+        "wall_s": round(wall, 3),
+        "pairs_per_s": round(len(pairs) / wall, 2),
+        "sgbm_kwargs": kwargs,
+    }
+
+
+def _disparity_range(ctx: FrameContext, shape: tuple[int, ...], depth: dict) -> tuple[int, int]:
+    """The range the depth stage searches for this frame (SGBM needs min >= 0)."""
+    try:
+        from stages.depth import resolve_disparity_range
+    except ImportError:
+        return 0, int(depth.get("max_disparity") or 64)
+    lo, hi = resolve_disparity_range(ctx.camera, tuple(shape), dict(depth))
+    return max(lo, 0), hi
+
+
+# -- commands --------------------------------------------------------------------------------
+def _catalog(args: argparse.Namespace, frames: int) -> Path:
+    if args.catalog:
+        base = Path(args.catalog)
+        n = len(load_catalog(base).frames)
+        return base if n == frames else repeat_catalog(base, frames)
+    unique = min(args.unique or frames, frames)
+    base = ensure_archive(args.workdir, args.archetype, unique, args.size, args.seed)
+    return base if unique == frames else repeat_catalog(base, frames)
+
+
+def cmd_throughput(args: argparse.Namespace) -> dict[str, Any]:
+    catalog = _catalog(args, args.frames[0])
+    runs = []
+    setups: list[tuple[str | None, int]] = [(None, 1), (None, 2)]
+    if args.threads:
+        setups.append(("threads", 2))
+    for scheduler, workers in setups:
+        label = f"{scheduler or 'processes'}-{workers}"
+        result = timed_run(
+            catalog,
+            args.workdir / "runs" / label,
+            scheduler=scheduler,
+            workers=workers,
+            stage_package=args.stage_package,
+        )
+        print(json.dumps(result))
+        runs.append(result)
+    one, two = runs[0], runs[1]
+    efficiency = {
+        "whole_run": round(two["pairs_per_s"] / (2 * one["pairs_per_s"]), 3),
+        "steady_state": round(two["steady_pairs_per_s"] / (2 * one["steady_pairs_per_s"]), 3)
+        if one["steady_pairs_per_s"] and two["steady_pairs_per_s"]
+        else None,
+    }
+    return {"catalog": str(catalog), "runs": runs, "parallel_efficiency": efficiency}
+
+
+def cmd_overhead(args: argparse.Namespace) -> dict[str, Any]:
+    frames = args.frames[0]
+    catalog = _catalog(args, frames)
+    pure = pure_compute(catalog, args.stage_package, frames)
+    print("pure", json.dumps(pure))
+    engine = timed_run(
+        catalog,
+        args.workdir / "runs" / "overhead-sync",
+        scheduler="synchronous",
+        workers=None,
+        stage_package=args.stage_package,
+    )
+    print("engine", json.dumps(engine))
+    sgbm = sgbm_alone(catalog, args.stage_package, frames)
+    print("sgbm", json.dumps(sgbm))
+    return {
+        "catalog": str(catalog),
+        "pure_compute": pure,
+        "engine_synchronous": engine,
+        "engine_over_pure": round(engine["wall_s"] / pure["wall_s"], 3),
+        "sgbm_alone": sgbm,
+        "engine_over_sgbm": round(engine["wall_s"] / sgbm["wall_s"], 2) if sgbm else None,
+    }
+
+
+def cmd_memory(args: argparse.Namespace) -> dict[str, Any]:
+    runs = []
+    for frames in args.frames:
+        catalog = _catalog(args, frames)
+        result = timed_run(
+            catalog,
+            args.workdir / "runs" / f"memory-{frames}",
+            scheduler=None,
+            workers=2,
+            stage_package=args.stage_package,
+        )
+        print(json.dumps(result))
+        runs.append(result)
+    first, last = runs[0], runs[-1]
+    growth = {
+        key: round(last[key] / first[key] - 1, 3)
+        for key in ("peak_rss_total_mb", "peak_rss_driver_mb", "peak_rss_worker_mb")
+    }
+    return {"runs": runs, "growth_first_to_last": growth}
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("command", choices=("throughput", "overhead", "memory", "machine"))
+    parser.add_argument("--frames", type=int, nargs="+", default=[200])
+    parser.add_argument("--unique", type=int, default=None, help="render only this many")
+    parser.add_argument("--size", type=int, default=500)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--archetype", default="mojave")
+    parser.add_argument("--threads", action="store_true", help="also 1 process x 2 threads")
+    parser.add_argument("--catalog", default=None, help="benchmark this catalog instead")
+    parser.add_argument("--stage-package", default="stages")
+    parser.add_argument("--workdir", type=Path, default=Path("/tmp/arroyo-bench"))
+    parser.add_argument("--json", type=Path, default=None, help="append results here")
+    args = parser.parse_args(argv)
+    args.workdir.mkdir(parents=True, exist_ok=True)
+    command = {
+        "throughput": cmd_throughput,
+        "overhead": cmd_overhead,
+        "memory": cmd_memory,
+        "machine": lambda _a: {},
+    }[args.command]
+    result = {
+        "command": args.command,
+        "argv": argv if argv is not None else sys.argv[1:],
+        "machine": machine(),
+        **command(args),
+    }
+    text = json.dumps(result, indent=2, default=str)
+    print(text)
+    if args.json:
+        with open(args.json, "a") as fh:
+            fh.write(json.dumps(result, default=str) + "\n")
+
+
+if __name__ == "__main__":
+    main()
