@@ -337,8 +337,10 @@ def _ground_first_hit(
     if dz >= slope and oz + dz * ta > ground_height(ground, perm, ox + dx * ta, oy + dy * ta, 0.0):
         return _INF  # climbing faster than the ground can rise: it never comes back down
     rate = abs(dz) + slope
-    # never step less than ~5 mm horizontally: the finest relief has wavelengths of centimetres
-    min_step = min(max((tb - ta) / 32.0, 0.005 / max(math.sqrt(dx * dx + dy * dy), 0.2)), tb - ta)
+    # never step less than ~5 mm horizontally (the finest relief has wavelengths of
+    # centimetres), nor less than 0.2 % of the distance travelled (a far pixel spans more)
+    horizontal = max(math.sqrt(dx * dx + dy * dy), 0.2)
+    min_step = min(max((tb - ta) / 32.0, max(0.005, 0.002 * ta) / horizontal), tb - ta)
     t = ta
     gap = oz + dz * t - ground_height(ground, perm, ox + dx * t, oy + dy * t, 0.0)
     if gap <= 0.0:
