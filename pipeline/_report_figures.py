@@ -22,6 +22,7 @@ __all__ = [
     "size_frequency_png",
     "histograms_png",
     "top_view_png",
+    "compact_png",
     "frame_quicklooks",
 ]
 
@@ -35,6 +36,7 @@ _CLASS_COLORS = {"sample": "#1f77b4", "obstacle": "#d62728"}
 _OTHER_COLOR = "#7f7f7f"
 _REFERENCE_K = (0.05, 0.1, 0.2)
 _DPI = 100
+_COMPACT_ABOVE = 64_000
 
 
 def _png(fig: Figure) -> bytes:
@@ -216,6 +218,25 @@ def top_view_png(
     return _png(fig)
 
 
+def compact_png(data: bytes, *, max_bytes: int = _COMPACT_ABOVE) -> bytes:
+    """PNG bytes re-encoded with a 256-colour palette when larger than ``max_bytes``.
+
+    Quicklooks are gray images with a few coloured overlays: a palette keeps them legible at
+    about a tenth of the size (a 500 x 500 frame: ~330 KB -> ~30 KB), which is what keeps a
+    report of 50 frames a few MB. The original is returned when that does not shrink it.
+    """
+    if len(data) <= max_bytes:
+        return data
+    from PIL import Image
+
+    image = Image.open(io.BytesIO(data)).convert("RGB")
+    palette = image.quantize(colors=256, method=Image.Quantize.FASTOCTREE, dither=Image.Dither.NONE)
+    buffer = io.BytesIO()
+    palette.save(buffer, format="PNG", compress_level=9)
+    smaller = buffer.getvalue()
+    return smaller if len(smaller) < len(data) else data
+
+
 def frame_quicklooks(
     rundir: Path,
     frame_id: str,
@@ -265,12 +286,12 @@ def frame_quicklooks(
     for name, (inputs, render) in draw.items():
         path = folder / f"{name}.png"
         if path.is_file():
-            out[name] = path.read_bytes()
+            out[name] = compact_png(path.read_bytes())
             continue
         arrays: Mapping[str, np.ndarray | None] = {n: array(n) for n in inputs}
         if any(v is None for v in arrays.values()):
             continue
         if name != "objects" and not np.isfinite(arrays[inputs[-1]]).any():
             continue  # depth never ran for this frame: nothing to draw over the image
-        out[name] = encode_png(render(arrays))
+        out[name] = compact_png(encode_png(render(arrays)))
     return out

@@ -171,3 +171,20 @@ def test_run_in_progress_needs_allow_running_and_says_so(tmp_path):
         assert not (run / "report.html").exists()
         text = build_report(run, allow_running=True).read_text()
     assert "still in progress" in text
+
+
+def test_large_quicklooks_are_embedded_with_a_palette():
+    from pipeline._report_figures import compact_png
+    from stages.quicklook import encode_png
+
+    rng = np.random.default_rng(0)
+    gray = rng.normal(128, 20, size=(300, 300)).clip(0, 255).astype(np.uint8)
+    image = cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR)
+    cv2.circle(image, (150, 150), 40, (0, 0, 255), 2)
+    data = encode_png(image)
+    small = compact_png(data, max_bytes=1000)
+    assert len(small) < len(data)
+    decoded = cv2.imdecode(np.frombuffer(small, np.uint8), cv2.IMREAD_COLOR)
+    assert decoded.shape == image.shape
+    assert np.abs(decoded.astype(int) - image.astype(int)).mean() < 8
+    assert compact_png(data, max_bytes=len(data)) is data
