@@ -34,18 +34,18 @@ def sgbm_disparity(
 ) -> np.ndarray:
     """OpenCV StereoSGBM disparity in the geometry of the reference image.
 
-    OpenCV matches with the left image as reference; for the right reference (arroyo's
-    default, as in the study) both images are mirrored and swapped, which turns "right pixel
-    ``x`` is at ``x + d`` in the left image" into OpenCV's convention, and the result is
-    mirrored back.
+    The depth stage's own ``opencv-sgbm`` option (:func:`stages._stereo.sgbm_disparity`,
+    right image as reference, OpenCV's usual settings), so the baseline is exactly what a
+    user gets with ``--set depth.method=opencv-sgbm``. For ``reference='left'`` both images
+    are mirrored and swapped, as the depth stage does.
 
     Parameters
     ----------
     left, right : (M, N) ndarray of uint8
         Rectified gray stereo pair.
     min_disparity, max_disparity : int
-        Searched disparity range in pixels, ``0 <= min_disparity < max_disparity``; the range
-        is rounded up to a multiple of 16 as OpenCV requires.
+        Inclusive disparity search range in pixels, ``max_disparity >= min_disparity + 2``;
+        OpenCV searches a multiple of 16 disparities from ``min_disparity``.
     reference : {'right', 'left'}
         Geometry of the returned map.
     block_size : int
@@ -56,40 +56,28 @@ def sgbm_disparity(
     disparity : (M, N) ndarray of float32
         Disparity in pixels (1/16 px steps), NaN where SGBM found no valid match.
     """
+    from stages._stereo import sgbm_disparity as _stage_sgbm
+
     lft, rgt = _coerce_gray("left", left), _coerce_gray("right", right)
     if lft.shape != rgt.shape:
         raise ValueError(f"left and right must have the same shape, got {lft.shape}, {rgt.shape}")
     if reference not in ("right", "left"):
         raise ValueError(f"reference must be 'right' or 'left', got {reference!r}")
-    if not 0 <= min_disparity < max_disparity:
-        raise ValueError(
-            "need 0 <= min_disparity < max_disparity, got "
-            f"min_disparity={min_disparity!r}, max_disparity={max_disparity!r}"
-        )
+    if isinstance(block_size, bool) or not isinstance(block_size, int):
+        raise TypeError(f"block_size must be an int, got {type(block_size).__name__}")
     if block_size < 3 or block_size % 2 == 0:
         raise ValueError(f"block_size must be odd and >= 3, got {block_size!r}")
-    span = max_disparity - min_disparity + 1
-    matcher = cv2.StereoSGBM_create(  # type: ignore[attr-defined]
-        minDisparity=int(min_disparity),
-        numDisparities=int(-(-span // 16) * 16),
-        blockSize=int(block_size),
-        P1=8 * block_size * block_size,
-        P2=32 * block_size * block_size,
-        disp12MaxDiff=1,
-        uniquenessRatio=10,
-        speckleWindowSize=100,
-        speckleRange=2,
-        mode=cv2.STEREO_SGBM_MODE_SGBM,
-    )
+    settings = {
+        "min_disparity": int(min_disparity),
+        "max_disparity": int(max_disparity),
+        "block_size": block_size,
+    }
     if reference == "right":
-        raw = matcher.compute(
-            np.ascontiguousarray(rgt[:, ::-1]), np.ascontiguousarray(lft[:, ::-1])
-        )[:, ::-1]
-    else:
-        raw = matcher.compute(lft, rgt)
-    disparity = raw.astype(np.float32) / 16.0
-    disparity[raw < min_disparity * 16] = np.nan
-    return np.ascontiguousarray(disparity)
+        return _stage_sgbm(lft, rgt, **settings)
+    mirrored = _stage_sgbm(
+        np.ascontiguousarray(rgt[:, ::-1]), np.ascontiguousarray(lft[:, ::-1]), **settings
+    )
+    return np.ascontiguousarray(mirrored[:, ::-1])
 
 
 def otsu_labels(image: np.ndarray, *, min_area_px: int = 30) -> np.ndarray:
