@@ -20,8 +20,10 @@ def test_run_status_graph_and_dry_run(archive, tmp_path, capsys):
     assert main(["status", str(out)]) == 0
     text = capsys.readouterr().out
     assert "blend" in text and "finished" in text
-    assert main(["run", str(archive), "--out", str(out), "--dry-run",
-                 "--set", "blend.weight=0.1"]) == 0
+    assert (
+        main(["run", str(archive), "--out", str(out), "--dry-run", "--set", "blend.weight=0.1"])
+        == 0
+    )
     plan = capsys.readouterr().out
     assert "0 frame(s) would run" not in plan and "changed" in plan
     assert main(["graph"]) == 0

@@ -11,15 +11,20 @@ from pipeline.stage import Param, Product, Stage, StageResult
 
 def _stage(name, inputs, outputs, optional=()):
     return Stage(
-        name=name, version="1", inputs=tuple(inputs),
+        name=name,
+        version="1",
+        inputs=tuple(inputs),
         outputs=tuple(Product(o, dtype="float32") for o in outputs),
         params=(Param("k", int, 1, "a knob", minimum=0),),
-        run=lambda inputs, *, frame, params: StageResult(), optional_inputs=tuple(optional),
+        run=lambda inputs, *, frame, params: StageResult(),
+        optional_inputs=tuple(optional),
     )
 
 
 def test_order_follows_products_not_declaration_order():
-    graph = build_graph([_stage("c", ["b"], ["c"]), _stage("a", [], ["a"]), _stage("b", ["a"], ["b"])])
+    graph = build_graph(
+        [_stage("c", ["b"], ["c"]), _stage("a", [], ["a"]), _stage("b", ["a"], ["b"])]
+    )
     assert [s.name for s in graph.stages] == ["a", "b", "c"]
     assert graph.downstream(["b"]) == {"b", "c"}
     assert graph.upstream(graph.stage("c")) == ("b",)

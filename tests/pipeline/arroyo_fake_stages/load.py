@@ -24,11 +24,15 @@ def run(inputs, *, frame, params):
     left, right = _read(frame.left_path), _read(frame.right_path)
     if left.shape != right.shape or (frame.image_shape and left.shape != frame.image_shape):
         raise FrameError(f"{frame.left_path}: shape {left.shape} does not match")
-    return StageResult(arrays={"left": left, "right": right}, figures={"mean": float(np.mean(left))})
+    return StageResult(
+        arrays={"left": left, "right": right}, figures={"mean": float(np.mean(left))}
+    )
 
 
 STAGE = Stage(
-    name="ingest", version="1", inputs=(),
+    name="ingest",
+    version="1",
+    inputs=(),
     outputs=(Product("left", dtype="uint8"), Product("right", dtype="uint8")),
     params=(Param("sleep", float, 0.0, "seconds to sleep (for kill tests)", minimum=0.0),),
     run=run,

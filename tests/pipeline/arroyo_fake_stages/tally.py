@@ -25,13 +25,21 @@ def run(inputs, *, frame, params):
 
 
 STAGE = Stage(
-    name="tally", version="1", inputs=("blend",),
+    name="tally",
+    version="1",
+    inputs=("blend",),
     outputs=(
         Product("tallies", kind="table", schema=SCHEMA),
-        Product("grid", dtype="float32", dims=("frame", "gy", "gx"),
-                shape=lambda image_shape, params: (params["grid"], params["grid"])),
+        Product(
+            "grid",
+            dtype="float32",
+            dims=("frame", "gy", "gx"),
+            shape=lambda image_shape, params: (params["grid"], params["grid"]),
+        ),
     ),
-    params=(Param("rows", int, 3, "rows per frame", minimum=0),
-            Param("grid", int, 4, "grid side", minimum=1)),
+    params=(
+        Param("rows", int, 3, "rows per frame", minimum=0),
+        Param("grid", int, 4, "grid side", minimum=1),
+    ),
     run=run,
 )

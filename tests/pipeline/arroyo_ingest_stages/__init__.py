@@ -1,0 +1,1 @@
+"""Stage package for bad-input tests: the real ingest, cheap fake downstream stages."""

@@ -1,0 +1,5 @@
+"""The real ingest stage."""
+
+from stages.ingest import STAGE
+
+__all__ = ["STAGE"]
