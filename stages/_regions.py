@@ -7,20 +7,38 @@ drops specks smaller than ``min_area_px`` and numbers the objects ``1..n`` dense
 order of their first pixel.
 
 Depth rules (:func:`apply_depth_rules`), each explainable on its own. ``height`` is metres
-above the fitted ground plane, smoothed first with a NaN-aware median (depth noise must not
-make objects); a pixel has *valid depth* where the smoothed height is finite.
+above the depth stage's fitted ground plane. It is first smoothed with a NaN-aware 5x5
+median, then made *relative* to the local ground (R0): a coarse median over
+``ground_window_px`` (72 px) removes dune swells and slopes the plane fit cannot follow. A
+pixel has *valid depth* where the smoothed height is finite. The ground's height noise
+``sigma`` is measured robustly (MAD) on valid pixels the intensity calls background, and
+decides between two regimes:
 
-* **R1 raised** -- a pixel with valid depth and height > ``min_height_m`` is object, even
-  when its gray level equals the ground's (a rock as bright as the sand it lies on).
-* **R2 flat** -- an intensity-object pixel with valid depth and ``|height| < flat_tol_m`` is
-  background (a shadow is dark but lies on the ground; so do stains and damp patches), unless
-  it lies within ``base_px`` pixels of a raised pixel: the foot of a rock is low too.
+Precise depth (``sigma <= min_height_m / 3``):
+
+* **R1 raised** -- a pixel with relative height > ``max(min_height_m, 3 sigma)`` is object,
+  even when its gray level equals the ground's (a rock as bright as the sand it lies on).
+* **R2 flat** -- an intensity-object pixel at or below ``max(flat_tol_m, 2 sigma)`` (capped
+  at half the raised threshold) is background -- a shadow is dark but lies on the ground; so
+  do stains, damp patches and dark texture blotches -- unless it lies within ``base_px``
+  pixels of a raised pixel (the foot of a rock is low too). Of what is left, an object with
+  fewer than ``min_raised_fraction`` raised pixels and most pixels below half the raised
+  threshold lies on the ground and is removed whole.
+
+Noisy depth (``sigma > min_height_m / 3``, typical of window-based stereo on real texture):
+pixels are not trusted one by one; no object is added from height alone (R1 off), and an
+intensity object is removed as lying flat (R2) only when most of it has valid depth and its
+median relative height plus one standard error (``1.25 sigma / sqrt(n / 25)``, one
+independent sample per 5x5 window) stays below ``0.75 min_height_m``. Small objects have a
+large standard error and keep their intensity decision.
+
 * **R3 no depth** -- where depth is invalid the intensity decision stands.
 * **R4 split** -- a pixel where the (median-smoothed) disparity drops by more than
   ``split_disparity_px`` towards a 4-neighbour is a depth edge: the surface behind an
-  occluding boundary. An object made of two or more cores (pieces of at least ``min_area_px``
-  after removing its depth edges) is split into those cores; every other pixel of the object
-  goes to its nearest core. Touching rocks at different ranges thus become separate objects.
+  occluding boundary. An object made of two or more cores (4-connected pieces of at least
+  ``min_area_px`` after removing its depth edges) is split into those cores; every other pixel
+  of the object goes to its nearest core. Touching rocks at different ranges thus become
+  separate objects.
 """
 
 from __future__ import annotations
@@ -29,8 +47,11 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
-from scipy.ndimage import distance_transform_edt, median_filter
+from scipy.ndimage import distance_transform_edt, median, median_filter
 
+# Noisy regime: an object lies flat when its median height plus one standard error stays
+# below this fraction of min_height_m (tuned on the built-in archives with the depth stage).
+_LYING_FRACTION = 0.75
 __all__ = [
     "DepthRuleStats",
     "threshold_mask",
@@ -52,6 +73,7 @@ class DepthRuleStats:
     depth_valid_fraction: float = 0.0
     raise_threshold_m: float = float("nan")
     flat_threshold_m: float = float("nan")
+    ground_sigma_m: float = float("nan")
     notes: list[str] = field(default_factory=list)
 
 
@@ -265,6 +287,8 @@ def apply_depth_rules(
     valid = np.isfinite(smoothed)
     relative = smoothed - local_ground(smoothed, window_px=ground_window_px)
     sigma = _robust_sigma(relative[valid & ~mask])
+    if sigma > min_height_m / 3.0:
+        return _noisy_depth_rules(mask, relative, valid, sigma, min_height_m, smoothing_px)
     raise_m = max(min_height_m, 3.0 * sigma)
     flat_m = min(max(flat_tol_m, 2.0 * sigma), 0.5 * raise_m)
     with np.errstate(invalid="ignore"):
@@ -300,8 +324,37 @@ def apply_depth_rules(
         depth_valid_fraction=float(valid.mean()),
         raise_threshold_m=raise_m,
         flat_threshold_m=flat_m,
+        ground_sigma_m=sigma,
     )
     return combined, stats
+
+
+def _noisy_depth_rules(mask, relative, valid, sigma, min_height_m, smoothing_px):
+    """R2 on whole objects only, with the noise of a median over the object's pixels."""
+    count, components = cv2.connectedComponents(mask.view(np.uint8), connectivity=8)
+    lying = np.zeros(count, dtype=bool)
+    if count > 1:
+        valid_components = np.where(valid, components, 0)
+        index = np.arange(1, count)
+        n_valid = np.bincount(valid_components.ravel(), minlength=count)[1:]
+        n_pixels = np.bincount(components.ravel(), minlength=count)[1:]
+        medians = np.asarray(
+            median(np.nan_to_num(relative), valid_components, index=index), dtype=np.float64
+        )
+        # neighbouring heights share a matching window: about one independent sample per window
+        independent = np.maximum(1.0, n_valid / float(smoothing_px * smoothing_px))
+        standard_error = 1.25 * sigma / np.sqrt(independent)
+        lying[1:] = (n_valid >= 0.5 * n_pixels) & (
+            medians + standard_error < _LYING_FRACTION * min_height_m
+        )
+    removed = lying[components]
+    stats = DepthRuleStats(
+        flat_removed_px=int(np.count_nonzero(removed)),
+        depth_valid_fraction=float(valid.mean()),
+        ground_sigma_m=sigma,
+        notes=[f"height noise {100 * sigma:.1f} cm: object-level flat rule only, no raised rule"],
+    )
+    return mask & ~removed, stats
 
 
 def _dense_components(mask: np.ndarray, min_area_px: int, connectivity: int = 8) -> np.ndarray:

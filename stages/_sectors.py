@@ -20,7 +20,11 @@ The background mode of each sector is chosen by *continuity*, never by size alon
    the predicted level: the sector is all object, or its ground is hidden in a shoulder.
 
 Thresholds lie on both sides of the background mode, because objects may be darker or
-lighter than the ground: at the valley (lowest smoothed bin, taking the end of a flat valley
+lighter than the ground. One extension to the study: a neighbouring mode separated from the
+background by a *shallow* valley (higher than ``merge_ratio`` times the lower peak) is taken
+as ground texture -- the lit and shaded facets of dune ripples -- and absorbed, the search
+going on outwards from it (``merge_ratio = 1`` restores the study's rule). Thresholds lie at
+the valley (lowest smoothed bin, taking the end of a flat valley
 nearest the background) between the background mode and the neighbouring mode on that side;
 where no mode lies on that side, at ``max(min_band, band_sigmas * sigma)`` from the
 background, ``sigma`` being the background peak's half width at half maximum on that side
@@ -236,17 +240,53 @@ def _half_width(smoothed: np.ndarray, peak: int, step: int) -> float:
     return float(below[0]) if below.size else float(side.size)
 
 
-def _sector_band(smoothed, background, positions, *, band_sigmas, min_band):
+def _side_threshold(smoothed, background, positions, step, *, band_sigmas, min_band, merge):
+    """Threshold on one side (step -1: darker, +1: lighter) and the width-based band.
+
+    Walks outwards from the background mode: a neighbouring mode behind a shallow valley
+    (valley higher than ``merge`` times the lower of the two peaks) is ground texture and is
+    absorbed; the first mode behind a deep valley sets the threshold at that valley; with no
+    such mode the threshold lies ``max(min_band, band_sigmas * sigma)`` beyond the outermost
+    ground mode.
+    """
+    side = positions[positions > background] if step > 0 else positions[positions < background]
+    side = np.sort(side) if step > 0 else np.sort(side)[::-1]
+    edge = background
+    for mode in side:
+        valley = _valley(smoothed, edge, int(mode))
+        floor = smoothed[int(round(valley))]
+        if floor > merge * min(smoothed[edge], smoothed[int(mode)]):
+            edge = int(mode)  # shallow valley: the same ground, another facet or tone
+            continue
+        if abs(valley - edge) >= min_band:
+            band = max(min_band, band_sigmas * _half_width(smoothed, edge, step) * _FWHM_TO_SIGMA)
+            return valley, band
+        break  # a deep valley too close to the ground: fall back on the peak width
+    band = max(min_band, band_sigmas * _half_width(smoothed, edge, step) * _FWHM_TO_SIGMA)
+    return edge + step * band, band
+
+
+def _sector_band(smoothed, background, positions, *, band_sigmas, min_band, merge):
     """Low and high thresholds around a real background mode; also the width-based bands."""
-    band = []
-    for step in (-1, 1):
-        sigma = _half_width(smoothed, background, step) * _FWHM_TO_SIGMA
-        band.append(max(min_band, band_sigmas * sigma))
-    lower = positions[positions < background]
-    upper = positions[positions > background]
-    low = _valley(smoothed, background, int(lower.max())) if lower.size else background - band[0]
-    high = _valley(smoothed, background, int(upper.min())) if upper.size else background + band[1]
-    return low, high, band[0], band[1]
+    low, band_low = _side_threshold(
+        smoothed,
+        background,
+        positions,
+        -1,
+        band_sigmas=band_sigmas,
+        min_band=min_band,
+        merge=merge,
+    )
+    high, band_high = _side_threshold(
+        smoothed,
+        background,
+        positions,
+        1,
+        band_sigmas=band_sigmas,
+        min_band=min_band,
+        merge=merge,
+    )
+    return low, high, band_low, band_high
 
 
 _NEIGHBOURS = [(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if (dy, dx) != (0, 0)]
@@ -298,6 +338,7 @@ def analyse_sectors(
     continuity_range: float = 24.0,
     band_sigmas: float = 3.0,
     min_band: float = 6.0,
+    merge_ratio: float = 0.5,
 ) -> SectorAnalysis:
     """Background level and thresholds per sector by the study's continuity rule.
 
@@ -320,6 +361,10 @@ def analyse_sectors(
     min_band : float
         ``>= 0`` gray levels: smallest distance between a width-based threshold and the
         background.
+    merge_ratio : float
+        In ``[0, 1]``: a neighbouring mode whose valley to the background is higher than this
+        fraction of the lower peak is ground texture (ripple facets), not an object; 1 never
+        merges (the study's rule).
 
     Returns
     -------
@@ -331,6 +376,7 @@ def analyse_sectors(
     for name, value, lo, hi in (
         ("prominence", prominence, 0.0, 1.0),
         ("seed_dominance", seed_dominance, 0.0, 1.0),
+        ("merge_ratio", merge_ratio, 0.0, 1.0),
     ):
         if not lo <= value <= hi:
             raise ValueError(f"{name} must be in [{lo}, {hi}], got {value}")
@@ -366,6 +412,7 @@ def analyse_sectors(
                 positions,
                 band_sigmas=band_sigmas,
                 min_band=min_band,
+                merge=merge_ratio,
             )
     _phantom_bands(level, phantom, band_low, band_high, low, high, min_band)
     n_modes = np.array([[min(len(modes[i][j][0]), 127) for j in range(n)] for i in range(n)])

@@ -106,8 +106,9 @@ def segment_image(
     prominence: float = 0.1,
     seed_dominance: float = 0.3,
     continuity_range: float = 24.0,
-    band_sigmas: float = 3.0,
+    band_sigmas: float = 3.5,
     min_band: float = 6.0,
+    merge_ratio: float = 0.35,
     min_area_px: int = 30,
     fill_holes: bool = True,
     min_height_m: float = 0.015,
@@ -116,7 +117,7 @@ def segment_image(
     min_raised_fraction: float = 0.1,
     base_px: int = 2,
     height_smoothing_px: int = 5,
-    split_disparity_px: float = 1.5,
+    split_disparity_px: float = 3.0,
 ) -> Segmentation:
     """Segment one reference image into background and numbered objects.
 
@@ -134,7 +135,7 @@ def segment_image(
         Precomputed :func:`stages._sectors.sector_histograms` (e.g. computed per tile).
     sectors : int
         Sectors per axis, ``2 <= sectors <= min(M, N) // 4``.
-    smoothing, prominence, seed_dominance, continuity_range, band_sigmas, min_band
+    smoothing, prominence, seed_dominance, continuity_range, band_sigmas, min_band, merge_ratio
         See :func:`stages._sectors.analyse_sectors`.
     min_area_px : int
         ``>= 1``; smaller objects are specks.
@@ -182,6 +183,7 @@ def segment_image(
         continuity_range=continuity_range,
         band_sigmas=band_sigmas,
         min_band=min_band,
+        merge_ratio=merge_ratio,
     )
     low = interpolate_sector_grid(analysis.low, shape)
     high = interpolate_sector_grid(analysis.high, shape)
@@ -358,13 +360,22 @@ STAGE = Stage(
         Param(
             "band_sigmas",
             float,
-            3.0,
+            3.5,
             "threshold distance without a neighbour mode, sigmas",
             None,
             0.1,
             50,
         ),
         Param("min_band", float, 6.0, "smallest threshold distance, gray levels", None, 0, 128),
+        Param(
+            "merge_ratio",
+            float,
+            0.35,
+            "shallower valleys merge modes into ground; 1 = off",
+            None,
+            0,
+            1,
+        ),
         Param("min_area_px", int, 30, "objects smaller than this are specks", None, 1),
         Param("fill_holes", bool, True, "fill background pockets inside objects"),
         Param("min_height_m", float, 0.015, "depth: floor of the raised threshold", None, 1e-4),
@@ -378,7 +389,7 @@ STAGE = Stage(
         ),
         Param("height_smoothing_px", int, 5, "median window of the height map", (1, 3, 5)),
         Param(
-            "split_disparity_px", float, 1.5, "disparity jump splitting objects; 0 = off", None, 0
+            "split_disparity_px", float, 3.0, "disparity jump splitting objects; 0 = off", None, 0
         ),
         Param(
             "tile_px",

@@ -223,3 +223,18 @@ def test_interpolation_of_a_constant_is_constant_and_validates():
     np.testing.assert_allclose(interpolate_sector_grid(np.full((4, 4), 7.0), (37, 53)), 7.0)
     with pytest.raises(ValueError, match="finite"):
         interpolate_sector_grid(np.full((4, 4), np.nan), (40, 40))
+
+
+def test_ripple_facets_merge_into_the_ground_but_rocks_do_not():
+    # lit and shaded ripple faces: two overlapping modes with a shallow valley
+    ripples = gaussian_hist((120, 7, 450), (142, 7, 450))
+    hist = grid_of(ripples, 6)
+    hist[2, 2] = gaussian_hist((120, 7, 300), (142, 7, 300), (40, 5, 300))  # plus a dark rock
+    merged = analyse_sectors(hist, merge_ratio=0.35)
+    study = analyse_sectors(hist, merge_ratio=1.0)
+    # merged: both facets lie inside the band in every sector
+    assert np.all(merged.low < 115) and np.all(merged.high > 147)
+    # the rock behind a deep valley is still outside the band
+    assert 40 < merged.low[2, 2] < 115
+    # the study's rule puts a threshold between the facets
+    assert np.any((study.low > 120) & (study.low < 142) | (study.high > 120) & (study.high < 142))

@@ -156,3 +156,13 @@ def test_bad_parameters_raise_clear_errors():
         segment_image(image.astype(np.float32), sectors=4)
     with pytest.raises(ValueError, match="reference image has"):
         segment_image(image, sectors=4, height=np.zeros((10, 10), np.float32))
+
+
+def test_segment_image_defaults_match_the_stage_defaults():
+    import inspect
+
+    signature = inspect.signature(segment_image)
+    for name, value in STAGE.defaults().items():
+        if name == "tile_px":
+            continue
+        assert signature.parameters[name].default == value, name
