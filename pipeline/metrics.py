@@ -7,11 +7,12 @@ Conventions (the answer to "what exactly does bad-2 mean here"):
   An occluded pixel has no correct match, so no method can be right or wrong there. A
   prediction that is NaN (invalid) on a scored pixel counts as bad for bad-1 and bad-2 and
   lowers the density; the end-point error is averaged only where both are valid.
-* **Segmentation** matches predicted objects to truth rocks one-to-one at IoU >= 0.5 (greedy,
-  highest IoU first; above 0.5 a match is unique anyway). Only truth rocks with at least
-  ``min_true_px`` visible pixels count. A predicted object that matches an ignored (too small)
-  rock, or lies for at least half of its area on ignored rocks, is neither a true nor a false
-  positive: it found a real rock the benchmark chose not to grade.
+* **Segmentation** matches predicted objects to truth rocks one-to-one at IoU >= 0.5 (above
+  0.5 a match is unique anyway; exact ties at 0.5 are resolved by a maximum matching). Only
+  truth rocks with at least ``min_true_px`` visible pixels count. A predicted object that
+  matches an ignored (too small) rock, or lies for at least half of its area on ignored rocks,
+  is neither a true nor a false positive: it found a real rock the benchmark chose not to
+  grade.
 * **Descriptors** are compared on matched (predicted, truth) rock pairs; errors pool over all
   pairs (medians do not average across frames).
 * **Relations** are checked against the truth geometry of the matched rocks (see
@@ -27,6 +28,7 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.optimize import linear_sum_assignment
 
 __all__ = [
     "ObjectMatches",
@@ -213,6 +215,26 @@ def _present_ids(labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return ids, lookup[labels]
 
 
+def _one_to_one(iou: np.ndarray, threshold: float) -> tuple[np.ndarray, np.ndarray]:
+    """Most pairs with IoU >= threshold, each object used once; ties broken by total IoU.
+
+    Above IoU 0.5 a match is unique anyway; at exactly 0.5 an object can have two candidates
+    (a rock split in equal halves), and a maximum matching keeps the count independent of
+    label order and of which side is the truth.
+    """
+    rows = np.flatnonzero((iou >= threshold).any(axis=1))
+    cols = np.flatnonzero((iou >= threshold).any(axis=0))
+    if rows.size == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    sub = iou[np.ix_(rows, cols)]
+    candidate = sub >= threshold
+    # a pair is worth more than any IoU total, so the count is maximised first
+    weight = np.where(candidate, min(sub.shape) + 1.0 + sub, 0.0)
+    r, c = linear_sum_assignment(weight, maximize=True)
+    keep = candidate[r, c]
+    return rows[r[keep]].astype(np.int64), cols[c[keep]].astype(np.int64)
+
+
 def match_objects(
     pred_labels: np.ndarray,
     true_labels: np.ndarray,
@@ -258,18 +280,7 @@ def match_objects(
     iou = np.divide(inter, union, out=np.zeros_like(inter), where=union > 0)
 
     graded_t = area_t >= min_true_px
-    cand_p, cand_t = np.nonzero(iou >= iou_threshold)
-    order = np.argsort(-iou[cand_p, cand_t], kind="stable")
-    used_p = np.zeros(pred_ids.size, dtype=bool)
-    used_t = np.zeros(true_ids.size, dtype=bool)
-    pairs_p, pairs_t = [], []
-    for i, j in zip(cand_p[order].tolist(), cand_t[order].tolist(), strict=True):
-        if not (used_p[i] or used_t[j]):  # a loop over candidate pairs, not pixels
-            used_p[i] = used_t[j] = True
-            pairs_p.append(i)
-            pairs_t.append(j)
-    pairs_p_arr = np.asarray(pairs_p, dtype=np.int64)
-    pairs_t_arr = np.asarray(pairs_t, dtype=np.int64)
+    pairs_p_arr, pairs_t_arr = _one_to_one(iou, iou_threshold)
     tp_mask = graded_t[pairs_t_arr]
     on_ignored = inter[:, ~graded_t].sum(axis=1)
     ignored_p = (on_ignored >= 0.5 * area_p) & (area_p > 0)

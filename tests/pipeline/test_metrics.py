@@ -286,3 +286,36 @@ def test_true_occlusions_from_range_map():
     a = relation_agreement(rel, pos, pos, occludes_truth=np.array([True, False]))
     assert a["agreement"] == 0.5
     assert relation_agreement(rel, pos, pos)["n_checked"] == 0
+
+
+@st.composite
+def _label_images(draw):
+    """Two 24x24 label images of up to 6 random (possibly overlapping) rectangles each."""
+    images = []
+    for _ in range(2):
+        labels = np.zeros((24, 24), dtype=np.int32)
+        for k in range(1, draw(st.integers(0, 6)) + 1):
+            y0, x0 = draw(st.integers(0, 20)), draw(st.integers(0, 20))
+            h, w = draw(st.integers(1, 12)), draw(st.integers(1, 12))
+            labels[y0 : y0 + h, x0 : x0 + w] = k
+        images.append(labels)
+    return images
+
+
+@settings(max_examples=60, deadline=None)
+@given(images=_label_images())
+def test_matching_invariants(images):
+    pred, truth = images
+    m = match_objects(pred, truth, min_true_px=0)
+    assert len(set(m.pred_ids.tolist())) == m.tp == len(set(m.true_ids.tolist()))
+    assert np.all(m.iou >= 0.5)
+    for p, t, iou in zip(m.pred_ids, m.true_ids, m.iou, strict=True):
+        inter = np.count_nonzero((pred == p) & (truth == t))
+        union = np.count_nonzero((pred == p) | (truth == t))
+        assert iou == pytest.approx(inter / union)
+    assert m.n_pred == len(np.unique(pred[pred > 0])) and m.n_true == len(
+        np.unique(truth[truth > 0])
+    )
+    swapped = match_objects(truth, pred, min_true_px=0)
+    assert swapped.tp == m.tp  # matching at IoU >= 0.5 does not depend on which side is truth
+    assert segmentation_scores(truth, truth, min_true_px=0)["fp"] == 0
