@@ -2,19 +2,21 @@
 
 Private helpers of :mod:`stages._stereo`; see that module for the matching rules.
 
-Layout and exactness. Images are gray levels minus 128, as float32 (products) and int32
-(statistics). Every window sum (of ``R``, ``R**2``, ``R*L``...) is an exact integer: box sums
-come from int64 integral images (per-window image statistics) and from sliding float32
-column/row sums of the products ``R[y, x] * L[y, x + d]`` (the row kernel), which stay exact
-because centred products are at most 128**2 and a window of at most 31 x 31 px keeps every
-partial sum below 2**24. Only the final ZNCC division is floating point, and it is done with
-the same operations for a pixel whatever the image or tile it sits in, so matching a tile gives
-bit-identical results to matching the whole frame.
+Layout and exactness. Images are int32 gray levels minus 128. Every window sum (of ``R``,
+``R**2``, ``R*L``...) is an exact integer: box sums come from int64 integral images
+(per-window image statistics) and from sliding int32 column/row sums of the products
+``R[y, x] * L[y, x + d]`` (the row kernel), which cannot overflow because centred products
+are at most 128**2 and a window of at most 63 x 63 px keeps every partial sum below 2**31.
+Window sums of gray levels (< 2**24) are stored as exact float32. Only the final ZNCC
+division is floating point, and it is done with the same operations for a pixel whatever
+the image or tile it sits in, so matching a tile gives bit-identical results to matching the
+whole frame.
 
-Per image row the kernel keeps, for every window half-width ``hw`` and every disparity index
-``j`` (disparity ``d = d_min + j``), the column sums ``cs[x, j]`` of ``R*L`` over the
-``2 hw + 1`` window rows and the window sums ``hs[x, j]``: O(1) work per pixel, disparity and
-window whatever the window size (box filtering), no Python loop over pixels.
+Per image row the kernel keeps, for every window (half-height ``hy``, half-width ``hw``) and
+every disparity index ``j`` (disparity ``d = d_min + j``), the column sums ``cs[x, j]`` of
+``R*L`` over the ``2 hy + 1`` window rows and the window sums ``hs[x, j]`` over ``2 hw + 1``
+columns: O(1) work per pixel, disparity and window whatever the window size (box
+filtering), no Python loop over pixels.
 """
 
 from __future__ import annotations
@@ -29,15 +31,15 @@ LR_REJECTED = np.float32(-np.inf)
 
 
 @njit(cache=True)
-def window_stats(image, hws):  # pragma: no cover - numba
+def window_stats(image, hys, hxs):  # pragma: no cover - numba
     """Per-window sums, ``1 / sqrt(n*sum(v^2) - sum(v)^2)`` and standard deviations.
 
-    ``image`` is a centred int32 image (H, W), ``hws`` the window half-widths (K,). Returns
-    three float32 arrays (K, H, W), zero where the ``(2 hw + 1)`` square window does not fit
+    ``image`` is a centred int32 image (H, W), ``hys, hxs`` the windows' half-heights and
+    half-widths (K,). Returns three float32 arrays (K, H, W), zero where the window does not fit
     in the image or is flat. The sums are exact (integers below 2**24).
     """
     h, w = image.shape
-    n_win = hws.size
+    n_win = hys.size
     integral = np.zeros((h + 1, w + 1), np.int64)
     integral2 = np.zeros((h + 1, w + 1), np.int64)
     for y in range(h):
@@ -53,14 +55,15 @@ def window_stats(image, hws):  # pragma: no cover - numba
     inv = np.zeros((n_win, h, w), np.float32)
     std = np.zeros((n_win, h, w), np.float32)
     for k in range(n_win):
-        hw = hws[k]
-        n = (2 * hw + 1) * (2 * hw + 1)
-        for y in range(hw, h - hw):
-            y0 = y - hw
-            y1 = y + hw + 1
-            for x in range(hw, w - hw):
-                x0 = x - hw
-                x1 = x + hw + 1
+        hy = hys[k]
+        hx = hxs[k]
+        n = (2 * hy + 1) * (2 * hx + 1)
+        for y in range(hy, h - hy):
+            y0 = y - hy
+            y1 = y + hy + 1
+            for x in range(hx, w - hx):
+                x0 = x - hx
+                x1 = x + hx + 1
                 s = integral[y1, x1] - integral[y0, x1] - integral[y1, x0] + integral[y0, x0]
                 s2 = integral2[y1, x1] - integral2[y0, x1] - integral2[y1, x0] + integral2[y0, x0]
                 spread = n * s2 - s * s
@@ -98,7 +101,7 @@ def _window_sums(hs, cs, hw):  # pragma: no cover - numba
     if w < 2 * hw + 1:
         return
     for j in range(n_disp):
-        acc = np.float32(0)
+        acc = np.int32(0)
         for x in range(2 * hw + 1):
             acc += cs[x, j]
         hs[hw, j] = acc
@@ -108,15 +111,15 @@ def _window_sums(hs, cs, hw):  # pragma: no cover - numba
 
 
 @njit(cache=True)
-def _refresh_row(cs, hs, ref, other, y, hw, d_min):  # pragma: no cover - numba
+def _refresh_row(cs, hs, ref, other, y, hy, hx, d_min):  # pragma: no cover - numba
     """Bring the column and window sums of one window size to row ``y``."""
-    if y == hw:
+    if y == hy:
         cs[:, :] = 0
-        for yy in range(2 * hw + 1):
+        for yy in range(2 * hy + 1):
             _update_column_sums(cs, ref, other, yy, -1, d_min)
     else:
-        _update_column_sums(cs, ref, other, y + hw, y - hw - 1, d_min)
-    _window_sums(hs, cs, hw)
+        _update_column_sums(cs, ref, other, y + hy, y - hy - 1, d_min)
+    _window_sums(hs, cs, hx)
 
 
 @njit(cache=True)
@@ -138,10 +141,12 @@ def _ncc(hs, n, rs_row, ri_row, os_row, oi_row, x, j, d_min):  # pragma: no cove
 
 
 @njit(cache=True)
-def _row_curves(curves, hs, hw, rs_row, ri_row, os_row, oi_row, d_min):  # pragma: no cover
-    """ZNCC of every column and disparity of the current row; -2 where undefined."""
+def _row_curves(curves, hs, n, hw, rs_row, ri_row, os_row, oi_row, d_min):  # pragma: no cover
+    """ZNCC of every column and disparity of the current row; -2 where undefined.
+
+    ``n`` is the window's pixel count, ``hw`` its half-width.
+    """
     w, n_disp = curves.shape
-    n = (2 * hw + 1) * (2 * hw + 1)
     curves[:, :] = -2.0
     for x in range(hw, w - hw):
         j0 = max(0, hw - x - d_min)
@@ -202,7 +207,8 @@ def adaptive_match(
     other,
     d_min,
     n_disp,
-    hws,
+    hys,
+    hxs,
     ref_sums,
     ref_inv,
     ref_std,
@@ -210,14 +216,14 @@ def adaptive_match(
     other_inv,
     min_texture,
     min_ncc,
-    distinctness,
+    margins,
     lr_tolerance,
 ):  # pragma: no cover - numba
     """Adaptive-window ZNCC matching with subpixel peak and left-right check.
 
     Parameters are centred float32 images (H, W), the first disparity and the number of
-    disparities, the window half-widths in increasing order (K,), and per-window statistics
-    of shape (K, H, W) from :func:`window_stats`.
+    disparities, the window half-widths in increasing order (K,), per-window statistics
+    of shape (K, H, W) from :func:`window_stats`, and the least peak margin per window (K,).
 
     Returns
     -------
@@ -228,49 +234,69 @@ def adaptive_match(
         Index of the accepted window, -1 where none.
     """
     h, w = ref.shape
-    n_win = hws.size
+    n_win = hys.size
     disparity = np.full((h, w), NO_PEAK, np.float32)
     window = np.full((h, w), -1, np.int8)
-    cs = np.zeros((n_win, w, n_disp), np.float32)
-    hs = np.zeros((n_win, w, n_disp), np.float32)
-    # The smallest window serves most pixels: its whole row of curves is computed in one
-    # vectorised pass and the left-right check reads it back; larger windows are
-    # evaluated only for the pixels that need them.
-    first = np.full((w, n_disp), -2.0, np.float32)
+    cs = np.zeros((n_win, w, n_disp), np.int32)
+    hs = np.zeros((n_win, w, n_disp), np.int32)
+    curves = np.full((w, n_disp), -2.0, np.float32)
     curve = np.empty(n_disp, np.float32)
     left_index = np.full(w, -1, np.int64)
     left_value = np.full(w, -np.inf, np.float32)
+    pending = np.empty(w, np.int64)
+    peak_seen = np.zeros(w, np.bool_)
     for y in range(h):
         for k in range(n_win):
-            hw = hws[k]
-            if y >= hw and y + hw < h:
-                _refresh_row(cs[k], hs[k], ref, other, y, hw, d_min)
-        if y >= hws[0] and y + hws[0] < h:
-            _row_curves(
-                first, hs[0], hws[0], ref_sums[0, y], ref_inv[0, y], other_sums[0, y],
-                other_inv[0, y], d_min,
-            )  # fmt: skip
-            _left_best(left_index, left_value, first, hws[0], d_min)
+            if y >= hys[k] and y + hys[k] < h:
+                _refresh_row(cs[k], hs[k], ref, other, y, hys[k], hxs[k], d_min)
+        n_pending = 0
         for x in range(w):
-            peak_seen = False
-            for k in range(n_win):
-                hw = hws[k]
-                if y < hw or y + hw >= h or x < hw or x + hw >= w:
-                    break  # larger windows do not fit either
+            pending[n_pending] = x
+            n_pending += 1
+        peak_seen[:] = False
+        # Window by window over the row's still-unmatched pixels. Where many pixels need a
+        # window, its whole row of curves is computed in one vectorised pass and the
+        # left-right check reads the row back (C_left(xl, d) = C_ref(xl - d, d));
+        # otherwise the few pixels are evaluated one by one. Both give identical values.
+        for k in range(n_win):
+            hw = hxs[k]
+            hy = hys[k]
+            if n_pending == 0 or y < hy or y + hy >= h:
+                break
+            n = (2 * hy + 1) * (2 * hw + 1)
+            hs_k = hs[k]
+            rs_row = ref_sums[k, y]
+            ri_row = ref_inv[k, y]
+            os_row = other_sums[k, y]
+            oi_row = other_inv[k, y]
+            textured = 0
+            kept = 0
+            for i in range(n_pending):
+                x = pending[i]
+                if x < hw or x + hw >= w:
+                    continue  # wider windows do not fit either
+                pending[kept] = x
+                kept += 1
+                if ref_std[k, y, x] >= min_texture:
+                    textured += 1
+            n_pending = kept
+            use_row = 4 * textured > w - 2 * hw
+            if use_row:
+                _row_curves(curves, hs_k, n, hw, rs_row, ri_row, os_row, oi_row, d_min)
+                _left_best(left_index, left_value, curves, hw, d_min)
+            kept = 0
+            for i in range(n_pending):
+                x = pending[i]
+                pending[kept] = x
+                kept += 1  # stays pending unless accepted below
                 if ref_std[k, y, x] < min_texture:
                     continue
                 j0 = max(0, hw - x - d_min)
                 j1 = min(n_disp, w - hw - x - d_min)
                 if j1 - j0 < 3:
                     continue
-                n = (2 * hw + 1) * (2 * hw + 1)
-                hs_k = hs[k]
-                rs_row = ref_sums[k, y]
-                ri_row = ref_inv[k, y]
-                os_row = other_sums[k, y]
-                oi_row = other_inv[k, y]
-                if k == 0:
-                    row_curve = first[x]
+                if use_row:
+                    row_curve = curves[x]
                 else:
                     for j in range(j0, j1):
                         curve[j] = _ncc(hs_k, n, rs_row, ri_row, os_row, oi_row, x, j, d_min)
@@ -278,17 +304,17 @@ def adaptive_match(
                 best, best_value, second = _peak(row_curve, j0, j1)
                 if best == j0 or best == j1 - 1 or best_value < min_ncc:
                     continue
-                if best_value - second < distinctness:
+                if best_value - second < margins[k]:
                     continue
-                peak_seen = True
-                # Left-reference curve of the matched pixel: C_left(xl, d) = C_ref(xl - d, d).
+                peak_seen[x] = True
                 xl = x + d_min + best
-                if k == 0:
+                if use_row:
                     lr_best = left_index[xl]
                 else:
+                    # same visiting order as _left_best, so ties resolve identically
                     lr_best = -1
                     lr_value = np.float32(-np.inf)
-                    for jj in range(n_disp):
+                    for jj in range(n_disp - 1, -1, -1):
                         xr = xl - d_min - jj
                         if xr < hw or xr + hw >= w:
                             continue
@@ -308,14 +334,18 @@ def adaptive_match(
                     offset = 0.5 * (offset + _parabola_offset(before, best_value, after))
                 disparity[y, x] = np.float32(d_min + best + offset)
                 window[y, x] = k
-                break
-            if window[y, x] < 0 and peak_seen:
-                disparity[y, x] = LR_REJECTED
+                kept -= 1  # accepted: drop from pending
+            n_pending = kept
+        for i in range(n_pending):
+            if peak_seen[pending[i]]:
+                disparity[y, pending[i]] = LR_REJECTED
     return disparity, window
 
 
 @njit(cache=True)
-def ncc_cost_volume(ref, other, d_min, n_disp, hw, ref_sums, ref_inv, other_sums, other_inv):
+def ncc_cost_volume(
+    ref, other, d_min, n_disp, hw, ref_sums, ref_inv, other_sums, other_inv
+):  # pragma: no cover - numba
     """Matching cost ``(1 - ZNCC) / 2`` in [0, 1] of one window, shape (H, W, D) float32.
 
     Where the window does not fit (image border, disparity beyond the other image) the cost
@@ -324,11 +354,11 @@ def ncc_cost_volume(ref, other, d_min, n_disp, hw, ref_sums, ref_inv, other_sums
     """  # pragma: no cover - numba
     h, w = ref.shape
     cost = np.full((h, w, n_disp), 0.5, np.float32)
-    cs = np.zeros((w, n_disp), np.float32)
-    hs = np.zeros((w, n_disp), np.float32)
+    cs = np.zeros((w, n_disp), np.int32)
+    hs = np.zeros((w, n_disp), np.int32)
     n = (2 * hw + 1) * (2 * hw + 1)
     for y in range(hw, h - hw):
-        _refresh_row(cs, hs, ref, other, y, hw, d_min)
+        _refresh_row(cs, hs, ref, other, y, hw, hw, d_min)
         for x in range(hw, w - hw):
             j0 = max(0, hw - x - d_min)
             j1 = min(n_disp, w - hw - x - d_min)

@@ -8,17 +8,21 @@ reference geometry, float32 pixels, NaN where invalid.
 Methods
 -------
 ``adaptive`` (default; the study's adaptive correlation window)
-    Zero-mean normalised cross-correlation (ZNCC) over square windows of increasing size
-    (default 5, 9, 15, 21 px). Per pixel the windows are tried smallest first and the first
-    one that passes all of these tests is kept:
+    Zero-mean normalised cross-correlation (ZNCC) over windows of increasing size, default
+    ``5, 11, 15x41, 31x63`` (rows x columns). Per pixel the windows are tried smallest
+    first and the first one that passes all of these tests is kept:
 
     1. *texture*: the standard deviation of the reference window is at least
-       ``min_texture`` gray levels (below it the correlation is dominated by sensor noise);
+       ``min_texture`` gray levels (a flat window has no defined correlation);
     2. *peak*: the best ZNCC over the disparity range is at least ``min_ncc`` and lies
        strictly inside the searchable range (a peak on the range's end may be a truncated
        slope of a match outside it);
-    3. *distinct*: best ZNCC minus the best ZNCC more than 1 px away from it is at least
-       ``distinctness`` (repetitive or ambiguous texture gives several near-equal peaks);
+    3. *distinct*: the best ZNCC exceeds the best ZNCC more than 1 px away from it by at
+       least ``distinctness`` standard errors of a correlation over the window's ``n``
+       pixels, ``distinctness / sqrt(n)``. Over few pixels a correlation is noisy (about
+       0.2 for 5 x 5), so a small window must win clearly; a large window's peak is
+       trustworthy with a smaller margin. Repetitive or ambiguous texture, and windows of
+       pure sensor noise, give several near-equal peaks and fail;
     4. *left-right consistent*: matching the found left pixel back to the reference with
        the same window lands within ``lr_tolerance`` px of the start.
 
@@ -35,10 +39,14 @@ Methods
     accurate *if* it carries enough signal; a larger window is only used where the smaller
     one is not reliable. This is the idea of Kanade and Okutomi's adaptive window (IEEE PAMI
     16(9), 1994), which grows the window while the estimated disparity uncertainty falls;
-    here the uncertainty test is replaced by the cheap texture and peak-distinctness
-    tests above, which need no disparity-variation model. The accepted disparity is refined
-    to subpixel precision by a parabola through the ZNCC at the best disparity and its two
-    neighbours.
+    here the uncertainty test is the statistical peak margin above, which needs no
+    disparity-variation model. Why wide windows: on the ground seen by a forward-looking
+    camera the disparity changes from row to row but hardly along a row, so a window can
+    grow along the row (more pixels, less noise) without mixing disparities; the weak
+    texture of the lab floor and the dunes needs those pixels. The accepted disparity is
+    refined to subpixel precision by parabolas through the ZNCC at the best disparity and
+    its two neighbours, in the reference curve and in the left-reference curve, averaged:
+    the window-edge bias of one appears with the opposite sign in the other.
 
     Speed: all window sums are box sums computed incrementally (O(1) per pixel, disparity
     and window), in numba kernels (:mod:`stages._ncc`); the left-right check costs no second
@@ -91,7 +99,7 @@ __all__ = [
     "sgbm_disparity",
 ]
 
-DEFAULT_WINDOWS: tuple[int, ...] = (5, 9, 15, 21)
+DEFAULT_WINDOWS = "5,11,15x41,31x63"
 METHODS: tuple[str, ...] = ("adaptive", "sgm", "opencv-sgbm")
 
 STATUS_VALID = 0
@@ -180,24 +188,36 @@ def _coerce_range(min_disparity: Any, max_disparity: Any) -> tuple[int, int]:
     return lo, hi
 
 
-def _coerce_windows(windows: Any) -> tuple[int, ...]:
+def _coerce_windows(windows: Any) -> tuple[tuple[int, int], ...]:
+    """Windows as ``((rows, cols), ...)``; ``'5,9x21'`` or ``(5, (9, 21))`` forms accepted."""
+    example = "'5,11,21,41' or '5,9x21,15x41' (rows x columns)"
     if isinstance(windows, str):
+        parts = [p for p in windows.replace(" ", "").split(",") if p]
         try:
-            windows = tuple(int(part) for part in windows.replace(" ", "").split(",") if part)
+            windows = [tuple(int(v) for v in p.lower().split("x")) for p in parts]
         except ValueError:
             raise ValueError(
-                f"windows must be comma-separated odd integers like '5,9,15,21', got {windows!r}"
+                f"windows must be comma-separated odd sizes like {example}, got {windows!r}"
             ) from None
-    sizes = tuple(int(w) for w in windows)
+    sizes: list[tuple[int, int]] = []
+    for item in windows:
+        shape = (int(item), int(item)) if np.isscalar(item) else tuple(int(v) for v in item)
+        if len(shape) == 1:
+            shape = (shape[0], shape[0])
+        if len(shape) != 2:
+            raise ValueError(f"a window is a size or rows x columns, got {item!r}; e.g. {example}")
+        sizes.append(shape)
     if not sizes:
-        raise ValueError("windows must name at least one window size, e.g. '5,9,15,21'")
-    if any(w < 3 or w % 2 == 0 for w in sizes):
+        raise ValueError(f"windows must name at least one window size, e.g. {example}")
+    if any(v < 3 or v % 2 == 0 for shape in sizes for v in shape):
         raise ValueError(f"window sizes must be odd integers >= 3, got {sizes}")
-    if max(sizes) > 31:
-        raise ValueError(f"window sizes must be at most 31 px, got {sizes}")
-    if any(b <= a for a, b in zip(sizes, sizes[1:], strict=False)):
-        raise ValueError(f"window sizes must be strictly increasing, got {sizes}")
-    return sizes
+    if any(v > 63 for shape in sizes for v in shape):
+        raise ValueError(f"window sizes must be at most 63 px, got {sizes}")
+    if any(b[0] < a[0] or b[1] < a[1] or b == a for a, b in zip(sizes, sizes[1:], strict=False)):
+        raise ValueError(
+            f"window sizes must be increasing (each window contains the previous), got {sizes}"
+        )
+    return tuple(sizes)
 
 
 def _check_method(method: str) -> str:
@@ -219,19 +239,26 @@ def _check_positive(name: str, value: float, *, allow_zero: bool = True) -> floa
 
 
 def _centred(image: np.ndarray) -> np.ndarray:
-    # Centring keeps every float32 window sum of products exact (see stages._ncc).
+    # Centring keeps every int32 window sum of products far from overflow (see stages._ncc).
     return image.astype(np.int32) - 128
 
 
+def _margins(s: dict) -> np.ndarray:
+    # The sampling noise of a correlation over n pixels is about 1 / sqrt(n): the margin a
+    # peak needs is `distinctness` such standard errors.
+    counts = np.array([rows * cols for rows, cols in s["windows"]], dtype=np.float64)
+    return s["distinctness"] / np.sqrt(counts)
+
+
 def _adaptive_coded(ref: np.ndarray, oth: np.ndarray, lo: int, hi: int, s: dict) -> np.ndarray:
-    hws = np.array([w // 2 for w in s["windows"]], dtype=np.int64)
+    hys = np.array([rows // 2 for rows, _ in s["windows"]], dtype=np.int64)
+    hxs = np.array([cols // 2 for _, cols in s["windows"]], dtype=np.int64)
     r32, o32 = _centred(ref), _centred(oth)
-    rs, ri, rsd = _ncc.window_stats(r32, hws)
-    os_, oi, _ = _ncc.window_stats(o32, hws)
+    rs, ri, rsd = _ncc.window_stats(r32, hys, hxs)
+    os_, oi, _ = _ncc.window_stats(o32, hys, hxs)
     disparity, _ = _ncc.adaptive_match(
-        r32.astype(np.float32), o32.astype(np.float32), lo, hi - lo + 1, hws, rs, ri, rsd, os_, oi,
-        float(s["min_texture"]), float(s["min_ncc"]), float(s["distinctness"]),
-        float(s["lr_tolerance"]),
+        r32, o32, lo, hi - lo + 1, hys, hxs, rs, ri, rsd, os_, oi,
+        float(s["min_texture"]), float(s["min_ncc"]), _margins(s), float(s["lr_tolerance"]),
     )  # fmt: skip
     return disparity
 
@@ -240,10 +267,10 @@ def _sgm_coded(ref: np.ndarray, oth: np.ndarray, lo: int, hi: int, s: dict) -> n
     hw = int(s["sgm_window"]) // 2
     r32, o32 = _centred(ref), _centred(oth)
     hws = np.array([hw], dtype=np.int64)
-    rs, ri, _ = _ncc.window_stats(r32, hws)
-    os_, oi, _ = _ncc.window_stats(o32, hws)
+    rs, ri, _ = _ncc.window_stats(r32, hws, hws)
+    os_, oi, _ = _ncc.window_stats(o32, hws, hws)
     cost = _ncc.ncc_cost_volume(
-        r32.astype(np.float32), o32.astype(np.float32), lo, hi - lo + 1, hw,
+        r32, o32, lo, hi - lo + 1, hw,
         rs[0], ri[0], os_[0], oi[0],
     )  # fmt: skip
     total = _sgm.aggregate(cost, float(s["sgm_p1"]), float(s["sgm_p2"]), int(s["sgm_paths"]))
@@ -258,8 +285,8 @@ _MATCHERS = {"adaptive": _adaptive_coded, "sgm": _sgm_coded, "opencv-sgbm": _sgb
 
 
 _DEFAULTS: dict[str, Any] = {
-    "method": "adaptive", "windows": DEFAULT_WINDOWS, "min_texture": 2.0, "min_ncc": 0.5,
-    "distinctness": 0.02, "lr_tolerance": 1.0, "speckle_size": 50, "speckle_range": 1.0,
+    "method": "adaptive", "windows": DEFAULT_WINDOWS, "min_texture": 1.0, "min_ncc": 0.1,
+    "distinctness": 1.0, "lr_tolerance": 1.0, "speckle_size": 50, "speckle_range": 1.0,
     "sgm_window": 5, "sgm_p1": 0.03, "sgm_p2": 0.3, "sgm_paths": 8,
 }  # fmt: skip
 
@@ -284,8 +311,8 @@ def _settings(
         raise ValueError(f"speckle_size must be an int >= 0 (0 disables), got {speckle_size!r}")
     if sgm_paths not in (4, 8):
         raise ValueError(f"sgm_paths must be 4 or 8, got {sgm_paths!r}")
-    if sgm_window < 3 or sgm_window % 2 == 0 or sgm_window > 31:
-        raise ValueError(f"sgm_window must be an odd integer in [3, 31], got {sgm_window!r}")
+    if sgm_window < 3 or sgm_window % 2 == 0 or sgm_window > 63:
+        raise ValueError(f"sgm_window must be an odd integer in [3, 63], got {sgm_window!r}")
     return {
         "method": _check_method(method),
         "windows": _coerce_windows(windows),
@@ -343,10 +370,10 @@ def match_disparity(
     min_disparity: int,
     max_disparity: int,
     method: str = "adaptive",
-    windows: tuple[int, ...] | str = DEFAULT_WINDOWS,
-    min_texture: float = 2.0,
-    min_ncc: float = 0.5,
-    distinctness: float = 0.02,
+    windows: Any = DEFAULT_WINDOWS,
+    min_texture: float = 1.0,
+    min_ncc: float = 0.1,
+    distinctness: float = 1.0,
     lr_tolerance: float = 1.0,
     speckle_size: int = 50,
     speckle_range: float = 1.0,
@@ -365,14 +392,16 @@ def match_disparity(
         Inclusive disparity search range in px, ``max_disparity >= min_disparity + 2``.
     method : {'adaptive', 'sgm', 'opencv-sgbm'}
         See the module docstring.
-    windows : tuple of odd int or str
-        Adaptive window sizes in px, increasing (``(5, 9, 15, 21)`` or ``'5,9,15,21'``).
+    windows : str or sequence of int or (int, int)
+        Adaptive windows, odd px, increasing: ``'5,11,15x41,31x63'`` (rows x columns; a
+        single number is a square), or ``(5, 11, (15, 41), (31, 63))``.
     min_texture : float
         Minimum standard deviation (gray levels) of a reference window to be matched.
     min_ncc : float in [-1, 1]
         Minimum ZNCC of an accepted peak.
     distinctness : float
-        Minimum ZNCC margin of the peak over the best value more than 1 px from it.
+        Minimum margin of the peak over the best ZNCC more than 1 px from it, in standard
+        errors of a correlation over the window (``1 / sqrt(pixels)``).
     lr_tolerance : float
         Largest left-right disagreement in px that still counts as consistent.
     speckle_size : int
@@ -448,7 +477,7 @@ def match_tiled(
     ref, oth = _coerce_pair(reference, other)
     lo, hi = _coerce_range(min_disparity, max_disparity)
     s = check_settings(**settings)
-    largest = max(max(s["windows"]), s["sgm_window"], 5)
+    largest = max(max(max(shape) for shape in s["windows"]), s["sgm_window"], 5)
     rows, cols = tile_overlap(
         min_disparity=lo, max_disparity=hi, largest_window=largest,
         speckle_size=s["speckle_size"],

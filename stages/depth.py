@@ -51,28 +51,33 @@ PARAMS: tuple[Param, ...] = (
         "largest disparity searched (px); 0 = derive from the camera and nearest_range_m",
         minimum=0,
         maximum=2000,
-    ),  # fmt: skip
+    ),
     Param(
         "nearest_range_m",
         float,
         0.0,
         "nearest range anything can be at (m), sets max_disparity = f*b/range; 0 = unknown",
         minimum=0.0,
-    ),  # fmt: skip
-    Param("windows", str, "5,9,15,21", "adaptive ZNCC window sizes (odd px, increasing)"),
-    Param("min_texture", float, 2.0, "least gray-level std of a matched window", minimum=0.0),
-    Param("min_ncc", float, 0.5, "least ZNCC of an accepted peak", minimum=-1.0, maximum=1.0),
+    ),
+    Param(
+        "windows",
+        str,
+        _stereo.DEFAULT_WINDOWS,
+        "adaptive ZNCC windows, odd px, increasing; 'RxC' = rows x columns",
+    ),
+    Param("min_texture", float, 1.0, "least gray-level std of a matched window", minimum=0.0),
+    Param("min_ncc", float, 0.1, "least ZNCC of an accepted peak", minimum=-1.0, maximum=1.0),
     Param(
         "distinctness",
         float,
-        0.02,
-        "least ZNCC margin of the peak over the runner-up",
+        1.0,
+        "least margin of the peak over the runner-up, in standard errors (1/sqrt(pixels))",
         minimum=0.0,
-    ),  # fmt: skip
+    ),
     Param("lr_tolerance", float, 1.0, "left-right check tolerance (px)", minimum=0.0),
     Param("speckle_size", int, 50, "largest region removed as a speckle (px); 0 = off", minimum=0),
     Param("speckle_range", float, 1.0, "disparity step joining a region (px)", minimum=0.0625),
-    Param("sgm_window", int, 5, "sgm: ZNCC window (odd px)", minimum=3, maximum=31),
+    Param("sgm_window", int, 5, "sgm: ZNCC window (odd px)", minimum=3, maximum=63),
     Param("sgm_p1", float, 0.03, "sgm: penalty of a 1 px step (cost units)", minimum=0.0),
     Param("sgm_p2", float, 0.3, "sgm: penalty of a larger jump (cost units)", minimum=0.0),
     Param("sgm_paths", int, 8, "sgm: aggregation paths", choices=(4, 8)),
@@ -82,14 +87,14 @@ PARAMS: tuple[Param, ...] = (
         1024,
         "frames with a side above this are matched per tile; 0 = never",
         minimum=0,
-    ),  # fmt: skip
+    ),
     Param(
         "ground_inlier_px",
         float,
         1.0,
         "ground-plane inlier band (px of disparity)",
         minimum=0.05,
-    ),  # fmt: skip
+    ),
 )
 
 
@@ -104,7 +109,7 @@ OUTPUTS: tuple[Product, ...] = (
         "residual",
         "left minus pseudo-left (right warped by disparity), NaN undefined",
         "gray level",
-    ),  # fmt: skip
+    ),
     _image("height", "height above the fitted ground plane, NaN invalid", "m"),
     Product(
         "ground_plane",
@@ -116,7 +121,7 @@ OUTPUTS: tuple[Product, ...] = (
             "long_name": "ground plane a,b,c,d in the camera frame (a*X+b*Y+c*Z+d=0, unit "
             "normal pointing up), NaN when no fit",
         },
-    ),  # fmt: skip
+    ),
 )
 
 

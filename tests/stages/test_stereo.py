@@ -98,12 +98,13 @@ def test_occluded_pixels_are_invalid_after_the_lr_check():
     m = match_disparity(right, left, min_disparity=0, max_disparity=20, speckle_size=0)
     assert occluded.sum() == 8 * 24
     invalid = m.status != STATUS_VALID
-    # Away from the band's edges (half a small window) every occluded pixel is rejected;
-    # at the edges windows reach into visible surfaces, the known limit of window matching.
+    # Away from the band's edges (half the smallest window) the occluded pixels are
+    # rejected; at the edges windows reach into visible surfaces, the known limit of
+    # window matching (foreground "fattening").
     core = occluded.copy()
-    core[:22], core[42:], core[:, 76:] = False, False, False
-    assert np.mean(invalid[core]) >= 0.9
-    assert np.mean(invalid[occluded]) >= 0.7
+    core[:22], core[42:], core[:, 76:], core[:, :72] = False, False, False, False
+    assert np.mean(invalid[core]) >= 0.95
+    assert np.mean(invalid[occluded]) >= 0.65
     seen = np.isfinite(m.disparity) & ~occluded
     assert np.mean(np.abs(m.disparity[seen] - truth[seen]) <= 1) > 0.97
     assert m.lr_consistency < 1.0
@@ -178,7 +179,7 @@ def test_speckles_are_removed_and_large_regions_kept():
         ({"windows": "5,8"}, ValueError, "odd"),
         ({"windows": "9,5"}, ValueError, "increasing"),
         ({"windows": "5,x"}, ValueError, "comma-separated"),
-        ({"windows": (5, 41)}, ValueError, "at most 31"),
+        ({"windows": (5, 65)}, ValueError, "at most 63"),
         ({"max_disparity": 1}, ValueError, "at least 2"),
         ({"max_disparity": 10.5}, TypeError, "must be an int"),
         ({"min_ncc": 2.0}, ValueError, "min_ncc"),

@@ -1,0 +1,73 @@
+"""Depth matching speed, single-threaded: arroyo's methods against OpenCV StereoSGBM.
+
+Target (issue 5): the default method matches a 500 x 500 pair over 64 disparities at
+>= 5 pairs/s per core (<= 200 ms). numba and OpenCV are pinned to one thread, every method
+runs on the same pairs in the same process, and the median of the repeats is reported.
+
+Usage::
+
+    PYTHONPATH=. .venv/bin/python benchmarks/bench_depth_speed.py [--repeats 5] [--size 500]
+        [--archetypes mojave,lava,lab,dunes] [--methods adaptive,sgm]
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ["NUMBA_NUM_THREADS"] = "1"  # before numba is imported
+
+import argparse  # noqa: E402
+import statistics  # noqa: E402
+import time  # noqa: E402
+
+import cv2  # noqa: E402
+
+from pipeline._baselines import sgbm_disparity  # noqa: E402
+from pipeline.synth import render_pair  # noqa: E402
+from stages._stereo import match_disparity  # noqa: E402
+
+D_MAX = 63  # 64 disparities, 0..63
+
+
+def _median_seconds(fn, repeats: int) -> float:
+    fn()  # warm-up: numba compilation / caches
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--size", type=int, default=500)
+    parser.add_argument("--archetypes", default="mojave,lava,lab,dunes")
+    parser.add_argument("--methods", default="adaptive,sgm")
+    args = parser.parse_args()
+    cv2.setNumThreads(1)
+    methods = args.methods.split(",")
+    print(f"{args.size}x{args.size}, disparities 0..{D_MAX}, 1 thread, median of {args.repeats}")
+    print(f"{'archetype':<10}{'method':<10}{'ms/pair':>9}{'pairs/s':>9}{'x sgbm':>8}")
+    for archetype in args.archetypes.split(","):
+        left, right, *_ = render_pair(archetype, seed=0, size=args.size)
+        sgbm = _median_seconds(
+            lambda lft=left, rgt=right: sgbm_disparity(
+                lft, rgt, min_disparity=0, max_disparity=D_MAX
+            ),
+            args.repeats,
+        )
+        for method in methods:
+            secs = _median_seconds(
+                lambda m=method, lft=left, rgt=right: match_disparity(
+                    rgt, lft, min_disparity=0, max_disparity=D_MAX, method=m
+                ),
+                args.repeats,
+            )
+            print(f"{archetype:<10}{method:<10}{secs * 1e3:9.1f}{1 / secs:9.2f}{secs / sgbm:8.2f}")
+        print(f"{archetype:<10}{'sgbm':<10}{sgbm * 1e3:9.1f}{1 / sgbm:9.2f}{1.0:8.2f}")
+
+
+if __name__ == "__main__":
+    main()
