@@ -1,13 +1,21 @@
-"""Descriptor and relation accuracy of the describe stage on TRUE inputs.
+"""Descriptor and relation accuracy of the describe stage.
 
-Renders pairs with ``pipeline.synth.pair.render_pair``, feeds the truth labels, disparity,
-range and height to :func:`stages.describe.describe_frame` (so only the describe stage's own
-errors are measured, not segmentation or matching), and scores against the truth rocks with
-``pipeline.metrics`` (rocks within ``--near`` m of the camera for the descriptor targets).
+Renders pairs with ``pipeline.synth.pair.render_pair`` and runs
+:func:`stages.describe.describe_frame` on
+
+* ``--inputs truth``: the truth labels, disparity, range and height (only the describe
+  stage's own errors);
+* ``--inputs depth``: truth labels with the depth stage's disparity, range, height and ground
+  plane (describe + matching errors);
+* ``--inputs pipeline``: depth stage + segment stage (objects matched to truth rocks at
+  IoU >= 0.5 with ``pipeline.metrics.match_objects``).
+
+Scores against the truth rocks with ``pipeline.metrics`` (rocks within ``--near`` m of the
+camera for the descriptor targets; relations between matched rocks).
 
 Usage::
 
-    PYTHONPATH=. .venv/bin/python benchmarks/bench_describe.py --frames 4 --size 500
+    PYTHONPATH=. .venv/bin/python benchmarks/bench_describe.py --frames 4 --inputs truth
 """
 
 from __future__ import annotations
@@ -18,24 +26,70 @@ import time
 import numpy as np
 
 from pipeline.camera import Camera
-from pipeline.metrics import descriptor_errors, relation_agreement, true_occlusions
+from pipeline.metrics import (
+    descriptor_errors,
+    match_objects,
+    relation_agreement,
+    true_occlusions,
+)
+from pipeline.stage import FrameContext
 from pipeline.synth.pair import render_pair
 from stages.describe import describe_frame
 
 
-def _frame(archetype: str, seed: int, size: int) -> dict:
+def _frame(archetype: str, seed: int, size: int, inputs: str) -> dict:
     left, right, truth, rocks, cam = render_pair(archetype, seed=seed, size=size)
     camera = Camera(**cam)
+    labels = truth["labels"]
+    depth = {k: truth[k] for k in ("disparity", "range", "height")}
+    plane = None
+    if inputs in ("depth", "pipeline"):
+        from stages import depth as depth_stage
+
+        frame = FrameContext(frame_id=f"{archetype}{seed}", archive=archetype, camera=camera)
+        out = depth_stage.STAGE.run(
+            {"left": left, "right": right}, frame=frame, params=depth_stage.STAGE.defaults()
+        ).arrays
+        depth = {k: out[k] for k in ("disparity", "range", "height")}
+        plane = out["ground_plane"]
+    if inputs == "pipeline":
+        from stages import segment as segment_stage
+
+        frame = FrameContext(frame_id=f"{archetype}{seed}", archive=archetype, camera=camera)
+        labels = segment_stage.STAGE.run(
+            {"right": right, "disparity": depth["disparity"], "height": depth["height"]},
+            frame=frame,
+            params=segment_stage.STAGE.defaults(),
+        ).arrays["labels"]
     start = time.perf_counter()
     desc, rel, figures = describe_frame(
-        truth["labels"],
+        labels,
         right,
-        truth["disparity"],
-        truth["range"],
-        truth["height"],
+        depth["disparity"],
+        depth["range"],
+        depth["height"],
         camera=camera,
+        ground_plane=plane,
     )
     seconds = time.perf_counter() - start
+    if inputs == "pipeline":
+        matches = match_objects(labels, truth["labels"])
+        rock_of = dict(zip(matches.pred_ids.tolist(), matches.true_ids.tolist(), strict=True))
+    else:
+        rock_of = {int(i): int(i) for i in desc["object_id"]}
+    keep = np.array([int(i) in rock_of for i in desc["object_id"]], dtype=bool)
+    desc = {k: v[keep] for k, v in desc.items()}
+    rkeep = np.array(
+        [
+            int(s) in rock_of and int(o) in rock_of
+            for s, o in zip(rel["subject_id"], rel["object_id"], strict=True)
+        ],
+        dtype=bool,
+    )
+    rel = {k: v[rkeep] for k, v in rel.items()}
+    rel["subject_id"] = np.array([rock_of[int(i)] for i in rel["subject_id"]], dtype=np.int64)
+    rel["object_id"] = np.array([rock_of[int(i)] for i in rel["object_id"]], dtype=np.int64)
+    desc["object_id"] = np.array([rock_of[int(i)] for i in desc["object_id"]], dtype=np.int64)
     by_id = {r["rock_id"]: r for r in rocks}
     ids = desc["object_id"].tolist()
     truth_cols = {
@@ -61,7 +115,7 @@ def _frame(archetype: str, seed: int, size: int) -> dict:
     }
 
 
-def _cat(frames: list[dict], key: str, sub: str | None = None) -> dict:
+def _cat(frames: list[dict], key: str) -> dict:
     parts = [f[key] for f in frames]
     names = parts[0].keys()
     return {n: np.concatenate([p[n] for p in parts]) for n in names}
@@ -73,13 +127,14 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=3)
     parser.add_argument("--size", type=int, default=500)
     parser.add_argument("--near", type=float, default=2.0)
+    parser.add_argument("--inputs", choices=("truth", "depth", "pipeline"), default="truth")
     args = parser.parse_args()
     print(
         f"{'archetype':9} {'rocks':>5} {'near':>5} {'|dh|max':>8} {'|dh|top':>8} "
         f"{'dw/w':>6} {'dw/wx':>6} {'dr/r':>6} {'class':>6} {'rel':>6} {'occl':>6} {'ms':>6}"
     )
     for archetype in args.archetypes.split(","):
-        frames = [_frame(archetype, seed, args.size) for seed in range(args.frames)]
+        frames = [_frame(archetype, seed, args.size, args.inputs) for seed in range(args.frames)]
         desc = _cat(frames, "desc")
         truth = _cat(frames, "truth")
         err = descriptor_errors(desc, truth, near_range_m=args.near)

@@ -3,27 +3,26 @@
 Each function measures one thing on one object, given the object's pixels (rows, columns,
 values) or a small crop around it, so every rule can be tested on a hand-made 20x20 array.
 :func:`describe_objects` runs them over every object of a label image and returns the
-descriptor columns (see ``docs/design.md``).
-
-Ground frame
-------------
-Positions and heights are expressed in the ground frame of ``pipeline/camera.py`` (x right,
-y forward, z up, origin on the ground below the reference camera). When the camera height
-and pitch are known, ``Camera.camera_to_ground`` defines it; otherwise the depth stage's
-fitted ground plane does (:meth:`GroundFrame.from_plane`): z along the plane's unit normal,
-y along the optical axis projected on the plane, x = y cross z, origin at the foot of the
-camera on the plane.
+descriptor columns (see ``docs/design.md``). The ground frame and the per-object depth
+denoising (a robust quadratic disparity surface) live in :mod:`stages._ground`.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 from scipy import ndimage
 
 from pipeline.camera import Camera
+
+from ._ground import (
+    GroundFrame,
+    fit_disparity_surface,
+    frame_ground,
+    pixel_points,
+    silhouette_on_ground,
+)
 
 __all__ = [
     "GroundFrame",
@@ -75,79 +74,6 @@ DESCRIPTOR_COLUMNS: dict[str, str] = {
     "depth_unreliable": "bool",
 }
 """Descriptor column names and NumPy dtypes (``'str'``: Python/NumPy unicode strings)."""
-
-
-@dataclass(frozen=True)
-class GroundFrame:
-    """A ground-aligned frame expressed in reference-camera coordinates.
-
-    Attributes
-    ----------
-    origin : (3,) ndarray of float64
-        Ground-frame origin (on the ground below the camera), camera frame, metres.
-    right, forward, up : (3,) ndarray of float64
-        Unit axes x, y, z of the ground frame in the camera frame (right = forward x up).
-    source : {'camera', 'plane'}
-        Whether the camera pose or the fitted ground plane defined the frame.
-    """
-
-    origin: np.ndarray
-    right: np.ndarray
-    forward: np.ndarray
-    up: np.ndarray
-    source: str
-
-    @classmethod
-    def from_camera(cls, camera: Camera) -> GroundFrame:
-        """The frame ``Camera.camera_to_ground`` uses (needs height_m and pitch_deg)."""
-        if not camera.has_pose:
-            raise ValueError(
-                "GroundFrame.from_camera needs camera height_m and pitch_deg; got "
-                f"height_m={camera.height_m!r}, pitch_deg={camera.pitch_deg!r}; "
-                "use GroundFrame.from_plane with a fitted ground plane instead"
-            )
-        assert camera.pitch_deg is not None and camera.height_m is not None
-        theta = math.radians(camera.pitch_deg)
-        up = np.array([0.0, -math.cos(theta), -math.sin(theta)])
-        forward = np.array([0.0, -math.sin(theta), math.cos(theta)])
-        return cls(-camera.height_m * up, np.cross(forward, up), forward, up, "camera")
-
-    @classmethod
-    def from_plane(cls, plane: np.ndarray) -> GroundFrame:
-        """Frame from a plane ``a X + b Y + c Z + d = 0`` (camera frame, normal pointing up).
-
-        Parameters
-        ----------
-        plane : (4,) array_like of float
-            Plane coefficients; ``(a, b, c)`` is normalised here, ``d > 0`` puts the camera
-            above the ground.
-        """
-        coef = np.asarray(plane, dtype=np.float64).reshape(-1)
-        if coef.shape != (4,) or not np.all(np.isfinite(coef)):
-            raise ValueError(
-                f"ground plane must be 4 finite numbers (a, b, c, d), got {coef.tolist()}"
-            )
-        norm = float(np.linalg.norm(coef[:3]))
-        if norm == 0.0:
-            raise ValueError("ground plane normal (a, b, c) must not be zero")
-        up, d = coef[:3] / norm, coef[3] / norm
-        if d <= 0:
-            raise ValueError(
-                f"ground plane must have the camera above it (d > 0 with the normal up), got "
-                f"d={d:.4g}; flip the sign of all four coefficients if the normal points down"
-            )
-        axis = np.array([0.0, 0.0, 1.0])
-        forward = axis - (axis @ up) * up
-        if np.linalg.norm(forward) < 1e-9:  # looking straight down: image up is forward
-            axis = np.array([0.0, -1.0, 0.0])
-            forward = axis - (axis @ up) * up
-        forward /= np.linalg.norm(forward)
-        return cls(-d * up, np.cross(forward, up), forward, up, "plane")
-
-    def to_ground(self, points: np.ndarray) -> np.ndarray:
-        """Camera-frame points ``(..., 3)`` to ground-frame points ``(..., 3)``."""
-        rel = np.asarray(points, dtype=np.float64) - self.origin
-        return np.stack([rel @ self.right, rel @ self.forward, rel @ self.up], axis=-1)
 
 
 def robust_extent(values: np.ndarray, *, low: float = 2.0, high: float = 98.0) -> float:
@@ -474,23 +400,6 @@ def _coerce_frame_inputs(
     return tuple(out)
 
 
-def _coerce_plane(ground_plane: np.ndarray | None) -> np.ndarray | None:
-    if ground_plane is None:
-        return None
-    coef = np.asarray(ground_plane, dtype=np.float64).reshape(-1)
-    if coef.shape != (4,):
-        raise ValueError(f"ground_plane must hold 4 coefficients, got shape {coef.shape}")
-    return coef if np.all(np.isfinite(coef)) else None
-
-
-def frame_ground(camera: Camera, ground_plane: np.ndarray | None) -> GroundFrame | None:
-    """The ground frame of a frame: camera pose first, else fitted plane, else None."""
-    if camera.has_pose:
-        return GroundFrame.from_camera(camera)
-    plane = _coerce_plane(ground_plane)
-    return GroundFrame.from_plane(plane) if plane is not None else None
-
-
 def _empty_columns() -> dict[str, np.ndarray]:
     return {
         name: np.array([], dtype=str if kind == "str" else kind)
@@ -527,8 +436,13 @@ def describe_objects(
     range_m : (M, N) ndarray of float32
         Z = f b / d, metres, NaN where invalid.
     height : (M, N) ndarray of float32
-        Height above the ground plane, metres, NaN where unknown. When it has no finite
-        value at all, heights come from the ground frame's z instead.
+        Height above the ground plane, metres, NaN where unknown. With a ground frame it
+        only sets the ground level under each object (``z_m``); heights are then measured
+        on the object's denoised disparity surface. Without a ground frame it is used as
+        is. When it has no finite value, the ground frame's z = 0 is the ground. Objects
+        with fewer than 3 valid-depth pixels but a ground frame are measured by
+        :func:`stages._ground.silhouette_on_ground` (range, position, width and height from
+        the ground plane under their lowest pixel; ``range_err_m`` NaN).
     camera : Camera
     ground_plane : (4,) ndarray of float64, optional
         Fitted plane (camera frame, normal up); used when the camera pose is unknown.
@@ -555,13 +469,10 @@ def describe_objects(
         raise TypeError(f"camera must be a pipeline.camera.Camera, got {type(camera).__name__}")
     ground = frame_ground(camera, ground_plane)
     disp = np.where(disp > 0, disp, np.nan)
-    points = camera.camera_points(disp)
-    ground_pts = ground.to_ground(points) if ground is not None else None
-    if not np.isfinite(hgt).any() and ground_pts is not None:
-        hgt = ground_pts[..., 2]
+    has_height_map = bool(np.isfinite(hgt).any())
     slices = ndimage.find_objects(np.where(lab > 0, lab, 0))
     rows_out: list[dict[str, object]] = []
-    h_img, w_img = lab.shape
+    h_img, w_img = shape = lab.shape
     cx, cy = camera.principal_point(lab.shape)
     f = camera.focal_px
     kb = camera.k_m_px
@@ -585,21 +496,41 @@ def describe_objects(
         z_med = float(np.median(range_px[valid])) if valid.any() else math.nan
         range_err = z_med**2 / kb * disparity_error_px
         heights = hgt[crop][mask]
-        h_top, top_row = top_height(rows, heights)
-        finite_h = heights[np.isfinite(heights)]
-        h_max = float(np.percentile(finite_h, 98)) if finite_h.size else math.nan
         x_m = y_m = z_m = length = height_err = math.nan
-        if ground_pts is not None and valid.any():
-            gp = ground_pts[crop][mask][valid]
-            x_m, y_m = float(np.median(gp[:, 0])), float(np.median(gp[:, 1]))
-            ground_level = gp[:, 2] - heights[valid]
-            ground_level = ground_level[np.isfinite(ground_level)]
-            z_m = float(np.median(ground_level)) if ground_level.size else 0.0
-            width, length = footprint_dimensions(gp[:, 0], gp[:, 1], pixel_m=z_med / f)
+        if ground is not None and np.count_nonzero(valid) >= _MIN_DEPTH_PX:
+            # ground level under the object: the height map's reference in this frame
+            raw = ground.to_ground(
+                pixel_points(rows[valid], cols[valid], disp_px[valid], camera=camera, shape=shape)
+            )
+            level = raw[:, 2] - heights[valid] if has_height_map else np.zeros(0)
+            level = level[np.isfinite(level)]
+            z_m = float(np.median(level)) if level.size else 0.0
+            # shape measures on the denoised surface (see stages._ground)
+            smooth = ground.to_ground(
+                pixel_points(
+                    rows,
+                    cols,
+                    fit_disparity_surface(rows, cols, disp_px),
+                    camera=camera,
+                    shape=shape,
+                )
+            )
+            heights = smooth[:, 2] - z_m
+            x_m, y_m = float(np.median(smooth[:, 0])), float(np.median(smooth[:, 1]))
+            width, length = footprint_dimensions(smooth[:, 0], smooth[:, 1], pixel_m=z_med / f)
+        elif ground is not None:  # no depth: stand the silhouette on the ground plane
+            sil = silhouette_on_ground(rows, cols, camera=camera, ground=ground, shape=shape)
+            z_med, x_m, y_m, z_m, width = (
+                sil["range_m"], sil["x_m"], sil["y_m"], 0.0, sil["width_m"],
+            )  # fmt: skip
+            heights = np.where(rows == rows.min(), sil["height_m"], np.nan)
         else:  # no ground frame: the widest image row at its own depth
             width = widest_row_width_m(
                 rows, cols, np.where(valid, range_px, np.nan), focal_px=f, fallback_z=z_med
             )
+        h_top, top_row = top_height(rows, heights)
+        finite_h = heights[np.isfinite(heights)]
+        h_max = float(np.percentile(finite_h, 98)) if finite_h.size else math.nan
         width_err = math.hypot(width * range_err / z_med, z_med / f) if valid.any() else math.nan
         if ground is not None and top_row >= 0 and math.isfinite(h_top):
             top = rows == top_row
@@ -665,4 +596,6 @@ def describe_objects(
 
 
 _BACKGROUND_OCCLUSION_SHARE = 0.1
+_MIN_DEPTH_PX = 3
+"""Objects with fewer valid-depth pixels are measured from their silhouette on the ground."""
 """Share of boundary pairs with a nearer background above which an object is occluded."""

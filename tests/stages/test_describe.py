@@ -273,3 +273,25 @@ def test_bad_ground_plane_shape_is_rejected():
     labels, gray, disparity, rng, height = plate_scene(CAMERA, SHAPE, [])
     with pytest.raises(ValueError, match="4 coefficients"):
         describe_frame(labels, gray, disparity, rng, height, camera=CAMERA, ground_plane=[1, 2])
+
+
+def test_object_without_depth_stands_on_the_ground_plane():
+    x0, y0, width, plate_h = 0.1, 1.7, 0.25, 0.12
+    labels, gray, disparity, rng, height = plate_scene(
+        CAMERA, SHAPE, [(x0, y0, width, plate_h, 60)]
+    )
+    mask = labels == 1
+    z_base = float(rng[mask].max())
+    for arr in (disparity, rng, height):
+        arr[mask] = np.nan
+    desc, _, _ = describe_frame(labels, gray, disparity, rng, height, camera=CAMERA)
+    row = _row(desc, 1)
+    pixel_m = z_base / CAMERA.focal_px
+    assert row["depth_valid_fraction"] == 0.0 and row["depth_unreliable"]
+    assert row["range_m"] == pytest.approx(z_base, rel=0.02)
+    assert math.isnan(row["range_err_m"])
+    assert row["y_m"] == pytest.approx(y0, abs=0.02)
+    assert row["x_m"] == pytest.approx(x0, abs=2 * pixel_m)
+    assert row["width_m"] == pytest.approx(width, abs=2 * pixel_m)
+    assert row["height_m"] == pytest.approx(plate_h, abs=2 * pixel_m)
+    assert row["size_class"] == "obstacle"

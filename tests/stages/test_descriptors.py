@@ -254,7 +254,8 @@ def test_describe_objects_image_fields_and_appearance():
     gray[labels == 2] = 200
     gray[12:20:2, 15:18] = 210  # row stripes inside object 2
     nan = _flat((20, 20), np.nan)
-    cols = describe_objects(labels, gray, nan, nan, nan, camera=CAMERA)
+    no_pose = Camera(focal_px=200.0, baseline_m=0.2)
+    cols = describe_objects(labels, gray, nan, nan, nan, camera=no_pose)
     np.testing.assert_array_equal(cols["object_id"], [1, 2])
     np.testing.assert_array_equal(cols["area_px"], [40, 24])
     np.testing.assert_allclose(cols["centroid_x"], [6.5, 16.0])
@@ -273,7 +274,7 @@ def test_describe_objects_image_fields_and_appearance():
     )
     np.testing.assert_allclose(cols["ellipse_angle_deg"], [0.0, 90.0], atol=1e-9)
     np.testing.assert_array_equal(cols["touches_border"], [False, True])
-    # no depth at all: NaN metric fields, unreliable depth, conservative class
+    # no depth and no ground frame: NaN metric fields, unreliable depth, conservative class
     assert np.isnan(cols["range_m"]).all() and np.isnan(cols["width_m"]).all()
     np.testing.assert_array_equal(cols["depth_valid_fraction"], [0.0, 0.0])
     np.testing.assert_array_equal(cols["depth_unreliable"], [True, True])

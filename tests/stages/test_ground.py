@@ -1,0 +1,104 @@
+"""Tests of the ground frame helpers and the per-object disparity surface fit."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from pipeline.camera import Camera
+from stages._ground import (
+    GroundFrame,
+    fit_disparity_surface,
+    pixel_points,
+    silhouette_on_ground,
+)
+
+CAMERA = Camera(focal_px=200.0, baseline_m=0.2, height_m=1.2, pitch_deg=30.0)
+
+
+def _blob(n: int = 15):
+    rows, cols = np.nonzero(np.ones((n, n), dtype=bool))
+    return rows + 40, cols + 60
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.lists(st.floats(-0.05, 0.05), min_size=6, max_size=6), st.floats(5.0, 40.0))
+def test_fit_recovers_an_exact_quadratic(coefs, offset):
+    rows, cols = _blob()
+    x, y = cols - 67.0, rows - 47.0
+    a, b, c, d, e, g = coefs
+    disparity = offset + a * x + b * y + c * x * x + d * x * y + e * y * y + g
+    fitted = fit_disparity_surface(rows, cols, disparity)
+    np.testing.assert_allclose(fitted, disparity, atol=1e-6)
+
+
+def test_fit_averages_noise_and_ignores_outliers():
+    rng = np.random.default_rng(3)
+    rows, cols = _blob(20)
+    truth = 20.0 + 0.02 * (cols - 70) - 0.03 * (rows - 50)
+    noisy = truth + rng.normal(0, 0.5, truth.shape)
+    noisy[:15] = 2.0  # a run of pixels that took the far ground's disparity
+    noisy[20:30] = np.nan
+    fitted = fit_disparity_surface(rows, cols, noisy)
+    assert np.all(np.isfinite(fitted))
+    assert np.median(np.abs(fitted - truth)) < 0.1
+    assert np.median(np.abs(noisy[30:] - truth[30:])) > 0.25
+
+
+def test_fit_degrades_with_support():
+    rows, cols = _blob(5)
+    disparity = np.full(rows.shape, np.nan)
+    assert np.isnan(fit_disparity_surface(rows, cols, disparity)).all()
+    disparity[:2] = [10.0, 12.0]
+    np.testing.assert_allclose(fit_disparity_surface(rows, cols, disparity), 11.0)
+    plane = 10.0 + 0.5 * cols
+    disparity[:6] = plane[:6]  # 6 pixels: a plane, clamped to the fitted range
+    fitted = fit_disparity_surface(rows, cols, disparity)
+    assert fitted.min() >= plane[:6].min() - 1e-9 and fitted.max() <= plane[:6].max() + 1e-9
+    with pytest.raises(ValueError, match="iterations"):
+        fit_disparity_surface(rows, cols, disparity, iterations=0)
+    with pytest.raises(ValueError, match="equal 1-D"):
+        fit_disparity_surface(rows, cols[:3], disparity)
+
+
+def test_pixel_points_match_camera_points():
+    rng = np.random.default_rng(0)
+    disparity = rng.uniform(5, 30, (30, 40))
+    disparity[3, 4] = np.nan
+    dense = CAMERA.camera_points(disparity)
+    rows, cols = np.nonzero(np.ones((30, 40), dtype=bool))
+    sparse = pixel_points(rows, cols, disparity.ravel(), camera=CAMERA, shape=(30, 40))
+    np.testing.assert_allclose(sparse, dense.reshape(-1, 3), equal_nan=True)
+
+
+def test_camera_height_of_a_frame():
+    assert GroundFrame.from_camera(CAMERA).camera_height_m == pytest.approx(1.2)
+    assert GroundFrame.from_plane([0, -2, 0, 3.0]).camera_height_m == pytest.approx(1.5)
+
+
+def test_silhouette_on_ground_of_a_flat_patch():
+    # a patch lying on the ground: base point from its lowest row, height ~ 0 for one row
+    ground = GroundFrame.from_camera(CAMERA)
+    shape = (120, 160)
+    rows = np.full(11, 90)
+    cols = np.arange(70, 81)
+    sil = silhouette_on_ground(rows, cols, camera=CAMERA, ground=ground, shape=shape)
+    cx, cy = CAMERA.principal_point(shape)
+    theta = math.radians(CAMERA.pitch_deg)
+    v = (90.5 - cy) / CAMERA.focal_px
+    z = CAMERA.height_m / (v * math.cos(theta) + math.sin(theta))
+    assert sil["range_m"] == pytest.approx(z)
+    assert sil["width_m"] == pytest.approx(11 * z / CAMERA.focal_px)
+    assert abs(sil["height_m"]) < 2 * z / CAMERA.focal_px
+    above_horizon = silhouette_on_ground(
+        np.array([0]), np.array([80]), camera=Camera(focal_px=200.0, baseline_m=0.2,
+                                                     height_m=1.0, pitch_deg=0.0),
+        ground=GroundFrame.from_camera(Camera(focal_px=200.0, baseline_m=0.2, height_m=1.0,
+                                              pitch_deg=0.0)),
+        shape=shape,
+    )  # fmt: skip
+    assert all(math.isnan(v) for v in above_horizon.values())
