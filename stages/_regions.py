@@ -39,6 +39,9 @@ large standard error and keep their intensity decision.
   ``min_area_px`` after removing its depth edges) is split into those cores; every other pixel
   of the object goes to its nearest core. Touching rocks at different ranges thus become
   separate objects.
+* **R5 streaks** -- an object more than ``max_elongation`` times longer than wide (its
+  equivalent ellipse) is a wind striation or ripple trough, not a rock: dropped
+  (:func:`drop_streaks`). Rocks seen from a rover are compact blobs.
 """
 
 from __future__ import annotations
@@ -61,6 +64,8 @@ __all__ = [
     "local_ground",
     "apply_depth_rules",
     "label_objects",
+    "elongation",
+    "drop_streaks",
 ]
 
 
@@ -443,3 +448,63 @@ def _renumber(labels: np.ndarray, min_area_px: int) -> np.ndarray:
     remap = np.zeros(int(values.max()) + 1, dtype=np.int32)
     remap[kept] = np.arange(1, kept.size + 1, dtype=np.int32)
     return remap[labels]
+
+
+def elongation(labels: np.ndarray) -> np.ndarray:
+    """Ratio of the major to the minor axis of each object's equivalent ellipse.
+
+    Parameters
+    ----------
+    labels : (M, N) ndarray of int
+        0 background, 1..n objects.
+
+    Returns
+    -------
+    ratio : (n + 1,) ndarray of float64
+        ``ratio[k]`` for object ``k`` (>= 1; ``inf`` for a one-pixel-wide line); ``ratio[0]``
+        is 0.
+    """
+    labels = np.asarray(labels)
+    count = int(labels.max()) + 1
+    ys, xs = np.nonzero(labels)
+    ids = labels[ys, xs]
+    area = np.maximum(np.bincount(ids, minlength=count), 1).astype(np.float64)
+    mx = np.bincount(ids, xs, minlength=count) / area
+    my = np.bincount(ids, ys, minlength=count) / area
+    dx, dy = xs - mx[ids], ys - my[ids]
+    # + 1/12: a pixel is a unit square, so a single row still has a width
+    sxx = np.bincount(ids, dx * dx, minlength=count) / area + 1.0 / 12.0
+    syy = np.bincount(ids, dy * dy, minlength=count) / area + 1.0 / 12.0
+    sxy = np.bincount(ids, dx * dy, minlength=count) / area
+    half_trace = (sxx + syy) / 2.0
+    root = np.sqrt(((sxx - syy) / 2.0) ** 2 + sxy**2)
+    major, minor = half_trace + root, np.maximum(half_trace - root, 1e-12)
+    ratio = np.sqrt(major / minor)
+    ratio[0] = 0.0
+    return ratio
+
+
+def drop_streaks(labels: np.ndarray, *, max_elongation: float) -> tuple[np.ndarray, int]:
+    """Remove objects longer than ``max_elongation`` times their width; renumber densely.
+
+    Parameters
+    ----------
+    labels : (M, N) ndarray of int32
+    max_elongation : float
+        ``> 1``; major/minor axis ratio above which an object is a streak (wind striation,
+        ripple trough), not a rock.
+
+    Returns
+    -------
+    labels : (M, N) ndarray of int32
+    dropped : int
+        Number of objects removed.
+    """
+    if not max_elongation > 1:
+        raise ValueError(f"max_elongation must be > 1, got {max_elongation}")
+    ratio = elongation(labels)
+    streak = ratio > max_elongation
+    if not streak.any():
+        return labels, 0
+    kept = np.where(streak[labels], 0, labels)
+    return _renumber(kept, 1), int(streak.sum())

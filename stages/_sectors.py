@@ -32,7 +32,7 @@ divided by ``sqrt(2 ln 2)``. Phantom sectors borrow the median band of their dec
 neighbours.
 
 The per-sector thresholds belong to the sector centres and are interpolated bilinearly to
-every pixel (Chow and Kaneko, 1972), clamped beyond the outermost centres, so no block edge
+every pixel (Chow and Kaneko, 1972), extrapolated linearly to the frame border, so no block edge
 appears at sector boundaries.
 """
 
@@ -509,7 +509,9 @@ def _interpolation_weights(length: int, edges: np.ndarray) -> np.ndarray:
         return weights
     upper = np.clip(np.searchsorted(centres, pixels, side="right"), 1, n - 1)
     lower = upper - 1
-    t = np.clip((pixels - centres[lower]) / (centres[upper] - centres[lower]), 0.0, 1.0)
+    # linear beyond the outermost centres too: half a sector of a steep illumination ramp
+    # (the far floor darkening towards the horizon) must not be cut off at a constant
+    t = (pixels - centres[lower]) / (centres[upper] - centres[lower])
     weights[np.arange(length), lower] = 1.0 - t
     weights[np.arange(length), upper] += t
     return weights
@@ -528,8 +530,8 @@ def interpolate_sector_grid(grid: np.ndarray, shape: tuple[int, int]) -> np.ndar
     Returns
     -------
     field : (M, N) ndarray of float32
-        Equal to ``grid[i, j]`` at sector ``(i, j)``'s centre, linear in between, constant
-        beyond the outermost centres.
+        Equal to ``grid[i, j]`` at sector ``(i, j)``'s centre, linear in between and
+        extrapolated linearly beyond the outermost centres (half a sector at most).
     """
     grid = np.asarray(grid, dtype=np.float64)
     if grid.ndim != 2 or grid.shape[0] != grid.shape[1]:

@@ -32,6 +32,7 @@ from ._regions import (
     DepthRuleStats,
     apply_depth_rules,
     depth_edges,
+    drop_streaks,
     label_objects,
     threshold_mask,
 )
@@ -118,6 +119,8 @@ def segment_image(
     base_px: int = 2,
     height_smoothing_px: int = 5,
     split_disparity_px: float = 3.0,
+    max_elongation: float = 4.5,
+    min_depth_valid_fraction: float = 0.5,
 ) -> Segmentation:
     """Segment one reference image into background and numbered objects.
 
@@ -146,6 +149,12 @@ def segment_image(
         See :func:`stages._regions.apply_depth_rules`.
     split_disparity_px : float
         ``>= 0`` px; disparity jump that splits touching objects; 0 disables the split.
+    min_depth_valid_fraction : float
+        In ``[0, 1]``: below this share of valid heights the ground plane (and every height
+        measured from it) is not trusted and the height rules are skipped.
+    max_elongation : float
+        Depth method only: objects longer than this times their width are streaks (rule R5
+        of :mod:`stages._regions`); 0 disables.
 
     Returns
     -------
@@ -166,6 +175,8 @@ def segment_image(
             f"sectors must be in [2, {min(image.shape) // 4}] for an image of shape "
             f"{image.shape} (at least 4x4 pixels per sector), got {sectors}"
         )
+    if max_elongation != 0 and not max_elongation > 1:
+        raise ValueError(f"max_elongation must be 0 (off) or > 1, got {max_elongation}")
     if split_disparity_px < 0:
         raise ValueError(f"split_disparity_px must be >= 0 (0 disables), got {split_disparity_px}")
     shape = image.shape
@@ -195,7 +206,8 @@ def segment_image(
     if method == "sector-histogram+depth":
         height = _coerce_depth(height, shape, "height")
         disparity = _coerce_depth(disparity, shape, "disparity")
-        if height is not None and np.isfinite(height).any():
+        valid_fraction = float(np.isfinite(height).mean()) if height is not None else 0.0
+        if height is not None and valid_fraction >= min_depth_valid_fraction:
             mask, depth_stats = apply_depth_rules(
                 mask,
                 height,
@@ -207,10 +219,17 @@ def segment_image(
                 min_raised_fraction=min_raised_fraction,
             )
         else:
-            notes.append("no valid height above ground: intensity rules only")
+            notes.append(
+                f"height valid on {100 * valid_fraction:.0f}% of the frame (< "
+                f"{100 * min_depth_valid_fraction:.0f}%): intensity rules only"
+            )
         if disparity is not None and split_disparity_px > 0 and np.isfinite(disparity).any():
             edges = depth_edges(disparity, jump_px=split_disparity_px)
     labels = label_objects(mask, min_area_px=min_area_px, fill=fill_holes, edges=edges)
+    if method == "sector-histogram+depth" and max_elongation > 0:
+        labels, streaks = drop_streaks(labels, max_elongation=max_elongation)
+        if streaks:
+            notes.append(f"{streaks} streak(s) longer than {max_elongation:g}x their width dropped")
     return Segmentation(labels=labels, sectors=analysis, depth=depth_stats, notes=notes)
 
 
@@ -390,6 +409,23 @@ STAGE = Stage(
         Param("height_smoothing_px", int, 5, "median window of the height map", (1, 3, 5)),
         Param(
             "split_disparity_px", float, 3.0, "disparity jump splitting objects; 0 = off", None, 0
+        ),
+        Param(
+            "min_depth_valid_fraction",
+            float,
+            0.5,
+            "depth: fewer valid heights: skip height rules",
+            None,
+            0,
+            1,
+        ),
+        Param(
+            "max_elongation",
+            float,
+            4.5,
+            "depth: longer/width above this is a streak; 0 = off",
+            None,
+            0,
         ),
         Param(
             "tile_px",

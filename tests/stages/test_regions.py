@@ -129,3 +129,47 @@ def test_depth_edges_inside_one_object_do_not_fragment_it():
     disparity[20, 20] = 30.0  # an isolated outlier: median filtered away
     labels = label_objects(mask, edges=depth_edges(disparity, jump_px=1.5))
     assert labels.max() == 1
+
+
+def test_elongation_of_a_disk_a_bar_and_a_line():
+    from stages._regions import elongation
+
+    labels = np.zeros((60, 80), np.int32)
+    labels[disk(labels.shape, 20, 20, 10)] = 1
+    labels[40:44, 10:70] = 2  # 60 x 4 bar
+    labels[55, 5:75] = 3  # one-pixel line
+    ratio = elongation(labels)
+    assert ratio[1] == pytest.approx(1.0, abs=0.05)
+    assert ratio[2] == pytest.approx(15.0, rel=0.1)
+    assert ratio[3] > 50
+
+
+def test_drop_streaks_keeps_compact_objects_and_renumbers():
+    from stages._regions import drop_streaks
+
+    labels = np.zeros((60, 80), np.int32)
+    labels[40:44, 10:70] = 1  # a ripple trough
+    labels[disk(labels.shape, 20, 20, 10)] = 2  # a rock
+    kept, dropped = drop_streaks(labels, max_elongation=4.5)
+    assert dropped == 1
+    assert sorted(np.unique(kept).tolist()) == [0, 1]
+    assert kept[20, 20] == 1 and kept[42, 40] == 0
+    with pytest.raises(ValueError, match="max_elongation"):
+        drop_streaks(labels, max_elongation=1.0)
+
+
+def test_noisy_depth_keeps_small_objects_and_removes_a_large_flat_one():
+    rng = np.random.default_rng(0)
+    shape = (120, 120)
+    # stereo noise is correlated over the matching window: 3 cm blocks of 6 px
+    blocks = rng.normal(0, 0.03, (20, 20)).astype(np.float32)
+    height = np.kron(blocks, np.ones((6, 6), np.float32))
+    blotch = np.zeros(shape, bool)
+    blotch[10:60, 10:110] = True  # large dark texture blotch lying on the ground
+    pebble = disk(shape, 95, 60, 4)  # small object: too few samples to judge
+    height[pebble] = 0.0
+    combined, stats = apply_depth_rules(blotch | pebble, height)
+    assert stats.ground_sigma_m > 0.015
+    assert "object-level" in stats.notes[0]
+    assert not combined[blotch].any()
+    assert combined[pebble].all()

@@ -214,9 +214,14 @@ def test_interpolation_hits_sector_centres_and_has_no_block_edges():
     # 20-pixel sectors: centres between pixels 9 and 10
     centre_values = (field[9::20, 9::20] + field[10::20, 10::20]) / 2
     np.testing.assert_allclose(centre_values, grid, atol=(grid.max() - grid.min()) / 10)
-    steepest = np.abs(np.diff(grid, axis=0)).max() / 20 + 1e-3
-    assert np.abs(np.diff(field, axis=0)).max() <= steepest * 1.01
-    assert np.abs(np.diff(field, axis=1)).max() <= np.abs(np.diff(grid, axis=1)).max() / 20 + 1e-3
+    # between the outermost centres the field is a convex blend: no step exceeds the
+    # steepest sector-to-sector slope; beyond them it is extrapolated linearly
+    inner = field[10:150, 10:150]
+    steepest_y = np.abs(np.diff(grid, axis=0)).max() / 20 + 1e-3
+    steepest_x = np.abs(np.diff(grid, axis=1)).max() / 20 + 1e-3
+    assert np.abs(np.diff(inner, axis=0)).max() <= steepest_y * 1.01
+    assert np.abs(np.diff(inner, axis=1)).max() <= steepest_x * 1.01
+    assert np.abs(np.diff(field, axis=0)).max() <= 2 * steepest_y
 
 
 def test_interpolation_of_a_constant_is_constant_and_validates():
