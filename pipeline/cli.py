@@ -93,13 +93,20 @@ def _cmd_evaluate(args: argparse.Namespace) -> int:
 def _cmd_query(args: argparse.Namespace) -> int:
     from .query import query_command
 
-    return query_command(args.rundirs, args.sql, fmt=args.format, output=args.output)
+    return query_command(
+        args.rundirs,
+        args.sql,
+        fmt=args.format,
+        output=args.output,
+        allow_running=args.allow_running,
+    )
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
     from .report import build_report
 
-    print(f"arroyo: wrote {build_report(args.rundir, args.output)}")
+    path = build_report(args.rundir, args.output, allow_running=args.allow_running)
+    print(f"arroyo: wrote {path}")
     return EXIT_OK
 
 
@@ -163,11 +170,21 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("sql")
     p.add_argument("--format", choices=("table", "csv", "parquet", "json"), default="table")
     p.add_argument("--output", "-o", help="file to write (default stdout)")
+    p.add_argument(
+        "--allow-running",
+        action="store_true",
+        help="query a run still in progress (sees its completed frames only)",
+    )
     p.set_defaults(func=_cmd_query)
 
     p = sub.add_parser("report", help="write a self-contained report.html for a run")
     p.add_argument("rundir")
     p.add_argument("--output", "-o", help="where to write (default RUNDIR/report.html)")
+    p.add_argument(
+        "--allow-running",
+        action="store_true",
+        help="report on a run still in progress (its completed frames only)",
+    )
     p.set_defaults(func=_cmd_report)
     return parser
 

@@ -96,7 +96,7 @@ def open_executor(*, scheduler: str | None, workers: int | None) -> Executor:
             n_workers=n if processes else 1,
             threads_per_worker=1 if processes else n,
             processes=processes,
-            dashboard_address=None,
+            dashboard_address=":0",  # a free port: never collide with another cluster
             silence_logs=logging.ERROR,
         )
         kind = "processes" if processes else "threads"

@@ -285,7 +285,10 @@ def _branch_sql(view: str, run: RunInfo) -> str | None:
                 f"cannot read {path} of run {run.path}: {exc}; `arroyo status --verify "
                 f"{run.path}` checks the store and the next run repairs it"
             ) from None
-    hive = "true" if view in ("descriptors", "relations") else "false"
+    partitioned = any(p.parent.name.startswith("archive=") for p in files)
+    if partitioned:
+        names.add("archive")  # from the hive directory name, not a column in the files
+    hive = "true" if partitioned else "false"
     source = (
         f"read_parquet([{', '.join(_sql_str(p) for p in files)}], "
         f"hive_partitioning={hive}, union_by_name=true)"

@@ -289,9 +289,9 @@ def publish_table(
     generation = uuid.uuid4().hex[:12]
     target = rundir / PUBLISHED / f"{product}-{generation}" / f"archive={archive}"
     target.mkdir(parents=True, exist_ok=True)
-    # the archive column stays in the files too, so `pyarrow.dataset.dataset(path)` without
-    # partitioning options still sees it
-    body = merged
+    # the archive lives in the directory name only (hive style): a column of the same name in
+    # the files would clash with the partition field in pyarrow's readers
+    body = merged.drop_columns(["archive"]) if "archive" in merged.column_names else merged
     for k, start in enumerate(range(0, max(body.num_rows, 1), max_rows_per_file)):
         write_parquet_atomic(body.slice(start, max_rows_per_file), target / f"part-{k}.parquet")
     link = published_path(rundir, product)

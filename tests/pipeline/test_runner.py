@@ -36,13 +36,15 @@ def test_run_writes_products_readable_by_xarray_and_duckdb(archive, tmp_path):
     np.testing.assert_array_equal(data.blend.sel(frame="f002").values, expected)
     assert data.blend.attrs["units"] == "gray" and data.blend.attrs["stage"] == "blend"
     assert data.grid.dims == ("frame", "gy", "gx")
-    table = ds.dataset(out / "tallies.parquet").to_table()
+    table = ds.dataset(out / "tallies.parquet", partitioning="hive").to_table()
     assert table.num_rows == 12
+    assert pq.read_table(out / "tallies.parquet").num_rows == 12
     assert set(table["archive"].to_pylist()) == {"testarch"}
     count = duckdb.sql(
-        f"SELECT count(*) FROM read_parquet('{out}/tallies.parquet/**/*.parquet')"
+        f"SELECT archive, count(*) FROM read_parquet('{out}/tallies.parquet/**/*.parquet') "
+        "GROUP BY archive"
     ).fetchall()
-    assert count == [(12,)]
+    assert count == [("testarch", 12)]
     frames = pq.read_table(out / "frames.parquet").to_pylist()
     assert [f["status"] for f in frames] == ["done"] * 4
     assert frames[1]["site"] == "site1" and frames[0]["blend_max"] > 0
