@@ -11,8 +11,8 @@ import pyarrow.dataset as ds
 import pyarrow.parquet as pq
 import pytest
 import zarr
-from conftest import write_archive
 
+from conftest import write_archive
 from pipeline.runner import run
 
 STAGES = "arroyo_ingest_stages"

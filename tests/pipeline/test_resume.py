@@ -15,9 +15,9 @@ import numpy as np
 import pyarrow.dataset as ds
 import pytest
 import zarr
-from conftest import write_archive
 
 import pipeline.worker
+from conftest import write_archive
 from pipeline.errors import StoreError
 from pipeline.lock import LOCK_NAME
 from pipeline.runner import run
