@@ -637,6 +637,10 @@ def _publish(plan: RunPlan, state: RunState, product: str) -> None:
         [(p.part_id, p.path) for p in parts],
         _table_schema(plan.graph.product(product).schema),
         plan.indices,
+        provenance={
+            f"arroyo.{k}": str(v)
+            for k, v in _stage_attrs(plan, plan.graph.producer[product], {}).items()
+        },
     )
     dead = [p for p in parts if p.part_id not in set(live.values())]
     for part in dead:

@@ -258,6 +258,7 @@ def publish_table(
     schema: pa.Schema,
     frame_order: Mapping[str, int],
     *,
+    provenance: Mapping[str, str] | None = None,
     max_rows_per_file: int = 1_000_000,
 ) -> Path:
     """Compact the live rows of a table product into a new published generation.
@@ -270,6 +271,8 @@ def publish_table(
         Every staged part that may hold live rows.
     schema : pyarrow.Schema
         Full schema of the published table (archive, run_id, frame_id first).
+    provenance : mapping of str to str, optional
+        Recorded in each file's key-value metadata (stage, version, params).
     """
     rundir = Path(rundir)
     pieces = []
@@ -292,6 +295,8 @@ def publish_table(
     # the archive lives in the directory name only (hive style): a column of the same name in
     # the files would clash with the partition field in pyarrow's readers
     body = merged.drop_columns(["archive"]) if "archive" in merged.column_names else merged
+    if provenance:
+        body = body.replace_schema_metadata({**(body.schema.metadata or {}), **provenance})
     for k, start in enumerate(range(0, max(body.num_rows, 1), max_rows_per_file)):
         write_parquet_atomic(body.slice(start, max_rows_per_file), target / f"part-{k}.parquet")
     link = published_path(rundir, product)

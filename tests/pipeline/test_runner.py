@@ -39,6 +39,8 @@ def test_run_writes_products_readable_by_xarray_and_duckdb(archive, tmp_path):
     table = ds.dataset(out / "tallies.parquet", partitioning="hive").to_table()
     assert table.num_rows == 12
     assert pq.read_table(out / "tallies.parquet").num_rows == 12
+    part = next((out / "tallies.parquet").rglob("*.parquet"))
+    assert pq.read_schema(part).metadata[b"arroyo.stage_version"] == b"1"
     assert set(table["archive"].to_pylist()) == {"testarch"}
     count = duckdb.sql(
         f"SELECT archive, count(*) FROM read_parquet('{out}/tallies.parquet/**/*.parquet') "
