@@ -436,10 +436,9 @@ def describe_objects(
     range_m : (M, N) ndarray of float32
         Z = f b / d, metres, NaN where invalid.
     height : (M, N) ndarray of float32
-        Height above the ground plane, metres, NaN where unknown. With a ground frame it
-        only sets the ground level under each object (``z_m``); heights are then measured
-        on the object's denoised disparity surface. Without a ground frame it is used as
-        is. When it has no finite value, the ground frame's z = 0 is the ground. Objects
+        Height above the ground plane, metres, NaN where unknown; with a ground frame it
+        also sets the ground level under each object (``z_m``). When it has no finite
+        value, heights are the ground frame's z. Objects
         with fewer than 3 valid-depth pixels but a ground frame are measured by
         :func:`stages._ground.silhouette_on_ground` (range, position, width and height from
         the ground plane under their lowest pixel; ``range_err_m`` NaN).
@@ -505,7 +504,8 @@ def describe_objects(
             level = raw[:, 2] - heights[valid] if has_height_map else np.zeros(0)
             level = level[np.isfinite(level)]
             z_m = float(np.median(level)) if level.size else 0.0
-            # shape measures on the denoised surface (see stages._ground)
+            # footprint and position on the denoised surface (see stages._ground); heights
+            # stay per pixel: the surface flattens the peaks of large rocks
             smooth = ground.to_ground(
                 pixel_points(
                     rows,
@@ -515,7 +515,9 @@ def describe_objects(
                     shape=shape,
                 )
             )
-            heights = smooth[:, 2] - z_m
+            if not has_height_map:
+                heights = np.full(rows.shape, np.nan)
+                heights[valid] = raw[:, 2]
             x_m, y_m = float(np.median(smooth[:, 0])), float(np.median(smooth[:, 1]))
             width, length = footprint_dimensions(smooth[:, 0], smooth[:, 1], pixel_m=z_med / f)
         elif ground is not None:  # no depth: stand the silhouette on the ground plane
