@@ -29,7 +29,7 @@ Noisy depth (``sigma > min_height_m / 3``, typical of window-based stereo on rea
 pixels are not trusted one by one; no object is added from height alone (R1 off), and an
 intensity object is removed as lying flat (R2) only when most of it has valid depth and its
 median relative height plus one standard error (``1.25 sigma / sqrt(n / 25)``, one
-independent sample per 5x5 window) stays below ``0.75 min_height_m``. Small objects have a
+independent sample per 5x5 window) stays below ``0.5 min_height_m``. Small objects have a
 large standard error and keep their intensity decision.
 
 * **R3 no depth** -- where depth is invalid the intensity decision stands.
@@ -54,7 +54,7 @@ from scipy.ndimage import distance_transform_edt, median, median_filter
 
 # Noisy regime: an object lies flat when its median height plus one standard error stays
 # below this fraction of min_height_m (tuned on the built-in archives with the depth stage).
-_LYING_FRACTION = 0.75
+_LYING_FRACTION = 0.5
 __all__ = [
     "DepthRuleStats",
     "threshold_mask",
