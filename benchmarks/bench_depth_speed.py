@@ -3,6 +3,8 @@
 Target (issue 5): the default method matches a 500 x 500 pair over 64 disparities at
 >= 5 pairs/s per core (<= 200 ms). numba and OpenCV are pinned to one thread, every method
 runs on the same pairs in the same process, and the median of the repeats is reported.
+Times are CPU seconds of this process (``time.process_time``), so other jobs sharing the
+machine inflate them less than wall-clock time would (cache sharing still does).
 
 Usage::
 
@@ -33,9 +35,9 @@ def _median_seconds(fn, repeats: int) -> float:
     fn()  # warm-up: numba compilation / caches
     times = []
     for _ in range(repeats):
-        t0 = time.perf_counter()
+        t0 = time.process_time()
         fn()
-        times.append(time.perf_counter() - t0)
+        times.append(time.process_time() - t0)
     return statistics.median(times)
 
 

@@ -179,25 +179,23 @@ def _left_best(left_index, left_value, curves, hw, d_min):  # pragma: no cover -
                 left_index[xl] = j
 
 
+@njit(cache=True, fastmath={"nnan", "ninf", "nsz", "reassoc"})
+def _max(curve, j0, j1):  # pragma: no cover - numba
+    # A max is exact in any order, so letting LLVM vectorise it changes no result.
+    best = np.float32(-np.inf)
+    for j in range(j0, j1):
+        best = max(best, curve[j])
+    return best
+
+
 @njit(cache=True, inline="always")
 def _peak(curve, j0, j1):  # pragma: no cover - numba
-    """Best index, best value and best value more than one index away, in one pass."""
+    """Best index (first maximum), best value, and best value more than one index away."""
+    best_value = _max(curve, j0, j1)
     best = j0
-    best_value = np.float32(-np.inf)
-    second = np.float32(-np.inf)
-    prefix_lag1 = np.float32(-np.inf)  # max of curve[j0 : j], i.e. up to index j - 1
-    prefix_lag2 = np.float32(-np.inf)  # max of curve[j0 : j - 1], i.e. up to index j - 2
-    for j in range(j0, j1):
-        value = curve[j]
-        if value > best_value:
-            best_value = value
-            best = j
-            second = prefix_lag2
-        elif j > best + 1 and value > second:
-            second = value
-        prefix_lag2 = prefix_lag1
-        if value > prefix_lag1:
-            prefix_lag1 = value
+    while curve[best] != best_value:
+        best += 1
+    second = max(_max(curve, j0, best - 1), _max(curve, best + 2, j1))
     return best, best_value, second
 
 

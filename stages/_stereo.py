@@ -9,7 +9,7 @@ Methods
 -------
 ``adaptive`` (default; the study's adaptive correlation window)
     Zero-mean normalised cross-correlation (ZNCC) over windows of increasing size, default
-    ``5, 11, 15x41, 31x63`` (rows x columns). Per pixel the windows are tried smallest
+    ``9, 15x41, 31x63`` (rows x columns). Per pixel the windows are tried smallest
     first and the first one that passes all of these tests is kept:
 
     1. *texture*: the standard deviation of the reference window is at least
@@ -99,7 +99,7 @@ __all__ = [
     "sgbm_disparity",
 ]
 
-DEFAULT_WINDOWS = "5,11,15x41,31x63"
+DEFAULT_WINDOWS = "9,15x41,31x63"
 METHODS: tuple[str, ...] = ("adaptive", "sgm", "opencv-sgbm")
 
 STATUS_VALID = 0
@@ -287,7 +287,7 @@ _MATCHERS = {"adaptive": _adaptive_coded, "sgm": _sgm_coded, "opencv-sgbm": _sgb
 _DEFAULTS: dict[str, Any] = {
     "method": "adaptive", "windows": DEFAULT_WINDOWS, "min_texture": 1.0, "min_ncc": 0.1,
     "distinctness": 1.0, "lr_tolerance": 1.0, "speckle_size": 50, "speckle_range": 1.0,
-    "sgm_window": 5, "sgm_p1": 0.03, "sgm_p2": 0.3, "sgm_paths": 8,
+    "sgm_window": 15, "sgm_p1": 0.2, "sgm_p2": 3.0, "sgm_paths": 8,
 }  # fmt: skip
 
 
@@ -377,9 +377,9 @@ def match_disparity(
     lr_tolerance: float = 1.0,
     speckle_size: int = 50,
     speckle_range: float = 1.0,
-    sgm_window: int = 5,
-    sgm_p1: float = 0.03,
-    sgm_p2: float = 0.3,
+    sgm_window: int = 15,
+    sgm_p1: float = 0.2,
+    sgm_p2: float = 3.0,
     sgm_paths: int = 8,
 ) -> Matching:
     """Match a rectified pair along rows.

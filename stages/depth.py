@@ -77,9 +77,9 @@ PARAMS: tuple[Param, ...] = (
     Param("lr_tolerance", float, 1.0, "left-right check tolerance (px)", minimum=0.0),
     Param("speckle_size", int, 50, "largest region removed as a speckle (px); 0 = off", minimum=0),
     Param("speckle_range", float, 1.0, "disparity step joining a region (px)", minimum=0.0625),
-    Param("sgm_window", int, 5, "sgm: ZNCC window (odd px)", minimum=3, maximum=63),
-    Param("sgm_p1", float, 0.03, "sgm: penalty of a 1 px step (cost units)", minimum=0.0),
-    Param("sgm_p2", float, 0.3, "sgm: penalty of a larger jump (cost units)", minimum=0.0),
+    Param("sgm_window", int, 15, "sgm: ZNCC window (odd px)", minimum=3, maximum=63),
+    Param("sgm_p1", float, 0.2, "sgm: penalty of a 1 px step (cost units)", minimum=0.0),
+    Param("sgm_p2", float, 3.0, "sgm: penalty of a larger jump (cost units)", minimum=0.0),
     Param("sgm_paths", int, 8, "sgm: aggregation paths", choices=(4, 8)),
     Param(
         "tile_px",

@@ -18,6 +18,10 @@ from stages._stereo import (
     sgbm_disparity,
 )
 
+# Small test images lose a border of half the largest window; these windows keep most of
+# them while exercising the same adaptive rule as the default windows.
+SMALL = {"windows": "5,9,15"}
+
 
 def _texture(shape: tuple[int, int], seed: int, blur: float = 1.0) -> np.ndarray:
     rng = np.random.default_rng(seed)
@@ -62,7 +66,7 @@ def _occlusion_scene(seed=3, shape=(64, 120), d_back=4, d_front=12, square=(20, 
 
 def test_integer_shift_is_recovered_exactly():
     right, left = _shifted_pair((64, 120), 7, seed=0)
-    m = match_disparity(right, left, min_disparity=0, max_disparity=20)
+    m = match_disparity(right, left, min_disparity=0, max_disparity=20, **SMALL)
     valid = np.isfinite(m.disparity)
     assert m.valid_fraction > 0.8
     # interior pixels get the exact integer (the symmetric subpixel fit cancels its bias)
@@ -86,7 +90,7 @@ def test_subpixel_shift_is_recovered(shift):
     world = _texture((64, 160), seed=1, blur=1.2)
     left = _u8(world[:, 10:130])
     right = _u8(ndimage.shift(world, (0, -shift), order=3)[:, 10:130])  # right(x) = w(x + s)
-    m = match_disparity(right, left, min_disparity=0, max_disparity=16)
+    m = match_disparity(right, left, min_disparity=0, max_disparity=16, **SMALL)
     values = m.disparity[np.isfinite(m.disparity)]
     assert values.size > 0.8 * m.disparity.size
     assert abs(np.mean(values) - shift) < 0.08
@@ -95,7 +99,7 @@ def test_subpixel_shift_is_recovered(shift):
 
 def test_occluded_pixels_are_invalid_after_the_lr_check():
     right, left, truth, occluded = _occlusion_scene()
-    m = match_disparity(right, left, min_disparity=0, max_disparity=20, speckle_size=0)
+    m = match_disparity(right, left, min_disparity=0, max_disparity=20, speckle_size=0, **SMALL)
     assert occluded.sum() == 8 * 24
     invalid = m.status != STATUS_VALID
     # Away from the band's edges (half the smallest window) the occluded pixels are
@@ -114,8 +118,9 @@ def test_without_lr_check_occluded_pixels_get_matches():
     # the control experiment: a huge tolerance disables the left-right and uniqueness tests
     right, left, _, occluded = _occlusion_scene()
     m = match_disparity(
-        right, left, min_disparity=0, max_disparity=20, lr_tolerance=100.0, speckle_size=0
-    )
+        right, left, min_disparity=0, max_disparity=20, lr_tolerance=100.0, speckle_size=0,
+        **SMALL,
+    )  # fmt: skip
     assert np.mean(m.status[occluded] != STATUS_VALID) < 0.4
 
 
@@ -136,7 +141,7 @@ def test_textureless_image_is_invalid_not_guessed():
 
 def test_sgm_recovers_a_shift():
     right, left = _shifted_pair((48, 96), 6, seed=2)
-    m = match_disparity(right, left, min_disparity=0, max_disparity=15, method="sgm")
+    m = match_disparity(right, left, min_disparity=0, max_disparity=15, method="sgm", sgm_window=5)
     values = m.disparity[np.isfinite(m.disparity)]
     assert values.size > 0.7 * m.disparity.size
     assert np.median(np.abs(values - 6)) < 0.25
