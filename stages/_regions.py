@@ -3,8 +3,7 @@
 Intensity: a pixel is object when its gray level is below the interpolated low threshold or
 above the high one (:func:`threshold_mask`). :func:`label_objects` then fills holes (background
 pockets enclosed by object pixels), optionally splits components at depth discontinuities,
-drops specks smaller than ``min_area_px`` and numbers the objects ``1..n`` densely in raster
-order of their first pixel.
+drops specks smaller than ``min_area_px`` and numbers the objects ``1..n`` densely.
 
 Depth rules (:func:`apply_depth_rules`), each explainable on its own. ``height`` is metres
 above the depth stage's fitted ground plane. It is first smoothed with a NaN-aware 5x5

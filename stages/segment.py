@@ -8,9 +8,20 @@ is in :mod:`stages._sectors` (histograms, continuity, thresholds) and :mod:`stag
 (masks, components, depth rules), both documented rule by rule.
 
 ``method = 'sector-histogram+depth'`` (default) adds the depth stage's ``height`` (metres
-above the fitted ground plane) and ``disparity``: raised pixels are object even when their
-gray equals the ground's, flat intensity objects (shadows) are background, touching objects
-split at disparity jumps, and the intensity decision stands where depth is invalid.
+above the fitted ground plane) and ``disparity`` (rules R0-R5 in :mod:`stages._regions`):
+raised pixels are object even when their gray equals the ground's, flat intensity objects
+(shadows, stains, texture blotches) are background, touching objects split at disparity
+jumps, streaks (ripple troughs) are dropped, and the intensity decision stands where depth is
+invalid -- for the whole frame when fewer than ``min_depth_valid_fraction`` of its heights
+are valid. How much the height rules trust single pixels depends on the measured height
+noise of the ground (precise and noisy regimes).
+
+The reference image is the product ``right``. With a catalog ``reference = "left"`` the
+depth products are in left-image geometry while ``right`` is not; the stage then still
+segments ``right`` and records a note (an engine-level decision, see the design notes).
+
+The extension to the study's intensity rule (``merge_ratio``: ripple facets merged into the
+ground) is in :mod:`stages._sectors`; ``merge_ratio = 1`` restores the study exactly.
 
 Frames larger than ``tile_px`` on a side get their sector histograms per tile on dask
 (chunks aligned to sector edges); the continuity pass runs on the small sector grid.
@@ -310,7 +321,10 @@ def run_segment(
     )
     notes = list(result.notes)
     if frame.camera.reference == "left":
-        notes.append("segmented product 'right' although the catalog's reference is 'left'")
+        notes.append(
+            "segmented product 'right' although the catalog's reference is 'left': labels "
+            "and depth products are not in one geometry"
+        )
     analysis = result.sectors
     labels = result.labels
     figures: dict[str, Any] = {
