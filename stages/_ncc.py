@@ -279,9 +279,9 @@ def adaptive_match(
                     textured += 1
             n_pending = kept
             use_row = 4 * textured > w - 2 * hw
+            left_ready = False  # the left-reference argmax is found on first need
             if use_row:
                 _row_curves(curves, hs_k, n, hw, rs_row, ri_row, os_row, oi_row, d_min)
-                _left_best(left_index, left_value, curves, hw, d_min)
             kept = 0
             for i in range(n_pending):
                 x = pending[i]
@@ -307,6 +307,9 @@ def adaptive_match(
                 peak_seen[x] = True
                 xl = x + d_min + best
                 if use_row:
+                    if not left_ready:
+                        _left_best(left_index, left_value, curves, hw, d_min)
+                        left_ready = True
                     lr_best = left_index[xl]
                 else:
                     # same visiting order as _left_best, so ties resolve identically
