@@ -27,8 +27,9 @@ Precise depth (``sigma <= min_height_m / 3``):
 Noisy depth (``sigma > min_height_m / 3``, typical of window-based stereo on real texture):
 pixels are not trusted one by one; no object is added from height alone (R1 off), and an
 intensity object is removed as lying flat (R2) only when most of it has valid depth and its
-median relative height plus one standard error (``1.25 sigma / sqrt(n / 25)``, one
-independent sample per 5x5 window) stays below ``0.5 min_height_m``. Small objects have a
+median relative height plus one standard error (``1.25 sigma / sqrt(n / 225)``, one
+independent sample per 15 x 15 pixels, the scale of the matching windows) stays below
+``0.75 min_height_m``. Small objects have a
 large standard error and keep their intensity decision.
 
 * **R3 no depth** -- where depth is invalid the intensity decision stands.
@@ -53,7 +54,10 @@ from scipy.ndimage import distance_transform_edt, median, median_filter
 
 # Noisy regime: an object lies flat when its median height plus one standard error stays
 # below this fraction of min_height_m (tuned on the built-in archives with the depth stage).
-_LYING_FRACTION = 0.5
+_LYING_FRACTION = 0.75
+# Stereo heights are correlated over the matching window (9 to 63 px wide in the depth stage):
+# count one independent sample per 15 x 15 pixels.
+_CORRELATED_PX = 225.0
 __all__ = [
     "DepthRuleStats",
     "threshold_mask",
@@ -292,7 +296,7 @@ def apply_depth_rules(
     relative = smoothed - local_ground(smoothed, window_px=ground_window_px)
     sigma = _robust_sigma(relative[valid & ~mask])
     if sigma > min_height_m / 3.0:
-        return _noisy_depth_rules(mask, relative, valid, sigma, min_height_m, smoothing_px)
+        return _noisy_depth_rules(mask, relative, valid, sigma, min_height_m)
     raise_m = max(min_height_m, 3.0 * sigma)
     flat_m = min(max(flat_tol_m, 2.0 * sigma), 0.5 * raise_m)
     with np.errstate(invalid="ignore"):
@@ -333,7 +337,7 @@ def apply_depth_rules(
     return combined, stats
 
 
-def _noisy_depth_rules(mask, relative, valid, sigma, min_height_m, smoothing_px):
+def _noisy_depth_rules(mask, relative, valid, sigma, min_height_m):
     """R2 on whole objects only, with the noise of a median over the object's pixels."""
     count, components = cv2.connectedComponents(mask.view(np.uint8), connectivity=8)
     lying = np.zeros(count, dtype=bool)
@@ -345,8 +349,7 @@ def _noisy_depth_rules(mask, relative, valid, sigma, min_height_m, smoothing_px)
         medians = np.asarray(
             median(np.nan_to_num(relative), valid_components, index=index), dtype=np.float64
         )
-        # neighbouring heights share a matching window: about one independent sample per window
-        independent = np.maximum(1.0, n_valid / float(smoothing_px * smoothing_px))
+        independent = np.maximum(1.0, n_valid / _CORRELATED_PX)
         standard_error = 1.25 * sigma / np.sqrt(independent)
         lying[1:] = (n_valid >= 0.5 * n_pixels) & (
             medians + standard_error < _LYING_FRACTION * min_height_m
