@@ -242,6 +242,7 @@ def adaptive_match(
     left_index = np.full(w, -1, np.int64)
     left_value = np.full(w, -np.inf, np.float32)
     pending = np.empty(w, np.int64)
+    centre = np.empty(n_disp, np.int64)
     peak_seen = np.zeros(w, np.bool_)
     for y in range(h):
         for k in range(n_win):
@@ -269,13 +270,13 @@ def adaptive_match(
             oi_row = other_inv[k, y]
             textured = 0
             kept = 0
+            if w < 2 * hw + 1:
+                break  # wider windows do not fit either
             for i in range(n_pending):
                 x = pending[i]
-                if x < hw or x + hw >= w:
-                    continue  # wider windows do not fit either
                 pending[kept] = x
                 kept += 1
-                if ref_std[k, y, x] >= min_texture:
+                if ref_std[k, y, min(max(x, hw), w - 1 - hw)] >= min_texture:
                     textured += 1
             n_pending = kept
             use_row = 4 * textured > w - 2 * hw
@@ -287,25 +288,47 @@ def adaptive_match(
                 x = pending[i]
                 pending[kept] = x
                 kept += 1  # stays pending unless accepted below
-                if ref_std[k, y, x] < min_texture:
+                x_ref = min(max(x, hw), w - 1 - hw)  # nearest centre with the window inside
+                if ref_std[k, y, x_ref] < min_texture:
                     continue
-                j0 = max(0, hw - x - d_min)
-                j1 = min(n_disp, w - hw - x - d_min)
+                interior = x == x_ref and hw - x - d_min <= 0 and w - hw - x - d_min >= n_disp
+                if interior:
+                    j0 = 0
+                    j1 = n_disp
+                    if use_row:
+                        row_curve = curves[x]
+                    else:
+                        for j in range(n_disp):
+                            curve[j] = _ncc(hs_k, n, rs_row, ri_row, os_row, oi_row, x, j, d_min)
+                        row_curve = curve
+                else:
+                    # Near the image's sides the window is shifted (by at most its half-width,
+                    # so it still contains the pixel) to lie inside both images.
+                    j0 = n_disp
+                    j1 = 0
+                    for j in range(n_disp):
+                        xc = max(min(x_ref, w - 1 - hw - d_min - j), hw - d_min - j)
+                        if xc < hw or xc > w - 1 - hw or abs(xc - x) > hw:
+                            curve[j] = -2.0
+                            continue
+                        centre[j] = xc
+                        if use_row:
+                            curve[j] = curves[xc, j]
+                        else:
+                            curve[j] = _ncc(hs_k, n, rs_row, ri_row, os_row, oi_row, xc, j, d_min)
+                        j0 = min(j0, j)
+                        j1 = max(j1, j + 1)
+                    row_curve = curve
                 if j1 - j0 < 3:
                     continue
-                if use_row:
-                    row_curve = curves[x]
-                else:
-                    for j in range(j0, j1):
-                        curve[j] = _ncc(hs_k, n, rs_row, ri_row, os_row, oi_row, x, j, d_min)
-                    row_curve = curve
                 best, best_value, second = _peak(row_curve, j0, j1)
                 if best == j0 or best == j1 - 1 or best_value < min_ncc:
                     continue
                 if best_value - second < margins[k]:
                     continue
                 peak_seen[x] = True
-                xl = x + d_min + best
+                xc = x if interior else centre[best]
+                xl = xc + d_min + best
                 if use_row:
                     if not left_ready:
                         _left_best(left_index, left_value, curves, hw, d_min)
@@ -329,9 +352,9 @@ def adaptive_match(
                 # the opposite sign in the left-reference curve, so averaging both parabola
                 # vertices cancels it (an exact integer shift gives an exact integer).
                 offset = _parabola_offset(row_curve[best - 1], best_value, row_curve[best + 1])
-                if x - 1 >= hw and x + 1 + hw < w:
-                    before = _ncc(hs_k, n, rs_row, ri_row, os_row, oi_row, x + 1, best - 1, d_min)
-                    after = _ncc(hs_k, n, rs_row, ri_row, os_row, oi_row, x - 1, best + 1, d_min)
+                if xc - 1 >= hw and xc + 1 + hw < w:
+                    before = _ncc(hs_k, n, rs_row, ri_row, os_row, oi_row, xc + 1, best - 1, d_min)
+                    after = _ncc(hs_k, n, rs_row, ri_row, os_row, oi_row, xc - 1, best + 1, d_min)
                     offset = 0.5 * (offset + _parabola_offset(before, best_value, after))
                 disparity[y, x] = np.float32(d_min + best + offset)
                 window[y, x] = k

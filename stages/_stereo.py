@@ -33,6 +33,11 @@ Methods
     so pass the left-right check with the background's disparity. Both tests count as
     "left-right rejected" in the status.
 
+    Near the image's left and right sides a window that does not fit is shifted sideways
+    (by at most its half-width, so it still contains the pixel) to lie inside both images,
+    as in shiftable-window matching; the top and bottom rows that the tallest window does
+    not reach use the smaller windows only.
+
     Where no window passes, the pixel is invalid, not guessed. Why smallest first: a window
     straddling a depth change or a strongly slanted surface mixes disparities and biases the
     match (the "fattening" of foreground objects), so the smallest window is the most

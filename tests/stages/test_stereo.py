@@ -67,12 +67,13 @@ def _occlusion_scene(seed=3, shape=(64, 120), d_back=4, d_front=12, square=(20, 
 def test_integer_shift_is_recovered_exactly():
     right, left = _shifted_pair((64, 120), 7, seed=0)
     m = match_disparity(right, left, min_disparity=0, max_disparity=20, **SMALL)
-    valid = np.isfinite(m.disparity)
     assert m.valid_fraction > 0.8
-    # interior pixels get the exact integer (the symmetric subpixel fit cancels its bias)
-    err = np.abs(m.disparity[valid] - 7)
-    assert np.mean(err < 1e-3) > 0.98
-    assert err.max() < 0.5
+    err = np.abs(m.disparity - 7)
+    # interior pixels get the exact integer (the symmetric subpixel fit cancels its bias);
+    # windows shifted to fit at the image's sides keep a small one-sided bias
+    interior = err[:, 8:-30]
+    assert np.mean(interior[np.isfinite(interior)] < 1e-3) > 0.98
+    assert np.nanmax(err) < 0.5 and np.nanmean(err) < 0.02
 
 
 @settings(max_examples=8, deadline=None)
