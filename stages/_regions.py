@@ -13,9 +13,9 @@ pixel has *valid depth* where the smoothed height is finite. The ground's height
 ``sigma`` is measured robustly (MAD) on valid pixels the intensity calls background, and
 decides between two regimes:
 
-Precise depth (``sigma <= min_height_m / 3``):
+Precise depth (``sigma <= 5 mm``):
 
-* **R1 raised** -- a pixel with relative height > ``max(min_height_m, 3 sigma)`` is object,
+* **R1 raised** -- a pixel with relative height > ``max(min_height_m, 4 sigma)`` is object,
   even when its gray level equals the ground's (a rock as bright as the sand it lies on).
 * **R2 flat** -- an intensity-object pixel at or below ``max(flat_tol_m, 2 sigma)`` (capped
   at half the raised threshold) is background -- a shadow is dark but lies on the ground; so
@@ -24,13 +24,12 @@ Precise depth (``sigma <= min_height_m / 3``):
   fewer than ``min_raised_fraction`` raised pixels and most pixels below half the raised
   threshold lies on the ground and is removed whole.
 
-Noisy depth (``sigma > min_height_m / 3``, typical of window-based stereo on real texture):
+Noisy depth (``sigma > 5 mm``, typical of window-based stereo on real texture):
 pixels are not trusted one by one; no object is added from height alone (R1 off), and an
 intensity object is removed as lying flat (R2) only when most of it has valid depth and its
 median relative height plus one standard error (``1.25 sigma / sqrt(n / 225)``, one
 independent sample per 15 x 15 pixels, the scale of the matching windows) stays below
-``0.75 min_height_m``. Small objects have a
-large standard error and keep their intensity decision.
+11 mm. Small objects have a large standard error and keep their intensity decision.
 
 * **R3 no depth** -- where depth is invalid the intensity decision stands.
 * **R4 split** -- a pixel where the (median-smoothed) disparity drops by more than
@@ -52,9 +51,13 @@ import cv2
 import numpy as np
 from scipy.ndimage import distance_transform_edt, median, median_filter
 
+# Ground height noise (MAD sigma, metres) above which single heights are not trusted.
+_NOISY_SIGMA_M = 0.005
 # Noisy regime: an object lies flat when its median height plus one standard error stays
-# below this fraction of min_height_m (tuned on the built-in archives with the depth stage).
-_LYING_FRACTION = 0.75
+# below this (metres; tuned on the built-in archives with the depth stage).
+_NOISY_FLAT_M = 0.011
+# Precise regime: raised means higher than this many ground sigmas (and min_height_m).
+_RAISE_SIGMAS = 4.0
 # Stereo heights are correlated over the matching window (9 to 63 px wide in the depth stage):
 # count one independent sample per 15 x 15 pixels.
 _CORRELATED_PX = 225.0
@@ -245,7 +248,7 @@ def apply_depth_rules(
     mask: np.ndarray,
     height: np.ndarray,
     *,
-    min_height_m: float = 0.015,
+    min_height_m: float = 0.008,
     flat_tol_m: float = 0.003,
     base_px: int = 2,
     smoothing_px: int = 5,
@@ -295,9 +298,9 @@ def apply_depth_rules(
     valid = np.isfinite(smoothed)
     relative = smoothed - local_ground(smoothed, window_px=ground_window_px)
     sigma = _robust_sigma(relative[valid & ~mask])
-    if sigma > min_height_m / 3.0:
+    if sigma > _NOISY_SIGMA_M:
         return _noisy_depth_rules(mask, relative, valid, sigma, min_height_m)
-    raise_m = max(min_height_m, 3.0 * sigma)
+    raise_m = max(min_height_m, _RAISE_SIGMAS * sigma)
     flat_m = min(max(flat_tol_m, 2.0 * sigma), 0.5 * raise_m)
     with np.errstate(invalid="ignore"):
         raised = relative > raise_m
@@ -351,9 +354,7 @@ def _noisy_depth_rules(mask, relative, valid, sigma, min_height_m):
         )
         independent = np.maximum(1.0, n_valid / _CORRELATED_PX)
         standard_error = 1.25 * sigma / np.sqrt(independent)
-        lying[1:] = (n_valid >= 0.5 * n_pixels) & (
-            medians + standard_error < _LYING_FRACTION * min_height_m
-        )
+        lying[1:] = (n_valid >= 0.5 * n_pixels) & (medians + standard_error < _NOISY_FLAT_M)
     removed = lying[components]
     stats = DepthRuleStats(
         flat_removed_px=int(np.count_nonzero(removed)),

@@ -123,7 +123,7 @@ def segment_image(
     merge_ratio: float = 0.35,
     min_area_px: int = 30,
     fill_holes: bool = True,
-    min_height_m: float = 0.015,
+    min_height_m: float = 0.008,
     flat_tol_m: float = 0.003,
     ground_window_px: int = 72,
     min_raised_fraction: float = 0.1,
@@ -411,7 +411,7 @@ STAGE = Stage(
         ),
         Param("min_area_px", int, 30, "objects smaller than this are specks", None, 1),
         Param("fill_holes", bool, True, "fill background pockets inside objects"),
-        Param("min_height_m", float, 0.015, "depth: floor of the raised threshold", None, 1e-4),
+        Param("min_height_m", float, 0.008, "depth: floor of the raised threshold", None, 1e-4),
         Param("flat_tol_m", float, 0.003, "depth: floor of the flat tolerance", None, 0),
         Param("ground_window_px", int, 72, "depth: window of the local ground level", None, 9),
         Param(
