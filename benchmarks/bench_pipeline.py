@@ -36,6 +36,7 @@ import os
 import platform
 import shutil
 import statistics
+import subprocess
 import sys
 import threading
 import time
@@ -366,10 +367,10 @@ def sgbm_alone(catalog: Path, stage_package: str, limit: int) -> dict[str, Any] 
 
 def _disparity_range(ctx: FrameContext, shape: tuple[int, ...], depth: dict) -> tuple[int, int]:
     """The range the depth stage searches for this frame (SGBM needs min >= 0)."""
-    try:
-        from stages.depth import resolve_disparity_range
-    except ImportError:
-        return 0, int(depth.get("max_disparity") or 64)
+    if "min_disparity" not in depth:  # a stage package without the real depth stage
+        return 0, 64
+    from stages.depth import resolve_disparity_range
+
     lo, hi = resolve_disparity_range(ctx.camera, tuple(shape), dict(depth))
     return max(lo, 0), hi
 
@@ -385,6 +386,42 @@ def _catalog(args: argparse.Namespace, frames: int) -> Path:
     return base if unique == frames else repeat_catalog(base, frames)
 
 
+def _fresh_run(
+    catalog: Path, rundir: Path, scheduler: str | None, workers: int, args: argparse.Namespace
+) -> dict[str, Any]:
+    """``timed_run`` in a new interpreter, so that the peak RSS of one run is not the
+    high-water mark left by the previous one."""
+    command = [
+        sys.executable,
+        __file__,
+        "single",
+        "--catalog",
+        str(catalog),
+        "--rundir",
+        str(rundir),
+        "--workers",
+        str(workers),
+        "--stage-package",
+        args.stage_package,
+    ]
+    if scheduler:
+        command += ["--scheduler", scheduler]
+    done = subprocess.run(command, check=True, capture_output=True, text=True)
+    result = json.loads(done.stdout.strip().splitlines()[-1])
+    print(json.dumps(result), flush=True)
+    return result
+
+
+def cmd_single(args: argparse.Namespace) -> dict[str, Any]:
+    return timed_run(
+        Path(args.catalog),
+        args.rundir,
+        scheduler=args.scheduler,
+        workers=args.workers,
+        stage_package=args.stage_package,
+    )
+
+
 def cmd_throughput(args: argparse.Namespace) -> dict[str, Any]:
     catalog = _catalog(args, args.frames[0])
     runs = []
@@ -393,14 +430,7 @@ def cmd_throughput(args: argparse.Namespace) -> dict[str, Any]:
         setups.append(("threads", 2))
     for scheduler, workers in setups:
         label = f"{scheduler or 'processes'}-{workers}"
-        result = timed_run(
-            catalog,
-            args.workdir / "runs" / label,
-            scheduler=scheduler,
-            workers=workers,
-            stage_package=args.stage_package,
-        )
-        print(json.dumps(result))
+        result = _fresh_run(catalog, args.workdir / "runs" / label, scheduler, workers, args)
         runs.append(result)
     one, two = runs[0], runs[1]
     efficiency = {
@@ -412,28 +442,73 @@ def cmd_throughput(args: argparse.Namespace) -> dict[str, Any]:
     return {"catalog": str(catalog), "runs": runs, "parallel_efficiency": efficiency}
 
 
+def _without_fsync() -> Any:
+    """Context in which the engine skips its fsyncs: attributes their cost, never a setting."""
+    import contextlib
+    from unittest import mock
+
+    import pipeline.store
+
+    stack = contextlib.ExitStack()
+    stack.enter_context(mock.patch.object(pipeline.store, "_fsync_tree", lambda path: None))
+    stack.enter_context(mock.patch.object(pipeline.store.os, "fsync", lambda fd: None))
+    return stack
+
+
 def cmd_overhead(args: argparse.Namespace) -> dict[str, Any]:
+    """Pure compute and the engine alternately (``--repeats`` rounds) so that load drift on a
+    shared machine hits both; the engine's own time is also measured inside each run as
+    wall time minus the stage time it recorded."""
     frames = args.frames[0]
     catalog = _catalog(args, frames)
-    pure = pure_compute(catalog, args.stage_package, frames)
-    print("pure", json.dumps(pure))
-    engine = timed_run(
-        catalog,
-        args.workdir / "runs" / "overhead-sync",
-        scheduler="synchronous",
-        workers=None,
-        stage_package=args.stage_package,
-    )
-    print("engine", json.dumps(engine))
+    pures, engines, bare = [], [], []
+    for round_ in range(args.repeats):
+        pures.append(pure_compute(catalog, args.stage_package, frames))
+        print("pure", json.dumps(pures[-1]), flush=True)
+        rundir = args.workdir / "runs" / "overhead-sync"
+        engines.append(
+            timed_run(
+                catalog,
+                rundir,
+                scheduler="synchronous",
+                workers=None,
+                stage_package=args.stage_package,
+            )
+        )
+        print("engine", json.dumps(engines[-1]), flush=True)
+        if round_ == 0:
+            with _without_fsync():
+                bare.append(
+                    timed_run(
+                        catalog,
+                        rundir,
+                        scheduler="synchronous",
+                        workers=None,
+                        stage_package=args.stage_package,
+                    )
+                )
+            print("engine without fsync", json.dumps(bare[-1]), flush=True)
     sgbm = sgbm_alone(catalog, args.stage_package, frames)
-    print("sgbm", json.dumps(sgbm))
+    print("sgbm", json.dumps(sgbm), flush=True)
+
+    def own(run_: dict[str, Any]) -> float:
+        return run_["wall_s"] / run_["frames"] - run_["task_seconds_mean"]
+
+    pure_s = statistics.median(r["wall_s"] for r in pures)
+    engine_s = statistics.median(r["wall_s"] for r in engines)
+    own_s = statistics.median(own(r) for r in engines)
+    compute_s = statistics.median(r["task_seconds_mean"] for r in engines)
     return {
         "catalog": str(catalog),
-        "pure_compute": pure,
-        "engine_synchronous": engine,
-        "engine_over_pure": round(engine["wall_s"] / pure["wall_s"], 3),
+        "pure_compute": pures,
+        "engine_synchronous": engines,
+        "engine_without_fsync": bare,
+        "engine_over_pure_wall": round(engine_s / pure_s, 3),
+        "engine_own_seconds_per_frame": round(own_s, 4),
+        "engine_own_over_stage_compute": round(own_s / compute_s, 3),
+        "fsync_seconds_per_frame": round(own_s - own(bare[0]), 4) if bare else None,
         "sgbm_alone": sgbm,
-        "engine_over_sgbm": round(engine["wall_s"] / sgbm["wall_s"], 2) if sgbm else None,
+        "engine_over_sgbm": round(engine_s / sgbm["wall_s"], 2),
     }
 
 
@@ -441,14 +516,8 @@ def cmd_memory(args: argparse.Namespace) -> dict[str, Any]:
     runs = []
     for frames in args.frames:
         catalog = _catalog(args, frames)
-        result = timed_run(
-            catalog,
-            args.workdir / "runs" / f"memory-{frames}",
-            scheduler=None,
-            workers=2,
-            stage_package=args.stage_package,
-        )
-        print(json.dumps(result))
+        rundir = args.workdir / "runs" / f"memory-{frames}"
+        result = _fresh_run(catalog, rundir, None, 2, args)
         runs.append(result)
     first, last = runs[0], runs[-1]
     growth = {
@@ -460,7 +529,9 @@ def cmd_memory(args: argparse.Namespace) -> dict[str, Any]:
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("command", choices=("throughput", "overhead", "memory", "machine"))
+    parser.add_argument(
+        "command", choices=("throughput", "overhead", "memory", "machine", "single")
+    )
     parser.add_argument("--frames", type=int, nargs="+", default=[200])
     parser.add_argument("--unique", type=int, default=None, help="render only this many")
     parser.add_argument("--size", type=int, default=500)
@@ -470,6 +541,10 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--catalog", default=None, help="benchmark this catalog instead")
     parser.add_argument("--stage-package", default="stages")
     parser.add_argument("--workdir", type=Path, default=Path("/tmp/arroyo-bench"))
+    parser.add_argument("--repeats", type=int, default=2, help="overhead: rounds")
+    parser.add_argument("--rundir", type=Path, help="single: the run directory")
+    parser.add_argument("--scheduler", default=None, help="single: scheduler")
+    parser.add_argument("--workers", type=int, default=None, help="single: workers")
     parser.add_argument("--json", type=Path, default=None, help="append results here")
     args = parser.parse_args(argv)
     args.workdir.mkdir(parents=True, exist_ok=True)
@@ -478,7 +553,11 @@ def main(argv: list[str] | None = None) -> None:
         "overhead": cmd_overhead,
         "memory": cmd_memory,
         "machine": lambda _a: {},
+        "single": cmd_single,
     }[args.command]
+    if args.command == "single":  # one JSON line for the parent process
+        print(json.dumps(cmd_single(args)))
+        return
     result = {
         "command": args.command,
         "argv": argv if argv is not None else sys.argv[1:],
