@@ -82,12 +82,15 @@ class Segmentation:
         Per-sector background, thresholds, mode counts, phantom and seed flags.
     depth : DepthRuleStats or None
         What the depth rules changed; None when depth was not used.
+    streaks_dropped : int
+        Objects removed as streaks (rule R5).
     notes : list of str
     """
 
     labels: np.ndarray
     sectors: SectorAnalysis
     depth: DepthRuleStats | None = None
+    streaks_dropped: int = 0
     notes: list[str] = field(default_factory=list)
 
 
@@ -237,11 +240,14 @@ def segment_image(
         if disparity is not None and split_disparity_px > 0 and np.isfinite(disparity).any():
             edges = depth_edges(disparity, jump_px=split_disparity_px)
     labels = label_objects(mask, min_area_px=min_area_px, fill=fill_holes, edges=edges)
+    streaks = 0
     if method == "sector-histogram+depth" and max_elongation > 0:
         labels, streaks = drop_streaks(labels, max_elongation=max_elongation)
         if streaks:
             notes.append(f"{streaks} streak(s) longer than {max_elongation:g}x their width dropped")
-    return Segmentation(labels=labels, sectors=analysis, depth=depth_stats, notes=notes)
+    return Segmentation(
+        labels=labels, sectors=analysis, depth=depth_stats, streaks_dropped=streaks, notes=notes
+    )
 
 
 def _sector_chunks(edges: np.ndarray, tile_px: int) -> tuple[tuple[int, ...], tuple[int, ...]]:
@@ -339,7 +345,11 @@ def run_segment(
         "raised_added_px": result.depth.raised_added_px if result.depth else 0,
         "flat_removed_px": result.depth.flat_removed_px if result.depth else 0,
         "depth_valid_fraction": result.depth.depth_valid_fraction if result.depth else 0.0,
+        "height_noise_m": result.depth.ground_sigma_m if result.depth else float("nan"),
+        "streaks_dropped": result.streaks_dropped,
     }
+    if result.depth is not None:
+        notes.extend(result.depth.notes)
     return StageResult(
         arrays={
             "labels": labels.astype(np.int32, copy=False),
