@@ -12,6 +12,12 @@ nearest visible ground point, from camera height and pitch) plus 25 % and 2 px f
 standing above it, else 64 px. For the built-in archives (f = 430 px, b = 0.1 m, 1.2 m up,
 pitched 38 deg) that is about 51 px; for the 0.8 m Viking baseline about 380 px.
 
+Choosing the method. ``adaptive`` (default) is the most accurate where the ground has
+texture (mojave, lava: about a quarter of StereoSGBM's bad-2 rate, see
+``benchmarks/bench_depth_accuracy.py``). On nearly textureless floors add a taller window
+(``windows = "9,15x41,31x63,51x63"``, lab) or use ``method = "sgm"`` (lab, dunes), which
+propagates matches across weak texture.
+
 Residual. The right (reference) image is forward-warped by its disparity into the left
 image's geometry (the "pseudo-left" image); ``residual = left - pseudo_left`` lives in the
 left image's geometry, NaN where no right pixel lands. (With ``reference = "left"`` the roles
