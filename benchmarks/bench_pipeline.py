@@ -136,8 +136,22 @@ def machine() -> dict[str, Any]:
             versions[dist] = metadata.version(dist)
         except metadata.PackageNotFoundError:
             versions[dist] = None
+    try:
+        head = subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=True
+        ).stdout.strip()
+        dirty = subprocess.run(
+            ["git", "status", "--porcelain", "stages", "pipeline"],
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout.strip()
+        commit = head + (" + uncommitted changes in stages/ or pipeline/" if dirty else "")
+    except (OSError, subprocess.CalledProcessError):
+        commit = None
     return {
         "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+        "commit": commit,
         "nproc": os.cpu_count(),
         "cpu": model,
         "memory_gb": round(psutil.virtual_memory().total / 1024**3, 1),
@@ -308,8 +322,12 @@ def _load_frames(catalog: Path, stage_package: str, limit: int):
 def pure_compute(catalog: Path, stage_package: str, limit: int) -> dict[str, Any]:
     """Every stage's ``run`` in graph order on numpy arrays, in this process, nothing stored.
 
-    One warm-up frame first (numba compilation, imports), then the timed loop.
+    One warm-up frame first (numba compilation, imports), then the timed loop. OpenCV runs
+    on one thread, as in the engine's workers.
     """
+    import cv2
+
+    cv2.setNumThreads(1)  # as pipeline.worker does in every task: one worker, one core
     graph, params, contexts = _load_frames(catalog, stage_package, limit)
     per_stage = {s.name: 0.0 for s in graph.stages}
 
