@@ -1,45 +1,20 @@
-"""Sector histograms and the study's adaptive thresholds (the math of ``stages/segment.py``).
+"""Sector histograms, their modes and Chow-Kaneko interpolation (``stages/segment.py``).
 
-The frame is split into ``S x S`` sectors. Each sector gets a 256-bin gray-level histogram,
-smoothed with a nine-point moving average. Its modes are the local maxima whose prominence
-(height above the higher of the two surrounding valleys) is at least ``prominence`` times the
-sector's highest bin and at least one pixel count.
-
-The background mode of each sector is chosen by *continuity*, never by size alone:
-
-1. **Seeds.** A sector whose histogram has one mode, or one dominant mode (every other mode
-   lower than ``seed_dominance`` times the highest), is an unambiguous seed. A seed that
-   disagrees by more than ``continuity_range`` gray levels with the median of the nearest
-   other seeds (a sector wholly covered by a large rock is unimodal too) is demoted.
-2. **Propagation.** Undecided sectors are decided in order of how many decided neighbours
-   they have (8-neighbourhood, diagonals weighted ``1/sqrt(2)``). The background is predicted
-   as the weighted mean of the decided neighbours' levels; the sector's mode nearest that
-   prediction within ``continuity_range`` becomes the background. This is what picks the
-   right mode when a rock covers most of a sector (the study's curtain case).
-3. **Phantom peaks.** When no mode lies in that range the background is a *phantom peak* at
-   the predicted level: the sector is all object, or its ground is hidden in a shoulder.
-
-Thresholds lie on both sides of the background mode, because objects may be darker or
-lighter than the ground. One extension to the study: a neighbouring mode separated from the
-background by a *shallow* valley (higher than ``merge_ratio`` times the lower peak) is taken
-as ground texture -- the lit and shaded facets of dune ripples -- and absorbed, the search
-going on outwards from it (``merge_ratio = 1`` restores the study's rule). Thresholds lie at
-the valley (lowest smoothed bin, taking the end of a flat valley
-nearest the background) between the background mode and the neighbouring mode on that side;
-where no mode lies on that side, at ``max(min_band, band_sigmas * sigma)`` from the
-background, ``sigma`` being the background peak's half width at half maximum on that side
-divided by ``sqrt(2 ln 2)``. Phantom sectors borrow the median band of their decided
-neighbours.
+The frame is split into ``S x S`` sectors (edges ``np.round(np.linspace(0, H, S + 1))``).
+Each sector gets a 256-bin gray-level histogram, smoothed with a nine-point moving average.
+Its modes are the local maxima whose prominence (height above the higher of the two
+surrounding valleys) is at least ``prominence`` times the sector's highest bin and at least
+one pixel count. The background level and thresholds of each sector are chosen in
+:mod:`stages._continuity`.
 
 The per-sector thresholds belong to the sector centres and are interpolated bilinearly to
-every pixel (Chow and Kaneko, 1972), extrapolated linearly to the frame border, so no block edge
-appears at sector boundaries.
+every pixel (Chow and Kaneko, 1972), extrapolated linearly to the frame border, so no block
+edge appears at sector boundaries (:func:`interpolate_sector_grid`).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 from scipy.ndimage import uniform_filter1d
@@ -47,44 +22,17 @@ from scipy.signal import find_peaks
 
 __all__ = [
     "N_LEVELS",
-    "SectorAnalysis",
+    "FWHM_TO_SIGMA",
     "sector_edges",
     "sector_histograms",
     "smooth_histograms",
     "find_modes",
-    "analyse_sectors",
     "interpolate_sector_grid",
 ]
 
 N_LEVELS = 256
 _SMOOTHING_WIDTH = 9  # the study's nine-point filter
-_FWHM_TO_SIGMA = 1.0 / math.sqrt(2.0 * math.log(2.0))  # half width at half max -> sigma
-
-
-@dataclass(frozen=True)
-class SectorAnalysis:
-    """Per-sector results of the continuity pass; every grid has shape ``(S, S)``.
-
-    Attributes
-    ----------
-    background : (S, S) ndarray of float32
-        Background gray level (a mode or a phantom peak).
-    low, high : (S, S) ndarray of float32
-        Thresholds: a pixel darker than ``low`` or lighter than ``high`` is object.
-    modes : (S, S) ndarray of int8
-        Number of modes found in the smoothed histogram (capped at 127).
-    phantom : (S, S) ndarray of bool
-        True where the background is a phantom peak (no mode near the predicted level).
-    seed : (S, S) ndarray of bool
-        True where the sector seeded the continuity pass.
-    """
-
-    background: np.ndarray
-    low: np.ndarray
-    high: np.ndarray
-    modes: np.ndarray
-    phantom: np.ndarray
-    seed: np.ndarray
+FWHM_TO_SIGMA = 1.0 / math.sqrt(2.0 * math.log(2.0))  # half width at half max -> sigma
 
 
 def _coerce_image(image: np.ndarray) -> np.ndarray:
@@ -222,280 +170,6 @@ def find_modes(smoothed: np.ndarray, *, prominence: float) -> tuple[np.ndarray, 
     peaks, _ = find_peaks(padded, prominence=max(prominence * top, 1.0))
     positions = peaks.astype(np.int64) - 1
     return positions, smoothed[positions]
-
-
-def _valley(smoothed: np.ndarray, background: int, other: int) -> float:
-    """Lowest bin between two modes; on a flat valley, its end nearest the background."""
-    lo, hi = (other, background) if other < background else (background, other)
-    segment = smoothed[lo : hi + 1]
-    minima = np.flatnonzero(segment <= segment.min() + 1e-12) + lo
-    return float(minima.max() if other < background else minima.min())
-
-
-def _half_width(smoothed: np.ndarray, peak: int, step: int) -> float:
-    """Distance from ``peak`` to the first bin below half its height, walking by ``step``."""
-    half = smoothed[peak] / 2.0
-    side = smoothed[peak::step] if step > 0 else smoothed[peak::-1]
-    below = np.flatnonzero(side < half)
-    return float(below[0]) if below.size else float(side.size)
-
-
-def _side_threshold(smoothed, background, positions, step, *, band_sigmas, min_band, merge):
-    """Threshold on one side (step -1: darker, +1: lighter) and the width-based band.
-
-    Walks outwards from the background mode: a neighbouring mode behind a shallow valley
-    (valley higher than ``merge`` times the lower of the two peaks) is ground texture and is
-    absorbed; the first mode behind a deep valley sets the threshold at that valley; with no
-    such mode the threshold lies ``max(min_band, band_sigmas * sigma)`` beyond the outermost
-    ground mode.
-    """
-    side = positions[positions > background] if step > 0 else positions[positions < background]
-    side = np.sort(side) if step > 0 else np.sort(side)[::-1]
-    edge = background
-    for mode in side:
-        valley = _valley(smoothed, edge, int(mode))
-        floor = smoothed[int(round(valley))]
-        if floor > merge * min(smoothed[edge], smoothed[int(mode)]):
-            edge = int(mode)  # shallow valley: the same ground, another facet or tone
-            continue
-        if abs(valley - edge) >= min_band:
-            band = max(min_band, band_sigmas * _half_width(smoothed, edge, step) * _FWHM_TO_SIGMA)
-            return valley, band
-        break  # a deep valley too close to the ground: fall back on the peak width
-    band = max(min_band, band_sigmas * _half_width(smoothed, edge, step) * _FWHM_TO_SIGMA)
-    return edge + step * band, band
-
-
-def _sector_band(smoothed, background, positions, *, band_sigmas, min_band, merge):
-    """Low and high thresholds around a real background mode; also the width-based bands."""
-    low, band_low = _side_threshold(
-        smoothed,
-        background,
-        positions,
-        -1,
-        band_sigmas=band_sigmas,
-        min_band=min_band,
-        merge=merge,
-    )
-    high, band_high = _side_threshold(
-        smoothed,
-        background,
-        positions,
-        1,
-        band_sigmas=band_sigmas,
-        min_band=min_band,
-        merge=merge,
-    )
-    return low, high, band_low, band_high
-
-
-_NEIGHBOURS = [(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if (dy, dx) != (0, 0)]
-
-
-def _seed_levels(modes, *, seed_dominance: float, continuity_range: float) -> np.ndarray:
-    """Background levels of the unambiguous sectors (NaN elsewhere), inconsistent ones removed."""
-    n = len(modes)
-    levels = np.full((n, n), np.nan)
-    for i in range(n):
-        for j in range(n):
-            positions, heights = modes[i][j]
-            if heights.size == 0:
-                continue
-            order = np.argsort(heights)[::-1]
-            if heights.size == 1 or heights[order[1]] < seed_dominance * heights[order[0]]:
-                levels[i, j] = positions[order[0]]
-    candidates = np.argwhere(np.isfinite(levels))
-    keep = levels.copy()
-    for i, j in candidates:
-        # compare with the nearest other seeds, widening the window until there are three
-        for radius in (2, 4, n):
-            window = levels[
-                max(i - radius, 0) : i + radius + 1, max(j - radius, 0) : j + radius + 1
-            ]
-            others = window[np.isfinite(window)]
-            if others.size >= 4:  # itself plus three others
-                break
-        if others.size >= 2:
-            reference = np.median(np.delete(others, np.flatnonzero(others == levels[i, j])[:1]))
-            if abs(levels[i, j] - reference) > continuity_range:
-                keep[i, j] = np.nan
-    return keep
-
-
-def _global_level(smoothed: np.ndarray, *, prominence: float) -> float:
-    """Highest mode of the whole-frame histogram: the fallback when no sector is a seed."""
-    total = smoothed.reshape(-1, N_LEVELS).sum(axis=0)
-    positions, heights = find_modes(total, prominence=prominence)
-    return float(positions[np.argmax(heights)]) if positions.size else float(np.argmax(total))
-
-
-def analyse_sectors(
-    hist: np.ndarray,
-    *,
-    smoothing: int = 1,
-    prominence: float = 0.1,
-    seed_dominance: float = 0.3,
-    continuity_range: float = 24.0,
-    band_sigmas: float = 3.0,
-    min_band: float = 6.0,
-    merge_ratio: float = 0.5,
-) -> SectorAnalysis:
-    """Background level and thresholds per sector by the study's continuity rule.
-
-    Parameters
-    ----------
-    hist : (S, S, 256) ndarray of int
-        Sector histograms from :func:`sector_histograms`.
-    smoothing : int
-        Passes of the nine-point filter, ``>= 0``.
-    prominence : float
-        Mode prominence rule, see :func:`find_modes`; in ``[0, 1]``.
-    seed_dominance : float
-        In ``[0, 1]``: a sector seeds the continuity pass when every other mode is lower than
-        this fraction of its highest mode.
-    continuity_range : float
-        Gray levels, ``> 0``: how far from the level predicted by decided neighbours a mode
-        may lie and still be the background.
-    band_sigmas : float
-        ``> 0``: threshold distance in background-peak sigmas where no mode lies on that side.
-    min_band : float
-        ``>= 0`` gray levels: smallest distance between a width-based threshold and the
-        background.
-    merge_ratio : float
-        In ``[0, 1]``: a neighbouring mode whose valley to the background is higher than this
-        fraction of the lower peak is ground texture (ripple facets), not an object; 1 never
-        merges (the study's rule).
-
-    Returns
-    -------
-    SectorAnalysis
-    """
-    hist = np.asarray(hist)
-    if hist.ndim != 3 or hist.shape[0] != hist.shape[1] or hist.shape[2] != N_LEVELS:
-        raise ValueError(f"hist must have shape (S, S, {N_LEVELS}), got {hist.shape}")
-    for name, value, lo, hi in (
-        ("prominence", prominence, 0.0, 1.0),
-        ("seed_dominance", seed_dominance, 0.0, 1.0),
-        ("merge_ratio", merge_ratio, 0.0, 1.0),
-    ):
-        if not lo <= value <= hi:
-            raise ValueError(f"{name} must be in [{lo}, {hi}], got {value}")
-    if continuity_range <= 0 or band_sigmas <= 0 or min_band < 0:
-        raise ValueError(
-            "continuity_range and band_sigmas must be > 0 and min_band >= 0, got "
-            f"{continuity_range}, {band_sigmas}, {min_band}"
-        )
-    n = hist.shape[0]
-    smoothed = smooth_histograms(hist, passes=smoothing)
-    modes = [
-        [find_modes(smoothed[i, j], prominence=prominence) for j in range(n)] for i in range(n)
-    ]
-    level = _seed_levels(modes, seed_dominance=seed_dominance, continuity_range=continuity_range)
-    seed = np.isfinite(level)
-    if not seed.any():
-        _seed_from_global(level, modes, smoothed, prominence, continuity_range)
-    phantom = np.zeros((n, n), dtype=bool)
-    _propagate(level, phantom, modes, continuity_range)
-
-    low = np.empty((n, n))
-    high = np.empty((n, n))
-    band_low = np.full((n, n), np.nan)
-    band_high = np.full((n, n), np.nan)
-    for i in range(n):
-        for j in range(n):
-            if phantom[i, j]:
-                continue
-            positions = modes[i][j][0]
-            low[i, j], high[i, j], band_low[i, j], band_high[i, j] = _sector_band(
-                smoothed[i, j],
-                int(level[i, j]),
-                positions,
-                band_sigmas=band_sigmas,
-                min_band=min_band,
-                merge=merge_ratio,
-            )
-    _phantom_bands(level, phantom, band_low, band_high, low, high, min_band)
-    n_modes = np.array([[min(len(modes[i][j][0]), 127) for j in range(n)] for i in range(n)])
-    return SectorAnalysis(
-        background=level.astype(np.float32),
-        low=low.astype(np.float32),
-        high=high.astype(np.float32),
-        modes=n_modes.astype(np.int8),
-        phantom=phantom,
-        seed=seed,
-    )
-
-
-def _seed_from_global(level, modes, smoothed, prominence, continuity_range) -> None:
-    """No unambiguous sector: seed those with a mode near the frame's dominant level."""
-    target = _global_level(smoothed, prominence=prominence)
-    n = len(modes)
-    for i in range(n):
-        for j in range(n):
-            positions = modes[i][j][0]
-            if positions.size:
-                nearest = positions[np.argmin(np.abs(positions - target))]
-                if abs(nearest - target) <= continuity_range:
-                    level[i, j] = nearest
-    if not np.isfinite(level).any():
-        level[n // 2, n // 2] = target
-
-
-def _predict(level: np.ndarray, i: int, j: int) -> tuple[float, float]:
-    """Weighted mean of decided neighbours' levels and the total weight."""
-    n = level.shape[0]
-    total = weight = 0.0
-    for dy, dx in _NEIGHBOURS:
-        y, x = i + dy, j + dx
-        if 0 <= y < n and 0 <= x < n and np.isfinite(level[y, x]):
-            w = 1.0 if dy == 0 or dx == 0 else 1.0 / math.sqrt(2.0)
-            total += w * level[y, x]
-            weight += w
-    return (total / weight if weight else math.nan), weight
-
-
-def _propagate(level, phantom, modes, continuity_range) -> None:
-    """Decide undecided sectors, best-supported first (in place)."""
-    while True:
-        undecided = np.argwhere(~np.isfinite(level))
-        if undecided.size == 0:
-            return
-        scored = [(_predict(level, i, j), i, j) for i, j in undecided]
-        best = max(weight for (_, weight), _, _ in scored)
-        if best == 0.0:  # cannot happen on a connected grid with one seed; guard anyway
-            level[~np.isfinite(level)] = np.nanmedian(level)
-            return
-        decided_now = []
-        for (predicted, weight), i, j in scored:
-            if weight < best:
-                continue
-            positions, heights = modes[i][j]
-            distance = np.abs(positions - predicted)
-            near = distance <= continuity_range
-            if near.any():
-                # nearest to the prediction; the higher one breaks ties
-                candidates = np.flatnonzero(near)
-                pick = candidates[np.lexsort((-heights[candidates], distance[candidates]))[0]]
-                decided_now.append((i, j, float(positions[pick]), False))
-            else:
-                decided_now.append((i, j, float(np.clip(predicted, 0, N_LEVELS - 1)), True))
-        for i, j, value, is_phantom in decided_now:
-            level[i, j] = value
-            phantom[i, j] = is_phantom
-
-
-def _phantom_bands(level, phantom, band_low, band_high, low, high, min_band) -> None:
-    """Phantom sectors take the median width-based band of their non-phantom neighbours."""
-    if not phantom.any():
-        return
-    global_low = np.nanmedian(band_low) if np.isfinite(band_low).any() else 3 * min_band
-    global_high = np.nanmedian(band_high) if np.isfinite(band_high).any() else 3 * min_band
-    for i, j in np.argwhere(phantom):
-        window = (slice(max(i - 1, 0), i + 2), slice(max(j - 1, 0), j + 2))
-        lows = band_low[window][np.isfinite(band_low[window])]
-        highs = band_high[window][np.isfinite(band_high[window])]
-        low[i, j] = level[i, j] - (np.median(lows) if lows.size else global_low)
-        high[i, j] = level[i, j] + (np.median(highs) if highs.size else global_high)
 
 
 def _interpolation_weights(length: int, edges: np.ndarray) -> np.ndarray:

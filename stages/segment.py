@@ -4,7 +4,8 @@
 sector histograms, nine-point smoothing, modes with a prominence rule, background chosen by
 continuity with phantom peaks, thresholds at the valleys on both sides interpolated between
 sector centres (Chow and Kaneko), connected components, speck removal, hole filling. The math
-is in :mod:`stages._sectors` (histograms, continuity, thresholds) and :mod:`stages._regions`
+is in :mod:`stages._sectors` (histograms, modes, interpolation), :mod:`stages._continuity`
+(background by continuity, phantom peaks, thresholds) and :mod:`stages._regions`
 (masks, components, depth rules), both documented rule by rule.
 
 ``method = 'sector-histogram+depth'`` (default) adds the depth stage's ``height`` (metres
@@ -21,7 +22,7 @@ depth products are in left-image geometry while ``right`` is not; the stage then
 segments ``right`` and records a note (an engine-level decision, see the design notes).
 
 The extension to the study's intensity rule (``merge_ratio``: ripple facets merged into the
-ground) is in :mod:`stages._sectors`; ``merge_ratio = 1`` restores the study exactly.
+ground) is in :mod:`stages._continuity`; ``merge_ratio = 1`` restores the study exactly.
 
 Frames larger than ``tile_px`` on a side get their sector histograms per tile on dask
 (chunks aligned to sector edges); the continuity pass runs on the small sector grid.
@@ -39,6 +40,7 @@ import numpy as np
 from pipeline.compute import compute
 from pipeline.stage import FrameContext, Param, Product, Stage, StageResult
 
+from ._continuity import SectorAnalysis, analyse_sectors
 from ._regions import (
     DepthRuleStats,
     apply_depth_rules,
@@ -49,9 +51,7 @@ from ._regions import (
 )
 from ._sectors import (
     N_LEVELS,
-    SectorAnalysis,
     _histograms_between,
-    analyse_sectors,
     interpolate_sector_grid,
     sector_edges,
     sector_histograms,
@@ -153,7 +153,7 @@ def segment_image(
     sectors : int
         Sectors per axis, ``2 <= sectors <= min(M, N) // 4``.
     smoothing, prominence, seed_dominance, continuity_range, band_sigmas, min_band, merge_ratio
-        See :func:`stages._sectors.analyse_sectors`.
+        See :func:`stages._continuity.analyse_sectors`.
     min_area_px : int
         ``>= 1``; smaller objects are specks.
     fill_holes : bool

@@ -1,0 +1,115 @@
+"""Tests of stages/_continuity.py: background by continuity, phantom peaks, thresholds."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from stages._continuity import analyse_sectors
+
+LEVELS = np.arange(256)
+
+
+def gaussian_hist(*components: tuple[float, float, float]) -> np.ndarray:
+    """Histogram (256,) of Gaussian components given as (mean, sigma, pixel count)."""
+    hist = np.zeros(256)
+    for mean, sigma, count in components:
+        bump = np.exp(-0.5 * ((LEVELS - mean) / sigma) ** 2)
+        hist += count * bump / bump.sum()
+    return np.round(hist).astype(np.int64)
+
+
+def grid_of(hist: np.ndarray, n: int) -> np.ndarray:
+    return np.broadcast_to(hist, (n, n, 256)).copy()
+
+
+def test_uniform_background_is_found_everywhere_without_phantoms():
+    analysis = analyse_sectors(grid_of(gaussian_hist((140, 6, 900)), 8))
+    assert not analysis.phantom.any()
+    assert analysis.seed.all()
+    np.testing.assert_allclose(analysis.background, 140, atol=1)
+    assert np.all(analysis.low < 140) and np.all(analysis.high > 140)
+
+
+def test_curtain_case_continuity_picks_the_smaller_background_mode():
+    # a rock (gray 60) covers 70 % of sector (3, 3): its largest mode is not the ground
+    hist = grid_of(gaussian_hist((150, 6, 900)), 8)
+    hist[3, 3] = gaussian_hist((60, 6, 630), (150, 6, 270))
+    analysis = analyse_sectors(hist)
+    assert analysis.background[3, 3] == pytest.approx(150, abs=1)
+    assert not analysis.phantom[3, 3]
+    # dark object: the low threshold lies in the valley between the rock and the ground
+    assert 60 < analysis.low[3, 3] < 150 - 6
+    assert analysis.high[3, 3] > 150
+
+
+def test_sector_wholly_covered_by_a_rock_gets_a_phantom_peak():
+    hist = grid_of(gaussian_hist((150, 6, 900)), 8)
+    hist[4, 2] = gaussian_hist((60, 6, 900))  # unimodal, but not the ground
+    analysis = analyse_sectors(hist)
+    assert analysis.phantom[4, 2]
+    assert analysis.phantom.sum() == 1
+    assert not analysis.seed[4, 2]
+    assert analysis.background[4, 2] == pytest.approx(150, abs=1)
+    assert analysis.low[4, 2] > 60  # the rock's gray is below the threshold: object
+
+
+def test_phantom_follows_an_illumination_gradient():
+    n = 8
+    hist = np.stack(
+        [np.stack([gaussian_hist((100 + 10 * j, 5, 900)) for j in range(n)]) for _ in range(n)]
+    )
+    hist[2, 4] = gaussian_hist((230, 5, 900))  # bright rock covering a sector
+    analysis = analyse_sectors(hist)
+    assert analysis.phantom[2, 4]
+    assert analysis.background[2, 4] == pytest.approx(140, abs=2)
+    assert analysis.high[2, 4] < 230
+
+
+def test_light_object_threshold_at_the_upper_valley():
+    hist = grid_of(gaussian_hist((90, 6, 900)), 6)
+    hist[1, 1] = gaussian_hist((90, 6, 600), (200, 8, 300))
+    analysis = analyse_sectors(hist)
+    assert analysis.background[1, 1] == pytest.approx(90, abs=1)
+    assert 90 + 6 < analysis.high[1, 1] < 200
+    assert analysis.modes[1, 1] == 2
+
+
+def test_trimodal_sector_thresholds_on_both_sides():
+    hist = grid_of(gaussian_hist((128, 6, 900)), 6)
+    hist[2, 3] = gaussian_hist((40, 5, 200), (128, 6, 400), (220, 5, 300))
+    analysis = analyse_sectors(hist)
+    assert analysis.modes[2, 3] == 3
+    assert 40 < analysis.low[2, 3] < 128 < analysis.high[2, 3] < 220
+
+
+def test_no_unambiguous_sector_falls_back_on_the_frame_level():
+    hist = grid_of(gaussian_hist((70, 5, 450), (160, 5, 450)), 4)
+    hist[0, 0] = gaussian_hist((70, 5, 300), (160, 5, 600))
+    analysis = analyse_sectors(hist)
+    assert np.isfinite(analysis.background).all()
+    assert len(np.unique(analysis.background)) <= 2
+
+
+def test_analyse_sectors_validates():
+    with pytest.raises(ValueError, match=r"\(S, S, 256\)"):
+        analyse_sectors(np.zeros((4, 5, 256)))
+    with pytest.raises(ValueError, match="seed_dominance"):
+        analyse_sectors(np.zeros((4, 4, 256)), seed_dominance=2.0)
+    with pytest.raises(ValueError, match="continuity_range"):
+        analyse_sectors(np.zeros((4, 4, 256)), continuity_range=0)
+
+
+def test_ripple_facets_merge_into_the_ground_but_rocks_do_not():
+    # lit and shaded ripple faces: two overlapping modes with a shallow valley
+    ripples = gaussian_hist((120, 7, 450), (142, 7, 450))
+    hist = grid_of(ripples, 6)
+    hist[2, 2] = gaussian_hist((120, 7, 300), (142, 7, 300), (40, 5, 300))  # plus a dark rock
+    merged = analyse_sectors(hist, merge_ratio=0.35)
+    study = analyse_sectors(hist, merge_ratio=1.0)
+    # merged: both facets lie inside the band in every sector
+    assert np.all(merged.low < 115) and np.all(merged.high > 147)
+    # the rock behind a deep valley is still outside the band
+    assert 40 < merged.low[2, 2] < 115
+    # the study's rule puts a threshold between the facets
+    assert np.any((study.low > 120) & (study.low < 142) | (study.high > 120) & (study.high < 142))
