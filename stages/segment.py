@@ -6,10 +6,12 @@ continuity with phantom peaks, thresholds at the valleys on both sides interpola
 sector centres (Chow and Kaneko), connected components, speck removal, hole filling. The math
 is in :mod:`stages._sectors` (histograms, modes, interpolation), :mod:`stages._continuity`
 (background by continuity, phantom peaks, thresholds) and :mod:`stages._regions`
-(masks, components, depth rules), both documented rule by rule.
+(masks, components, split, streaks) and :mod:`stages._depth_rules` (height rules), all
+documented rule by rule.
 
 ``method = 'sector-histogram+depth'`` (default) adds the depth stage's ``height`` (metres
-above the fitted ground plane) and ``disparity`` (rules R0-R5 in :mod:`stages._regions`):
+above the fitted ground plane) and ``disparity`` (rules R0-R3 in :mod:`stages._depth_rules`,
+R4-R5 in :mod:`stages._regions`):
 raised pixels are object even when their gray equals the ground's, flat intensity objects
 (shadows, stains, texture blotches) are background, touching objects split at disparity
 jumps, streaks (ripple troughs) are dropped, and the intensity decision stands where depth is
@@ -41,9 +43,8 @@ from pipeline.compute import compute
 from pipeline.stage import FrameContext, Param, Product, Stage, StageResult
 
 from ._continuity import SectorAnalysis, analyse_sectors
+from ._depth_rules import DepthRuleStats, apply_depth_rules
 from ._regions import (
-    DepthRuleStats,
-    apply_depth_rules,
     depth_edges,
     drop_streaks,
     label_objects,
@@ -160,7 +161,7 @@ def segment_image(
         Fill enclosed background pockets.
     min_height_m, flat_tol_m, base_px, height_smoothing_px, ground_window_px
     min_raised_fraction
-        See :func:`stages._regions.apply_depth_rules`.
+        See :func:`stages._depth_rules.apply_depth_rules`.
     split_disparity_px : float
         ``>= 0`` px; disparity jump that splits touching objects; 0 disables the split.
     min_depth_valid_fraction : float
