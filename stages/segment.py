@@ -5,9 +5,9 @@ sector histograms, nine-point smoothing, modes with a prominence rule, backgroun
 continuity with phantom peaks, thresholds at the valleys on both sides interpolated between
 sector centres (Chow and Kaneko), connected components, speck removal, hole filling. The math
 is in :mod:`stages._sectors` (histograms, modes, interpolation), :mod:`stages._continuity`
-(background by continuity, phantom peaks, thresholds) and :mod:`stages._regions`
-(masks, components, split, streaks) and :mod:`stages._depth_rules` (height rules), all
-documented rule by rule.
+(background by continuity, phantom peaks, thresholds), :mod:`stages._regions` (masks,
+components, split, streaks) and :mod:`stages._depth_rules` (height rules), all documented
+rule by rule.
 
 ``method = 'sector-histogram+depth'`` (default) adds the depth stage's ``height`` (metres
 above the fitted ground plane) and ``disparity`` (rules R0-R3 in :mod:`stages._depth_rules`,
