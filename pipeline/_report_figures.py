@@ -151,7 +151,7 @@ def histograms_png(height_m: np.ndarray, range_m: np.ndarray, size_class: np.nda
                 groups.append(v[other])
                 colors.append(_OTHER_COLOR)
                 names.append("unclassified")
-            ax.hist(groups, bins=bins, stacked=True, color=colors, label=names)
+            ax.hist(groups, bins=list(bins), stacked=True, color=colors, label=names)
             ax.legend(fontsize=7)
         ax.set_xlabel(label)
         ax.set_ylabel("rocks")
@@ -291,7 +291,8 @@ def frame_quicklooks(
         arrays: Mapping[str, np.ndarray | None] = {n: array(n) for n in inputs}
         if any(v is None for v in arrays.values()):
             continue
-        if name != "objects" and not np.isfinite(arrays[inputs[-1]]).any():
+        last = arrays[inputs[-1]]
+        if name != "objects" and last is not None and not np.isfinite(last).any():
             continue  # depth never ran for this frame: nothing to draw over the image
         out[name] = compact_png(encode_png(render(arrays)))
     return out

@@ -210,7 +210,8 @@ def _tiff_header(data: bytes) -> ImageHeader:
 
 def _pnm_header(data: bytes) -> ImageHeader:
     kind = data[:2]
-    position, numbers = 2, []
+    position = 2
+    numbers: list[int] = []
     while len(numbers) < 3:
         while position < len(data) and (data[position : position + 1].isspace()):
             position += 1
@@ -237,8 +238,8 @@ def _pnm_header(data: bytes) -> ImageHeader:
         if len(body) < samples * (1 if maxval < 256 else 2):
             raise _truncated("PNM", f"{len(body)} bytes of pixel data for {width}x{height}")
     else:
-        digits = np.frombuffer(body, dtype=np.uint8)
-        digits = (digits >= 48) & (digits <= 57)
+        raw = np.frombuffer(body, dtype=np.uint8)
+        digits = (raw >= 48) & (raw <= 57)
         starts = np.count_nonzero(digits[1:] & ~digits[:-1]) + int(bool(digits[:1].any()))
         if starts < samples:
             raise _truncated("PNM", f"{starts} of {samples} sample values present")

@@ -206,7 +206,7 @@ def _coerce_windows(windows: Any) -> tuple[tuple[int, int], ...]:
             ) from None
     sizes: list[tuple[int, int]] = []
     for item in windows:
-        shape = (int(item), int(item)) if np.isscalar(item) else tuple(int(v) for v in item)
+        shape = (int(item), int(item)) if np.isscalar(item) else tuple(int(v) for v in item)  # type: ignore[arg-type]
         if len(shape) == 1:
             shape = (shape[0], shape[0])
         if len(shape) != 2:
@@ -572,7 +572,7 @@ def sgbm_disparity(
     right_u8, left_u8 = _coerce_pair(right, left)
     lo, hi = _coerce_range(min_disparity, max_disparity)
     count = int(np.ceil((hi - lo + 1) / 16.0)) * 16
-    matcher = cv2.StereoSGBM_create(
+    matcher = cv2.StereoSGBM_create(  # type: ignore[attr-defined]
         minDisparity=lo, numDisparities=count, blockSize=block_size,
         P1=8 * block_size**2, P2=32 * block_size**2, disp12MaxDiff=1,
         uniquenessRatio=10, speckleWindowSize=100, speckleRange=2,

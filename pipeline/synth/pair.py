@@ -49,7 +49,8 @@ def make_camera(spec: ArchetypeSpec, size: int) -> Camera:
 
 def _render(scene: Scene, camera: Camera, shape: tuple[int, int], origin, other, truth: bool):
     cx, cy = camera.principal_point(shape)
-    axes = camera_axes(float(camera.pitch_deg))
+    assert camera.pitch_deg is not None  # synth cameras have a pose
+    axes = camera_axes(camera.pitch_deg)
     lod_origin = 0.5 * (origin + other)
     return render_view(
         origin, axes, camera.focal_px, cx, cy, shape[0], shape[1], lod_origin,
@@ -104,7 +105,8 @@ def render_pair(
     shape = (size, size)
     scene_seq, noise_seq = np.random.SeedSequence(seed).spawn(2)
     scene = make_scene(spec, np.random.default_rng(scene_seq), camera=camera, shape=shape)
-    right_c = np.array([0.0, 0.0, float(camera.height_m)])
+    assert camera.height_m is not None  # synth cameras have a pose
+    right_c = np.array([0.0, 0.0, camera.height_m])
     left_c = right_c - [camera.baseline_m, 0.0, 0.0]
     rad_r, zcam, solid, zup, occluded = _render(scene, camera, shape, right_c, left_c, True)
     rad_l, *_ = _render(scene, camera, shape, left_c, right_c, False)

@@ -309,7 +309,8 @@ def make_scene(
     region = _expand(region, _PLACEMENT_MARGIN_M)
     rocks = _make_rocks(spec, rng, region, float(ground[GROUND_FIELDS.index("albedo")]))
     cell_start, cell_items, grid = _make_grid(rocks)
-    ref = np.array([0.0, float(camera.height_m) / math.tan(math.radians(camera.pitch_deg)), 0.0])
+    assert camera.height_m is not None and camera.pitch_deg is not None  # synth cameras have a pose
+    ref = np.array([0.0, camera.height_m / math.tan(math.radians(camera.pitch_deg)), 0.0])
     lights = _make_lights(spec, rng, ref[:2])
     albedo = float(ground[GROUND_FIELDS.index("albedo")])
     gain = spec.target_gray / (albedo * _irradiance_at(ref, lights, spec.ambient))

@@ -8,6 +8,7 @@ ground truth against them.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
@@ -106,7 +107,7 @@ def rock_table(
     for i, k in enumerate(rock_index):
         mask = labels == i + 1
         rock = rocks[k]
-        row = {"rock_id": i + 1}
+        row: dict[str, Any] = {"rock_id": i + 1}
         row.update(measure_rock(rock, perm, ground))
         albedo = float(rock[_IDX["albedo"]])
         width, height = row["width_m"], row["height_m"]
