@@ -1,0 +1,38 @@
+"""House style is checked with the tests: ruff on the repo, mypy on the engine."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def _tool(name: str) -> str:
+    found = shutil.which(name, path=str(Path(sys.executable).parent)) or shutil.which(name)
+    if found is None:
+        pytest.skip(f"{name} is not installed; install the test extras: pip install -e '.[test]'")
+    return found
+
+
+def test_ruff_finds_nothing():
+    result = subprocess.run(
+        [_tool("ruff"), "check", "pipeline", "stages", "tests", "benchmarks"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    assert result.returncode == 0, result.stdout + result.stderr
+
+
+@pytest.mark.slow
+def test_mypy_on_the_engine():
+    result = subprocess.run(
+        [_tool("mypy"), "pipeline"], cwd=ROOT, capture_output=True, text=True, check=False
+    )
+    assert result.returncode == 0, result.stdout + result.stderr
