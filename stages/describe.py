@@ -220,7 +220,7 @@ def run_describe(
     """Stage entry point: see :func:`describe_frame`."""
     desc, rel, figures = describe_frame(
         inputs["labels"],
-        inputs["right"],
+        inputs[frame.camera.reference],
         inputs["disparity"],
         inputs["range"],
         inputs["height"],
@@ -233,8 +233,8 @@ def run_describe(
 
 STAGE = Stage(
     name="describe",
-    version="1",
-    inputs=("right", "labels", "disparity", "range", "height", "ground_plane"),
+    version="2",
+    inputs=("left", "right", "labels", "disparity", "range", "height", "ground_plane"),
     outputs=(
         Product(
             "descriptors",

@@ -274,14 +274,15 @@ def run_quicklook(
     if not params.get("enabled", True):
         return StageResult(notes=["quicklooks disabled"])
     prefix = f"quicklooks/{frame.frame_id}"
-    right = inputs["right"]
+    reference = inputs[frame.camera.reference]
+    step = params.get("range_step_m", 0.25)
     files = {
-        f"{prefix}/objects.png": encode_png(objects_image(right, inputs["labels"])),
+        f"{prefix}/objects.png": encode_png(objects_image(reference, inputs["labels"])),
         f"{prefix}/range_contours.png": encode_png(
-            range_contours_image(right, inputs["range"], step_m=params.get("range_step_m", 0.25))
+            range_contours_image(reference, inputs["range"], step_m=step)
         ),
         f"{prefix}/residual.png": encode_png(
-            residual_image(inputs["left"], right, inputs["residual"])
+            residual_image(inputs["left"], inputs["right"], inputs["residual"])
         ),
     }
     return StageResult(files=files)
@@ -289,7 +290,7 @@ def run_quicklook(
 
 STAGE = Stage(
     name="quicklook",
-    version="1",
+    version="2",
     inputs=("left", "right", "labels", "range", "residual"),
     outputs=(Product("quicklooks", kind="files"),),
     params=(

@@ -19,9 +19,8 @@ invalid -- for the whole frame when fewer than ``min_depth_valid_fraction`` of i
 are valid. How much the height rules trust single pixels depends on the measured height
 noise of the ground (precise and noisy regimes).
 
-The reference image is the product ``right``. With a catalog ``reference = "left"`` the
-depth products are in left-image geometry while ``right`` is not; the stage then still
-segments ``right`` and records a note (an engine-level decision, see the design notes).
+The reference image is the product ``right``, or ``left`` when the catalog's camera says
+``reference = "left"`` (the depth products are then in left-image geometry too).
 
 The extension to the study's intensity rule (``merge_ratio``: ripple facets merged into the
 ground) is in :mod:`stages._continuity`; ``merge_ratio = 1`` restores the study exactly.
@@ -311,11 +310,16 @@ def tiled_sector_histograms(image: np.ndarray, *, sectors: int, tile_px: int) ->
 def run_segment(
     inputs: Mapping[str, np.ndarray], *, frame: FrameContext, params: Mapping[str, Any]
 ) -> StageResult:
-    """Stage entry point: segment the frame's ``right`` image (see :func:`segment_image`)."""
-    image = inputs["right"]
+    """Stage entry point: segment the frame's reference image (see :func:`segment_image`).
+
+    The reference is ``right`` unless the catalog's camera says ``reference = "left"``, so
+    that labels share the depth products' geometry.
+    """
+    reference = frame.camera.reference
+    image = inputs[reference]
     if image.ndim != 2 or image.dtype != np.uint8:
         raise ValueError(
-            f"segment expects product 'right' as 2-D uint8, got {image.shape} {image.dtype}"
+            f"segment expects product {reference!r} as 2-D uint8, got {image.shape} {image.dtype}"
         )
     settings = {key: value for key, value in params.items() if key != "tile_px"}
     sectors = settings["sectors"]
@@ -327,11 +331,6 @@ def run_segment(
         image, height=inputs.get("height"), disparity=inputs.get("disparity"), **settings
     )
     notes = list(result.notes)
-    if frame.camera.reference == "left":
-        notes.append(
-            "segmented product 'right' although the catalog's reference is 'left': labels "
-            "and depth products are not in one geometry"
-        )
     analysis = result.sectors
     labels = result.labels
     figures: dict[str, Any] = {
@@ -378,8 +377,8 @@ def _sector_product(name: str, dtype: str, long_name: str, units: str = "") -> P
 
 STAGE = Stage(
     name="segment",
-    version="1",
-    inputs=("right", "disparity", "height"),
+    version="2",
+    inputs=("left", "right", "disparity", "height"),
     outputs=(
         Product(
             "labels",

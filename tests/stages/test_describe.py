@@ -247,8 +247,10 @@ def test_size_frequency_figures():
 
 
 def test_stage_declaration_and_run():
-    assert STAGE.name == "describe" and STAGE.version == "1"
-    assert STAGE.inputs == ("right", "labels", "disparity", "range", "height", "ground_plane")
+    assert STAGE.name == "describe" and STAGE.version == "2"
+    assert STAGE.inputs == (
+        "left", "right", "labels", "disparity", "range", "height", "ground_plane"
+    )
     assert [(p.name, p.kind, p.schema) for p in STAGE.outputs] == [
         ("descriptors", "table", DESCRIPTOR_SCHEMA),
         ("relations", "table", RELATION_SCHEMA),

@@ -166,3 +166,16 @@ def test_segment_image_defaults_match_the_stage_defaults():
         if name == "tile_px":
             continue
         assert signature.parameters[name].default == value, name
+
+
+def test_left_reference_catalog_segments_the_left_image():
+    """Regression: with reference = "left" the stage segmented `right`, so labels and the
+    depth products were in different geometries."""
+    rock_left = scene(rocks=[(60, 90, 14, 40)])
+    rock_right = scene(rocks=[(60, 40, 14, 40)])
+    inputs = {"left": rock_left, "right": rock_right}
+    camera = Camera(focal_px=500, baseline_m=0.1, reference="left")
+    frame = FrameContext(frame_id="f0", archive="test", camera=camera)
+    params = STAGE.resolve_params({"method": "sector-histogram", "sectors": 8})
+    labels = STAGE.run(inputs, frame=frame, params=params).arrays["labels"]
+    assert labels[60, 90] > 0 and labels[60, 40] == 0
