@@ -17,7 +17,7 @@ raised pixels are object even when their gray equals the ground's, flat intensit
 jumps, streaks (ripple troughs) are dropped, and the intensity decision stands where depth is
 invalid -- for the whole frame when fewer than ``min_depth_valid_fraction`` of its heights
 are valid. How much the height rules trust single pixels depends on the measured height
-noise of the ground (precise and noisy regimes).
+noise of the ground (precise, noisy and unusable regimes).
 
 The reference image is the product ``right``, or ``left`` when the catalog's camera says
 ``reference = "left"`` (the depth products are then in left-image geometry too).
@@ -133,7 +133,7 @@ def segment_image(
     base_px: int = 2,
     height_smoothing_px: int = 5,
     split_disparity_px: float = 3.0,
-    max_elongation: float = 4.5,
+    max_elongation: float = 3.0,
     min_depth_valid_fraction: float = 0.5,
 ) -> Segmentation:
     """Segment one reference image into background and numbered objects.
@@ -377,7 +377,7 @@ def _sector_product(name: str, dtype: str, long_name: str, units: str = "") -> P
 
 STAGE = Stage(
     name="segment",
-    version="2",
+    version="3",
     inputs=("left", "right", "disparity", "height"),
     outputs=(
         Product(
@@ -446,7 +446,7 @@ STAGE = Stage(
         Param(
             "max_elongation",
             float,
-            4.5,
+            3.0,
             "depth: longer/width above this is a streak; 0 = off",
             None,
             0,

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
-from stages._depth_rules import apply_depth_rules, smooth_height
+from stages._depth_rules import _percentile_by_label, apply_depth_rules, smooth_height
 
 
 def disk(shape, cy, cx, r):
@@ -67,18 +69,49 @@ def test_depth_rules_validate():
         apply_depth_rules(mask, np.zeros((10, 10), np.int32))
 
 
-def test_noisy_depth_keeps_small_objects_and_removes_a_large_flat_one():
-    rng = np.random.default_rng(0)
+def _correlated_noise(shape, sigma_m, block_px=6, seed=0):
+    """Stereo-like height noise: constant over blocks of the matching-window scale."""
+    rng = np.random.default_rng(seed)
+    blocks = rng.normal(0, sigma_m, (shape[0] // block_px, shape[1] // block_px))
+    return np.kron(blocks, np.ones((block_px, block_px))).astype(np.float32)
+
+
+def test_noisy_depth_votes_out_a_flat_blotch_and_keeps_a_low_rock():
     shape = (120, 120)
-    # stereo noise is correlated over the matching window: 3 cm blocks of 6 px
-    blocks = rng.normal(0, 0.03, (20, 20)).astype(np.float32)
-    height = np.kron(blocks, np.ones((6, 6), np.float32))
+    height = _correlated_noise(shape, 0.008)
     blotch = np.zeros(shape, bool)
-    blotch[10:60, 10:110] = True  # large dark texture blotch lying on the ground
-    pebble = disk(shape, 95, 60, 4)  # small object: too few samples to judge
-    height[pebble] = 0.0
-    combined, stats = apply_depth_rules(blotch | pebble, height)
-    assert stats.ground_sigma_m > 0.015
-    assert "object-level" in stats.notes[0]
+    blotch[10:40, 10:110] = True  # dark texture blotch lying on the ground
+    rock = disk(shape, 85, 60, 12)
+    # a 2-3 cm rock read low by the stereo: only its top stands clear of the noise
+    height[rock] += 0.025 * np.clip(1 - ((np.mgrid[:120, :120][0] - 85) / 12.0) ** 2, 0, 1)[rock]
+    combined, stats = apply_depth_rules(blotch | rock, height)
+    assert 0.005 < stats.ground_sigma_m < 0.015
+    assert "object vote" in stats.notes[0]
     assert not combined[blotch].any()
-    assert combined[pebble].all()
+    assert combined[rock].all()
+    assert not (combined & ~(blotch | rock)).any()  # no object from height alone
+
+
+def test_unusable_depth_keeps_the_intensity_decision():
+    shape = (120, 120)
+    height = _correlated_noise(shape, 0.03)
+    blotch = np.zeros(shape, bool)
+    blotch[10:60, 10:110] = True
+    combined, stats = apply_depth_rules(blotch, height)
+    assert stats.ground_sigma_m > 0.015
+    assert "unusable" in stats.notes[0]
+    np.testing.assert_array_equal(combined, blotch)
+
+
+@given(st.lists(st.tuples(st.integers(0, 4), st.floats(-1, 1, allow_nan=False)), max_size=60))
+def test_percentile_by_label_matches_numpy_nearest_rank(pairs):
+    labels = np.array([p[0] for p in pairs], dtype=np.int64)
+    values = np.array([p[1] for p in pairs], dtype=np.float64)
+    result = _percentile_by_label(values, labels, 5, 90.0)
+    for label in range(5):
+        chosen = values[labels == label]
+        if chosen.size == 0:
+            assert result[label] == np.inf
+        else:
+            expected = np.percentile(chosen, 90, method="lower")
+            assert result[label] == pytest.approx(expected)
