@@ -35,7 +35,7 @@ from pipeline.camera import Camera
 from pipeline.errors import ParamError
 from pipeline.stage import FrameContext, Param, Product, Stage, StageResult
 
-from . import _stereo
+from . import _refine, _stereo
 from .geometry import (
     derive_max_disparity,
     fit_ground_plane,
@@ -93,6 +93,12 @@ PARAMS: tuple[Param, ...] = (
         1024,
         "frames with a side above this are matched per tile; 0 = never",
         minimum=0,
+    ),
+    Param(
+        "ground_refine",
+        bool,
+        False,
+        "refine the disparity by matching relative to the fitted ground plane (stages._refine)",
     ),
     Param(
         "ground_inlier_px",
@@ -208,7 +214,8 @@ def run_depth(
         Arrays ``disparity``, ``range``, ``residual``, ``height`` (M, N) float32 and
         ``ground_plane`` (4,) float64; figures ``rms_residual``, ``valid_fraction``,
         ``lr_consistency``, ``ground_fit_inliers``, ``min_disparity``, ``max_disparity``,
-        ``ground_height_m``, ``ground_pitch_deg``, ``ground_fit``, ``median_range_m``.
+        ``ground_height_m``, ``ground_pitch_deg``, ``ground_fit``, ``ground_refined_fraction``,
+        ``median_range_m``.
     """
     left = np.asarray(inputs["left"])
     right = np.asarray(inputs["right"])
@@ -233,6 +240,14 @@ def run_depth(
     if tiled:
         notes.append(f"matched in tiles of {params['tile_px']} px")
     disparity_m = matching.disparity
+    refined_fraction = 0.0
+    if params["ground_refine"] and params["method"] != "opencv-sgbm":
+        plane_px = _refine.fit_disparity_plane(disparity_m)
+        if plane_px is not None:
+            disparity_m, source = _refine.refine_against_ground(
+                reference, other, disparity_m, plane=plane_px
+            )
+            refined_fraction = float(np.mean(source > 0))
     pseudo = pseudo_left(reference, disparity_m)
     diff = residual(other, pseudo)
     disparity = disparity_m[:, ::-1] if mirrored else disparity_m
@@ -263,6 +278,7 @@ def run_depth(
         "ground_pitch_deg": _pitch_deg(fit.plane),
         "min_disparity": lo,
         "max_disparity": hi,
+        "ground_refined_fraction": refined_fraction,
         "median_range_m": float(np.median(finite_range)) if finite_range.size else float("nan"),
     }
     return StageResult(
@@ -280,7 +296,7 @@ def run_depth(
 
 STAGE = Stage(
     name="depth",
-    version="1",
+    version="2",
     inputs=("left", "right"),
     outputs=OUTPUTS,
     params=PARAMS,

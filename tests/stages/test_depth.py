@@ -161,3 +161,15 @@ def test_mismatched_images_raise_value_error():
     left, right, _ = _ground_pair(shape=(32, 48))
     with pytest.raises(ValueError, match="one shape"):
         _run(left, right[:, :40])
+
+
+def test_ground_refine_option_sharpens_the_ground():
+    left, right, truth = _ground_pair()
+    plain = _run(left, right)
+    refined = _run(left, right, ground_refine=True)
+    assert plain.figures["ground_refined_fraction"] == 0.0
+    assert refined.figures["ground_refined_fraction"] > 0.5
+    d0, d1 = plain.arrays["disparity"], refined.arrays["disparity"]
+    assert np.array_equal(np.isfinite(d0), np.isfinite(d1))  # never adds or drops a match
+    ok = np.isfinite(d1)
+    assert np.median(np.abs(d1[ok] - truth[ok])) <= np.median(np.abs(d0[ok] - truth[ok]))
