@@ -35,10 +35,11 @@ __all__ = ["fit_disparity_plane", "refine_against_ground"]
 
 
 def _coerce_window(window: Any, name: str) -> tuple[int, int]:
-    shape = (int(window), int(window)) if np.isscalar(window) else tuple(int(v) for v in window)
+    values = [window, window] if isinstance(window, int | np.integer) else list(window)
+    shape = tuple(int(v) for v in values)
     if len(shape) != 2 or any(v < 3 or v % 2 == 0 or v > 63 for v in shape):
         raise ValueError(f"{name} must be odd (rows, columns) in [3, 63], got {window!r}")
-    return shape  # type: ignore[return-value]
+    return shape[0], shape[1]
 
 
 def fit_disparity_plane(
