@@ -17,6 +17,14 @@ Depth rules R0-R3 (height above ground: local ground, raised, flat, no depth) ar
 * **R5 streaks** -- an object more than ``max_elongation`` times longer than wide (its
   equivalent ellipse) is a wind striation or ripple trough, not a rock: dropped
   (:func:`drop_streaks`). Rocks seen from a rover are compact blobs.
+* **R6 attached shadows** -- a cast shadow touching a dark rock is dark too, so intensity
+  keeps it as rock; where depth cannot tell (a shadow lies on the ground, but noisy heights
+  are smoothed across it), gray levels can: an object darker than its background ring whose
+  gray levels split (Otsu) into a dark core and a lighter class at least ``min_gap`` levels
+  apart, each holding >= ``min_share`` of the object, the core ``core_ratio`` times further
+  below the ground than the lighter class, loses the lighter class
+  (:func:`trim_attached_shadows`). Light objects are left alone: their shadows are darker
+  than the ground and never merged with them.
 """
 
 from __future__ import annotations
@@ -32,6 +40,7 @@ __all__ = [
     "label_objects",
     "elongation",
     "drop_streaks",
+    "trim_attached_shadows",
 ]
 
 
@@ -263,3 +272,95 @@ def drop_streaks(labels: np.ndarray, *, max_elongation: float) -> tuple[np.ndarr
         return labels, 0
     kept = np.where(streak[labels], 0, labels)
     return _renumber(kept, 1), int(streak.sum())
+
+
+def trim_attached_shadows(
+    labels: np.ndarray,
+    image: np.ndarray,
+    *,
+    min_gap: float = 25.0,
+    min_share: float = 0.1,
+    core_ratio: float = 2.5,
+    ring_px: int = 3,
+) -> np.ndarray:
+    """Rule R6: remove the attached cast shadow of a dark object (see the module doc).
+
+    Parameters
+    ----------
+    labels : (M, N) ndarray of int32
+        0 background, 1..n objects.
+    image : (M, N) ndarray of uint8
+        Reference gray image.
+    min_gap : float
+        ``>= 0`` gray levels; the two gray classes of an object must differ by this much.
+    min_share : float
+        In ``[0, 0.5]``; each class holds at least this share of the object.
+    core_ratio : float
+        ``>= 1``; the core must be this many times further below the ground than the shadow.
+    ring_px : int
+        ``>= 1``; width of the background ring that gives the ground's gray level.
+
+    Returns
+    -------
+    labels : (M, N) ndarray of int32
+        Same ids; shadow pixels set to 0 (objects are not renumbered).
+    """
+    if labels.shape != image.shape:
+        raise ValueError(f"labels {labels.shape} and image {image.shape} must have one shape")
+    if not 0 <= min_share <= 0.5 or min_gap < 0 or core_ratio < 1 or ring_px < 1:
+        raise ValueError(
+            "need min_gap >= 0, 0 <= min_share <= 0.5, core_ratio >= 1, ring_px >= 1; got "
+            f"{min_gap}, {min_share}, {core_ratio}, {ring_px}"
+        )
+    out = labels.copy()
+    count = int(labels.max())
+    if count == 0:
+        return out
+    kernel = np.ones((2 * ring_px + 1, 2 * ring_px + 1), np.uint8)
+    rows, cols = labels.shape
+    boxes = _object_boxes(labels, count)
+    for k in range(1, count + 1):
+        y0, y1, x0, x1 = boxes[k]
+        if y1 < y0:
+            continue
+        y0, x0 = max(0, y0 - ring_px), max(0, x0 - ring_px)
+        y1, x1 = min(rows, y1 + ring_px + 1), min(cols, x1 + ring_px + 1)
+        window = labels[y0:y1, x0:x1]
+        inside = window == k
+        gray = image[y0:y1, x0:x1][inside]
+        if gray.size < 40:
+            continue
+        ring = cv2.dilate(inside.view(np.uint8), kernel).view(bool) & (window == 0)
+        if not ring.any():
+            continue
+        ground = float(np.median(image[y0:y1, x0:x1][ring]))
+        if np.median(gray) >= ground:
+            continue  # a light object's shadow is darker than the ground: never merged
+        split, _ = cv2.threshold(gray.reshape(1, -1), 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
+        core = gray <= split
+        share = core.mean()
+        if not min_share <= share <= 1 - min_share:
+            continue
+        core_mean, shade_mean = float(gray[core].mean()), float(gray[~core].mean())
+        if shade_mean - core_mean < min_gap or not shade_mean < ground:
+            continue
+        if ground - core_mean < core_ratio * (ground - shade_mean):
+            continue
+        shade = np.zeros_like(inside)
+        shade[inside] = ~core
+        out[y0:y1, x0:x1][shade] = 0
+    return out
+
+
+def _object_boxes(labels: np.ndarray, count: int) -> np.ndarray:
+    """Inclusive (y0, y1, x0, x1) of each label 0..count (y1 < y0 when absent)."""
+    ys, xs = np.nonzero(labels)
+    ids = labels[ys, xs]
+    boxes = np.empty((count + 1, 4), dtype=np.int64)
+    boxes[:, 0] = boxes[:, 2] = np.iinfo(np.int64).max
+    boxes[:, 1] = boxes[:, 3] = -1
+    np.minimum.at(boxes[:, 0], ids, ys)
+    np.maximum.at(boxes[:, 1], ids, ys)
+    np.minimum.at(boxes[:, 2], ids, xs)
+    np.maximum.at(boxes[:, 3], ids, xs)
+    return boxes

@@ -48,6 +48,7 @@ from ._regions import (
     drop_streaks,
     label_objects,
     threshold_mask,
+    trim_attached_shadows,
 )
 from ._sectors import (
     N_LEVELS,
@@ -241,6 +242,14 @@ def segment_image(
             edges = depth_edges(disparity, jump_px=split_disparity_px)
     labels = label_objects(mask, min_area_px=min_area_px, fill=fill_holes, edges=edges)
     streaks = 0
+    heights_precise = depth_stats is not None and depth_stats.ground_sigma_m <= 0.005
+    if method == "sector-histogram+depth" and not heights_precise:
+        # R6: precise heights already removed shadows (R2); otherwise gray levels do
+        trimmed = trim_attached_shadows(labels, image)
+        # relabel (a trimmed shadow may have joined two rocks) but keep the R4 splits
+        labels = label_objects(
+            trimmed > 0, min_area_px=min_area_px, fill=False, edges=_seams(trimmed)
+        )
     if method == "sector-histogram+depth" and max_elongation > 0:
         labels, streaks = drop_streaks(labels, max_elongation=max_elongation)
         if streaks:
@@ -248,6 +257,18 @@ def segment_image(
     return Segmentation(
         labels=labels, sectors=analysis, depth=depth_stats, streaks_dropped=streaks, notes=notes
     )
+
+
+def _seams(labels: np.ndarray) -> np.ndarray:
+    """Pixels with a 4-neighbour of another object: where touching objects meet."""
+    seams = np.zeros(labels.shape, dtype=bool)
+    for a, b in ((labels[:, 1:], labels[:, :-1]), (labels[1:, :], labels[:-1, :])):
+        differ = (a != b) & (a > 0) & (b > 0)
+        if a.shape[0] < labels.shape[0]:
+            seams[1:, :] |= differ
+        else:
+            seams[:, 1:] |= differ
+    return seams
 
 
 def _sector_chunks(edges: np.ndarray, tile_px: int) -> tuple[tuple[int, ...], tuple[int, ...]]:
@@ -377,7 +398,7 @@ def _sector_product(name: str, dtype: str, long_name: str, units: str = "") -> P
 
 STAGE = Stage(
     name="segment",
-    version="3",
+    version="4",
     inputs=("left", "right", "disparity", "height"),
     outputs=(
         Product(

@@ -95,3 +95,24 @@ def test_drop_streaks_keeps_compact_objects_and_renumbers():
     assert kept[20, 20] == 1 and kept[42, 40] == 0
     with pytest.raises(ValueError, match="max_elongation"):
         drop_streaks(labels, max_elongation=1.0)
+
+
+def test_trim_attached_shadows_removes_the_lighter_class_of_a_dark_rock_only():
+    from stages._regions import trim_attached_shadows
+
+    yy, xx = np.mgrid[:80, :80]
+    image = np.full((80, 80), 160, np.uint8)
+    rock = (yy - 25) ** 2 + (xx - 25) ** 2 <= 64
+    shadow = ((yy - 25) ** 2 + (xx - 33) ** 2 <= 64) & ~rock
+    image[rock], image[shadow] = 40, 130
+    light_rock = (yy - 60) ** 2 + (xx - 60) ** 2 <= 64
+    light_shadow = ((yy - 60) ** 2 + (xx - 68) ** 2 <= 64) & ~light_rock
+    image[light_rock], image[light_shadow] = 230, 100
+    labels = np.zeros((80, 80), np.int32)
+    labels[rock | shadow] = 1
+    labels[light_rock | light_shadow] = 2
+    trimmed = trim_attached_shadows(labels, image)
+    np.testing.assert_array_equal(trimmed == 1, rock)
+    np.testing.assert_array_equal(trimmed == 2, light_rock | light_shadow)
+    with pytest.raises(ValueError, match="one shape"):
+        trim_attached_shadows(labels, image[:10])
