@@ -25,8 +25,9 @@ EXIT_OK, EXIT_FAILED_FRAMES, EXIT_USAGE, EXIT_LOCKED, EXIT_STORE = 0, 1, 2, 3, 4
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
+    from .plan import RunPlan, format_plan
     from .progress import make_progress
-    from .runner import RunPlan, format_plan, run
+    from .runner import run
 
     callback, close = make_progress(enabled=not args.quiet and not args.dry_run)
     try:

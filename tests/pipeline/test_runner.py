@@ -14,7 +14,8 @@ import xarray as xr
 
 from pipeline.errors import ParamError, RunLockedError
 from pipeline.lock import RunLock
-from pipeline.runner import RunPlan, run
+from pipeline.plan import RunPlan
+from pipeline.runner import run
 
 FAKE = "arroyo_fake_stages"
 

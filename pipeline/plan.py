@@ -1,0 +1,237 @@
+"""What a run must do: validate the catalog and params, key every (frame, stage) result.
+
+A (frame, stage) result has a cache key: the stage's name, version and effective params, the
+frame's camera, the keys of the stages it reads from, and (for ``ingest``) the sha256 of the
+two input files. A run redoes exactly the results whose key has no completion record.
+"""
+
+from __future__ import annotations
+
+import fnmatch
+import hashlib
+import json
+import os
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from .catalog import Catalog, FrameRecord, load_catalog
+from .errors import ParamError
+from .graph import (
+    StageGraph,
+    build_graph,
+    discover_stages,
+    parse_set_overrides,
+    resolve_stage_params,
+    stage_package_name,
+)
+from .state import RunState
+from .store import file_sha256
+
+__all__ = ["RunPlan", "plan_run", "frame_keys", "format_plan", "validate_request", "default_rundir"]
+
+
+@dataclass
+class RunPlan:
+    """What a run will do, and why."""
+
+    catalog: Catalog
+    graph: StageGraph
+    params: dict[str, dict[str, Any]]
+    rundir: Path
+    frames: list[FrameRecord]  # selected frames, catalog order
+    indices: dict[str, int]  # frame_id -> position in the catalog (zarr index)
+    keys: dict[str, dict[str, str]]  # frame_id -> stage -> key
+    todo: dict[str, list[str]]  # frame_id -> stages to run, graph order
+    reasons: dict[str, dict[str, str]]  # frame_id -> stage -> new|changed|failed
+    image_shape: tuple[int, int] | None
+    input_hashes: dict[str, tuple[str, str]]
+    stage_package: str = "stages"
+
+    def counts(self) -> dict[str, dict[str, int]]:
+        out: dict[str, dict[str, int]] = {}
+        for stage in self.graph.stages:
+            row = {"new": 0, "changed": 0, "failed": 0, "done": 0}
+            for frame in self.frames:
+                reason = self.reasons[frame.frame_id].get(stage.name)
+                row[reason or "done"] += 1
+            out[stage.name] = row
+        return out
+
+
+# -- keys and plan ------------------------------------------------------------------------
+def _digest(payload: Any) -> str:
+    text = json.dumps(payload, sort_keys=True, separators=(",", ":"), default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:32]
+
+
+def frame_keys(
+    graph: StageGraph,
+    params: Mapping[str, Mapping[str, Any]],
+    frame: FrameRecord,
+    input_hash: tuple[str, str],
+    image_shape: tuple[int, int] | None,
+) -> dict[str, str]:
+    """Cache key of every stage for one frame."""
+    keys: dict[str, str] = {}
+    for stage in graph.stages:
+        payload: dict[str, Any] = {
+            "stage": stage.name,
+            "version": stage.version,
+            "params": dict(params[stage.name]),
+            "upstream": {u: keys[u] for u in graph.upstream(stage)},
+        }
+        if not stage.inputs and not stage.optional_inputs:
+            payload["files"] = list(input_hash)
+            payload["shape"] = list(image_shape) if image_shape else None
+        else:
+            payload["camera"] = frame.camera.to_dict()
+        keys[stage.name] = _digest(payload)
+    return keys
+
+
+def _hash_inputs(
+    frames: Sequence[FrameRecord], state: RunState | None, *, remember: bool
+) -> dict[str, tuple[str, str]]:
+    """sha256 of both files of each frame, reusing earlier hashes of unchanged files."""
+    fresh: list[tuple[str, int, int, str]] = []
+    out = {}
+
+    def one(path: Path) -> str:
+        try:
+            st = path.stat()
+            if not path.is_file():
+                return "not-a-file"
+            cached = state.input_hash(str(path), st.st_size, st.st_mtime_ns) if state else None
+            if cached:
+                return cached
+            sha = file_sha256(path)
+        except OSError as exc:
+            return f"unreadable:{exc.errno}"
+        fresh.append((str(path), st.st_size, st.st_mtime_ns, sha))
+        return sha
+
+    for frame in frames:
+        out[frame.frame_id] = (one(frame.left), one(frame.right))
+    if remember and state is not None and fresh:
+        state.remember_input_hashes(fresh)
+    return out
+
+
+def _probe_shape(catalog: Catalog) -> tuple[int, int] | None:
+    """The archive's frame shape: the catalog's, else the first right image that decodes."""
+    if catalog.shape:
+        return catalog.shape
+    from stages._imageio import read_gray
+
+    for frame in catalog.frames[:50]:
+        try:
+            h, w = read_gray(frame.right).image.shape
+            return int(h), int(w)
+        except Exception:  # noqa: BLE001 - any unreadable frame: try the next one
+            continue
+    return None
+
+
+def default_rundir(catalog: Catalog) -> Path:
+    return Path("runs") / catalog.name
+
+
+def validate_request(
+    catalog_path: str | os.PathLike[str],
+    overrides: Iterable[str],
+    frames: str | None,
+    stage_package: str | None,
+) -> tuple[Catalog, StageGraph, dict[str, dict[str, Any]], list[FrameRecord]]:
+    """Catalog, graph, effective params and selected frames; raises before any work."""
+    catalog = load_catalog(catalog_path)
+    graph = build_graph(discover_stages(stage_package_name(stage_package)))
+    params = resolve_stage_params(graph, catalog.params, parse_set_overrides(graph, overrides))
+    selected = [f for f in catalog.frames if frames is None or fnmatch.fnmatch(f.frame_id, frames)]
+    if not selected:
+        raise ParamError(
+            f"--frames {frames!r} matches none of the {len(catalog.frames)} frames of "
+            f"{catalog.source}; frame ids look like {catalog.frames[0].frame_id!r}"
+        )
+    return catalog, graph, params, selected
+
+
+def plan_run(
+    catalog_path: str | os.PathLike[str],
+    out: str | os.PathLike[str] | None = None,
+    *,
+    overrides: Iterable[str] = (),
+    frames: str | None = None,
+    stage_package: str | None = None,
+    state: RunState | None = None,
+) -> RunPlan:
+    """Validate everything and work out what must run.
+
+    With ``state`` (the run's writable journal) newly computed input hashes are remembered;
+    without it the run directory is only read.
+    """
+    catalog, graph, params, selected = validate_request(
+        catalog_path, overrides, frames, stage_package
+    )
+    rundir = Path(out) if out is not None else default_rundir(catalog)
+    reader = state
+    if reader is None and (rundir / "state.sqlite").exists():
+        reader = RunState(rundir, readonly=True)
+    try:
+        done = reader.done() if reader else {}
+        failed = reader.failed() if reader else {}
+        hashes = _hash_inputs(selected, reader, remember=state is not None)
+    finally:
+        if reader is not None and reader is not state:
+            reader.close()
+    image_shape = _probe_shape(catalog)
+    keys: dict[str, dict[str, str]] = {}
+    todo: dict[str, list[str]] = {}
+    reasons: dict[str, dict[str, str]] = {}
+    for frame in selected:
+        fid = frame.frame_id
+        keys[fid] = frame_keys(graph, params, frame, hashes[fid], image_shape)
+        todo[fid], reasons[fid] = [], {}
+        for stage in graph.stages:
+            record = done.get((fid, stage.name))
+            if record is not None and record.key == keys[fid][stage.name]:
+                continue
+            todo[fid].append(stage.name)
+            if fid in failed:
+                reasons[fid][stage.name] = "failed"
+            else:
+                reasons[fid][stage.name] = "new" if record is None else "changed"
+    return RunPlan(
+        catalog=catalog,
+        graph=graph,
+        params=params,
+        rundir=rundir,
+        frames=selected,
+        indices={f.frame_id: i for i, f in enumerate(catalog.frames)},
+        keys=keys,
+        todo=todo,
+        reasons=reasons,
+        image_shape=image_shape,
+        input_hashes=hashes,
+        stage_package=stage_package_name(stage_package),
+    )
+
+
+def format_plan(plan: RunPlan) -> str:
+    """The dry-run table: per stage, how many frames are new, changed, failed or done."""
+    lines = [
+        f"catalog {plan.catalog.source} ({plan.catalog.name}), {len(plan.frames)} frames "
+        f"selected, run directory {plan.rundir}",
+        f"{'stage':<12}{'new':>8}{'changed':>9}{'failed':>8}{'done':>8}",
+    ]
+    for stage, row in plan.counts().items():
+        lines.append(
+            f"{stage:<12}{row['new']:>8}{row['changed']:>9}{row['failed']:>8}{row['done']:>8}"
+        )
+    work = sum(1 for f in plan.frames if plan.todo[f.frame_id])
+    lines.append(
+        f"{work} frame(s) would run; 'changed' = parameters, code version or inputs "
+        "differ from the recorded result"
+    )
+    return "\n".join(lines) + "\n"
