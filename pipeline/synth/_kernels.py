@@ -34,7 +34,7 @@ import numpy as np
 from numba import njit
 
 __all__ = [
-    "NOISE_LIPSCHITZ", "make_permutation", "perlin2", "perlin3", "fbm", "fbm2",
+    "NOISE_LIPSCHITZ", "ROCK_RELIEF_BOUND", "make_permutation", "perlin2", "perlin3", "fbm", "fbm2",
     "GROUND_FIELDS", "ROCK_FIELDS", "GRID_FIELDS", "MAX_PLANES",
     "ground_height", "ground_albedo", "rock_field", "rock_albedo", "rock_first_hit",
     "intersect", "rock_lipschitz", "render_view", "rock_columns",
@@ -44,6 +44,9 @@ __all__ = [
 # Upper bound of |grad perlin2|, |grad perlin3| (measured maximum about 2.75; kept with a
 # margin) used by the sphere tracers to take steps that cannot jump over a surface.
 NOISE_LIPSCHITZ = 3.5
+# Bound on |perlin3 + 0.45 perlin3| (the rock relief noise; |perlin3| stays below about
+# 1.04): the relief moves a rock's surface by at most this times its relief amplitude.
+ROCK_RELIEF_BOUND = 1.55
 
 
 def make_permutation(rng: np.random.Generator) -> np.ndarray:
@@ -429,9 +432,62 @@ def rock_albedo(
 
 
 @njit(cache=True, nogil=True)
-def rock_first_hit(rock, perm, ox, oy, oz, dx, dy, dz, tmin, tmax) -> float:
-    """First ``t`` in [tmin, tmax] where the unit ray enters the rock; inf when none."""
-    # bounding sphere
+def _rock_interval(rock, ox, oy, oz, dx, dy, dz, t0, t1):
+    """Clip ``[t0, t1]`` to the rock's bounding polytope (box and facet planes).
+
+    In the rock's normalised coordinates ``(u/a, v/b, w/c)`` the solid lies inside the
+    cube ``|.| <= k`` and below every facet plane raised by ``k - 1``, with
+    ``k = 1 + ROCK_RELIEF_BOUND * relief_amp`` (the relief moves the surface by at most that).
+    """
+    qx = ox - rock[R_CX]
+    qy = oy - rock[R_CY]
+    qz = oz - rock[R_CZ]
+    r = R_ROT
+    ia = 1.0 / rock[R_A]
+    ib = 1.0 / rock[R_B]
+    ic = 1.0 / rock[R_C]
+    pu = (rock[r + 0] * qx + rock[r + 3] * qy + rock[r + 6] * qz) * ia
+    pv = (rock[r + 1] * qx + rock[r + 4] * qy + rock[r + 7] * qz) * ib
+    pw = (rock[r + 2] * qx + rock[r + 5] * qy + rock[r + 8] * qz) * ic
+    du = (rock[r + 0] * dx + rock[r + 3] * dy + rock[r + 6] * dz) * ia
+    dv = (rock[r + 1] * dx + rock[r + 4] * dy + rock[r + 7] * dz) * ib
+    dw = (rock[r + 2] * dx + rock[r + 5] * dy + rock[r + 8] * dz) * ic
+    slack = ROCK_RELIEF_BOUND * rock[R_RELIEF_AMP]
+    k = 1.0 + slack
+    for p0, q in ((pu, du), (pv, dv), (pw, dw)):
+        if abs(q) < 1e-15:
+            if abs(p0) > k:
+                return 1.0, 0.0
+        else:
+            ta = (-k - p0) / q
+            tb = (k - p0) / q
+            if ta > tb:
+                ta, tb = tb, ta
+            t0 = max(t0, ta)
+            t1 = min(t1, tb)
+    for i in range(int(rock[R_NPLANES])):
+        p = R_PLANES + 4 * i
+        num = rock[p + 3] + slack - (rock[p] * pu + rock[p + 1] * pv + rock[p + 2] * pw)
+        den = rock[p] * du + rock[p + 1] * dv + rock[p + 2] * dw
+        # inside where den * t <= num
+        if abs(den) < 1e-15:
+            if num < 0.0:
+                return 1.0, 0.0
+        elif den > 0.0:
+            t1 = min(t1, num / den)
+        else:
+            t0 = max(t0, num / den)
+    return t0, t1
+
+
+@njit(cache=True, nogil=True)
+def rock_first_hit(rock, perm, ox, oy, oz, dx, dy, dz, tmin, tmax, zfloor) -> float:
+    """First ``t`` in [tmin, tmax] where the unit ray enters the rock; inf when none.
+
+    Only the part of the rock above ``z = zfloor`` is searched (pass ``-inf`` for the whole
+    solid): below the lowest ground no ray that is still above the ground can meet it.
+    """
+    # bounding sphere: a cheap first rejection
     qx = ox - rock[R_CX]
     qy = oy - rock[R_CY]
     qz = oz - rock[R_CZ]
@@ -444,6 +500,18 @@ def rock_first_hit(rock, perm, ox, oy, oz, dx, dy, dz, tmin, tmax) -> float:
     sq = math.sqrt(disc)
     t0 = max(-bq - sq, tmin)
     t1 = min(-bq + sq, tmax)
+    if t0 >= t1:
+        return _INF
+    if abs(dz) < 1e-12:
+        if oz < zfloor:
+            return _INF
+    elif dz > 0.0:
+        t0 = max(t0, (zfloor - oz) / dz)
+    else:
+        t1 = min(t1, (zfloor - oz) / dz)
+    if t0 >= t1:
+        return _INF
+    t0, t1 = _rock_interval(rock, ox, oy, oz, dx, dy, dz, t0, t1)
     if t0 >= t1:
         return _INF
     lip = rock[R_LIP]
@@ -511,12 +579,17 @@ def intersect(
     rocks: np.ndarray,
     cell_start: np.ndarray,
     cell_items: np.ndarray,
+    cell_zmax: np.ndarray,
     grid: np.ndarray,
 ):
     """First hit of a unit ray with the scene.
 
     Returns ``(t, solid)``: ``solid`` is -1 for no hit, 0 for the ground, ``k + 1`` for rock
     ``k``. With ``any_hit`` the search stops at the first hit found (shadow rays).
+
+    Rocks are searched cell by cell along the ray, each only on the ray's segment inside
+    the cell: every point of a rock lies in a cell that lists it, so the first hit is
+    found exactly once; cells whose rocks all stay below the segment are skipped.
     """
     best_t = _ground_first_hit(ground, perm, ox, oy, oz, dx, dy, dz, tmin, tmax)
     best_id = 0 if best_t < _INF else -1
@@ -562,17 +635,26 @@ def intersect(
     else:
         by = (iy + (1 if dy > 0 else 0)) * cell + y0
         tnext_y, tdelta_y = (by - oy) / dy, cell / abs(dy)
+    zfloor = ground[G_MIN]
+    t_in = ta
     while True:
         c = iy * nx + ix
-        for j in range(cell_start[c], cell_start[c + 1]):
-            k = cell_items[j]
-            t = rock_first_hit(rocks[k], perm, ox, oy, oz, dx, dy, dz, tmin, min(best_t, tb))
-            if t < best_t:
-                best_t = t
-                best_id = k + 1
-                if any_hit:
-                    return best_t, best_id
         t_exit = min(tnext_x, tnext_y)
+        t_out = min(t_exit, tb, best_t)
+        if cell_start[c] < cell_start[c + 1] and t_out >= t_in:
+            z_low = min(oz + dz * t_in, oz + dz * t_out)
+            if z_low <= cell_zmax[c]:
+                for j in range(cell_start[c], cell_start[c + 1]):
+                    k = cell_items[j]
+                    t = rock_first_hit(
+                        rocks[k], perm, ox, oy, oz, dx, dy, dz, t_in, min(best_t, t_out), zfloor
+                    )
+                    if t < best_t:
+                        best_t = t
+                        best_id = k + 1
+                        if any_hit:
+                            return best_t, best_id
+        t_in = max(t_in, t_exit)
         if best_t <= t_exit or t_exit >= tb:
             break
         if tnext_x < tnext_y:
@@ -637,6 +719,7 @@ def render_view(
     rocks: np.ndarray,
     cell_start: np.ndarray,
     cell_items: np.ndarray,
+    cell_zmax: np.ndarray,
     grid: np.ndarray,
     occlusion_target: np.ndarray,
     want_truth: bool,
@@ -687,7 +770,7 @@ def render_view(
             dz *= inv
             t, sid = intersect(
                 ox, oy, oz, dx, dy, dz, 0.0, _MAX_T, False,
-                ground, perm, rocks, cell_start, cell_items, grid,
+                ground, perm, rocks, cell_start, cell_items, cell_zmax, grid,
             )  # fmt: skip
             if sid < 0:
                 continue
@@ -735,7 +818,7 @@ def render_view(
                     continue
                 _, hit = intersect(
                     sx, sy, sz, lx, ly, lz, 1e-6, ldist, True,
-                    ground, perm, rocks, cell_start, cell_items, grid,
+                    ground, perm, rocks, cell_start, cell_items, cell_zmax, grid,
                 )  # fmt: skip
                 if hit < 0:
                     irradiance += power * cos_in
@@ -747,7 +830,7 @@ def render_view(
                 qd = math.sqrt(qx * qx + qy * qy + qz * qz)
                 _, hit = intersect(
                     sx, sy, sz, qx / qd, qy / qd, qz / qd, 1e-6, qd, True,
-                    ground, perm, rocks, cell_start, cell_items, grid,
+                    ground, perm, rocks, cell_start, cell_items, cell_zmax, grid,
                 )  # fmt: skip
                 occluded[iy, ix] = hit >= 0
     return radiance, zcam, solid, zup, occluded
@@ -769,11 +852,15 @@ def rock_columns(rock, perm, ground, n, cx, cy, cz, radius):
             y = cy + xs[iy]
             floor[iy, ix] = ground_height(ground, perm, x, y, 0.0)
             z_hi = cz + radius + 1e-3
-            t = rock_first_hit(rock, perm, x, y, z_hi, 0.0, 0.0, -1.0, 0.0, 2.0 * radius + 2e-3)
+            t = rock_first_hit(
+                rock, perm, x, y, z_hi, 0.0, 0.0, -1.0, 0.0, 2.0 * radius + 2e-3, -_INF
+            )
             if t == np.inf:
                 continue
             top[iy, ix] = z_hi - t
             z_lo = cz - radius - 1e-3
-            t = rock_first_hit(rock, perm, x, y, z_lo, 0.0, 0.0, 1.0, 0.0, 2.0 * radius + 2e-3)
+            t = rock_first_hit(
+                rock, perm, x, y, z_lo, 0.0, 0.0, 1.0, 0.0, 2.0 * radius + 2e-3, -_INF
+            )
             bottom[iy, ix] = z_lo + t
     return xs, top, bottom, floor

@@ -55,7 +55,7 @@ def _render(scene: Scene, camera: Camera, shape: tuple[int, int], origin, other,
     return render_view(
         origin, axes, camera.focal_px, cx, cy, shape[0], shape[1], lod_origin,
         scene.lights, scene.ambient, scene.ground, scene.perm, scene.rocks,
-        scene.cell_start, scene.cell_items, scene.grid, other, truth,
+        scene.cell_start, scene.cell_items, scene.cell_zmax, scene.grid, other, truth,
     )  # fmt: skip
 
 

@@ -14,7 +14,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..camera import Camera
-from ._kernels import GROUND_FIELDS, MAX_PLANES, ROCK_FIELDS, make_permutation, rock_lipschitz
+from ._kernels import (
+    GROUND_FIELDS,
+    MAX_PLANES,
+    ROCK_FIELDS,
+    ROCK_RELIEF_BOUND,
+    make_permutation,
+    rock_lipschitz,
+)
 from .archetypes import ArchetypeSpec
 from .render import camera_axes
 
@@ -36,6 +43,7 @@ class Scene:
     rocks: np.ndarray  # (n, len(ROCK_FIELDS)) float64
     cell_start: np.ndarray  # (nx * ny + 1,) int64
     cell_items: np.ndarray  # (m,) int64
+    cell_zmax: np.ndarray  # (nx * ny,) float64: highest point of the rocks listed in a cell
     grid: np.ndarray  # (7,) float64: x0, y0, cell, nx, ny, zmin, zmax
     lights: np.ndarray  # (L, 5) float64
     ambient: float
@@ -226,20 +234,37 @@ def _facets(rng: np.random.Generator, spec: ArchetypeSpec) -> dict[str, float]:
     return values
 
 
-def _make_grid(rocks: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _rock_z_extent(rocks: np.ndarray) -> np.ndarray:
+    """Half the vertical extent of each rock's bounding box (rotated), capped by its sphere."""
+    idx = {n: i for i, n in enumerate(ROCK_FIELDS)}
+    k = 1.0 + ROCK_RELIEF_BOUND * rocks[:, idx["relief_amp"]]
+    box = k * (
+        np.abs(rocks[:, idx["r20"]]) * rocks[:, idx["a"]]
+        + np.abs(rocks[:, idx["r21"]]) * rocks[:, idx["b"]]
+        + np.abs(rocks[:, idx["r22"]]) * rocks[:, idx["c"]]
+    )
+    return np.minimum(box, rocks[:, idx["radius"]])
+
+
+def _make_grid(
+    rocks: np.ndarray, ground_min: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     idx = {n: i for i, n in enumerate(ROCK_FIELDS)}
     if len(rocks) == 0:
         return (
             np.zeros(2, dtype=np.int64),
             np.zeros(0, dtype=np.int64),
+            np.full(1, -np.inf),
             np.array([0.0, 0.0, 1.0, 1.0, 1.0, 0.0, 0.0]),
         )
     cx, cy, cz = rocks[:, idx["cx"]], rocks[:, idx["cy"]], rocks[:, idx["cz"]]
     r = rocks[:, idx["radius"]]
+    top = cz + _rock_z_extent(rocks)
     x0, y0 = float((cx - r).min()), float((cy - r).min())
     nx = int(math.ceil((float((cx + r).max()) - x0) / _GRID_CELL_M)) + 1
     ny = int(math.ceil((float((cy + r).max()) - y0) / _GRID_CELL_M)) + 1
     buckets: list[list[int]] = [[] for _ in range(nx * ny)]
+    cell_zmax = np.full(nx * ny, -np.inf)
     for k in range(len(rocks)):
         ix0 = int((cx[k] - r[k] - x0) // _GRID_CELL_M)
         ix1 = int((cx[k] + r[k] - x0) // _GRID_CELL_M)
@@ -248,12 +273,15 @@ def _make_grid(rocks: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         for iy in range(iy0, iy1 + 1):
             for ix in range(ix0, ix1 + 1):
                 buckets[iy * nx + ix].append(k)
+                cell_zmax[iy * nx + ix] = max(cell_zmax[iy * nx + ix], top[k])
     start = np.zeros(nx * ny + 1, dtype=np.int64)
     start[1:] = np.cumsum([len(b) for b in buckets])
     items = np.array([k for b in buckets for k in b], dtype=np.int64)
-    zmin, zmax = float((cz - r).min()), float((cz + r).max())
+    # rays reaching a rock are above the ground, so nothing below its lowest point matters
+    zmin = max(float((cz - r).min()), ground_min)
+    zmax = max(float(top.max()), zmin)
     grid = np.array([x0, y0, _GRID_CELL_M, nx, ny, zmin, zmax], dtype=np.float64)
-    return start, items, grid
+    return start, items, cell_zmax, grid
 
 
 def _make_lights(spec: ArchetypeSpec, rng: np.random.Generator, centre: np.ndarray) -> np.ndarray:
@@ -308,7 +336,9 @@ def make_scene(
     region = _convex_hull(np.vstack([right, right - [_LEFT_REACH_M, 0.0]]))
     region = _expand(region, _PLACEMENT_MARGIN_M)
     rocks = _make_rocks(spec, rng, region, float(ground[GROUND_FIELDS.index("albedo")]))
-    cell_start, cell_items, grid = _make_grid(rocks)
+    cell_start, cell_items, cell_zmax, grid = _make_grid(
+        rocks, float(ground[GROUND_FIELDS.index("gmin")])
+    )
     assert camera.height_m is not None and camera.pitch_deg is not None  # synth cameras have a pose
     ref = np.array([0.0, camera.height_m / math.tan(math.radians(camera.pitch_deg)), 0.0])
     lights = _make_lights(spec, rng, ref[:2])
@@ -320,6 +350,7 @@ def make_scene(
         rocks=rocks,
         cell_start=cell_start,
         cell_items=cell_items,
+        cell_zmax=cell_zmax,
         grid=grid,
         lights=lights,
         ambient=spec.ambient,
