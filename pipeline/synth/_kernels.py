@@ -192,7 +192,7 @@ GROUND_FIELDS: tuple[str, ...] = (
     "ripple_amp", "ripple_wavelength", "ripple_dir_x", "ripple_dir_y",
     "ripple_warp", "ripple_warp_freq",
     "undulation_amp", "undulation_freq",
-    "gmin", "gmax", "lipschitz",
+    "gmin", "gmax", "lipschitz", "slow_lipschitz", "fast_bound",
     "albedo", "tex_amp", "tex_freq", "tex_octaves",
     "pebble_amp", "pebble_freq", "pebble_threshold",
     "striation_amp", "stain_amp", "stain_freq",
@@ -223,6 +223,7 @@ G_RIP_AMP, G_RIP_LAMBDA, G_RIP_DX, G_RIP_DY = (
 G_RIP_WARP, G_RIP_WARP_F = _G["ripple_warp"], _G["ripple_warp_freq"]
 G_UND_AMP, G_UND_F = _G["undulation_amp"], _G["undulation_freq"]
 G_MIN, G_MAX, G_LIP = _G["gmin"], _G["gmax"], _G["lipschitz"]
+G_SLOW_LIP, G_FAST = _G["slow_lipschitz"], _G["fast_bound"]
 G_ALB, G_TEX_AMP, G_TEX_F, G_TEX_OCT = (
     _G["albedo"],
     _G["tex_amp"],
@@ -277,6 +278,45 @@ def ground_height(
             crest = 0.75 + 0.35 * perlin2(perm, x * 1.3 + 5.5, y * 1.3 + 2.2)
             h += weight * amp * crest * profile
     return h
+
+
+@njit(cache=True, nogil=True)
+def _ground_geometry(ground: np.ndarray, perm: np.ndarray, x: float, y: float):
+    """``(g, slow)``: the full-detail height ``ground_height(..., 0)`` and its slow part.
+
+    ``slow`` (undulation and the first relief octave) changes by at most ``slow_lipschitz``
+    per metre and ``|g - slow| <= fast_bound``: the ground near a point stays within a thin
+    band around ``slow``, which lets rays skip the rest of the ``[gmin, gmax]`` slab.
+    """
+    h = 0.0
+    slow = 0.0
+    amp = ground[G_RELIEF_AMP]
+    if amp > 0.0:
+        # the sum of fbm2(footprint=0) in the same order, so g is bit-identical
+        f = ground[G_RELIEF_FREQ]
+        first = perlin2(perm, x * f, y * f)
+        total = first
+        oct_amp = 0.5
+        freq = 2.0
+        for k in range(1, int(ground[G_RELIEF_OCT])):
+            total += oct_amp * perlin2(perm, x * f * freq + 17.31 * k, y * f * freq + 5.17 * k)
+            oct_amp *= 0.5
+            freq *= 2.0
+        h += amp * total
+        slow += amp * first
+    amp = ground[G_UND_AMP]
+    if amp > 0.0:
+        f = ground[G_UND_F]
+        und = amp * perlin2(perm, x * f + 31.1, y * f + 7.7)
+        h += und
+        slow += und
+    amp = ground[G_RIP_AMP]
+    if amp > 0.0:
+        s = 2.0 * math.pi * _ripple_phase(ground, perm, x, y)
+        profile = (math.sin(s) + 0.22 * math.sin(2.0 * s)) / 1.2
+        crest = 0.75 + 0.35 * perlin2(perm, x * 1.3 + 5.5, y * 1.3 + 2.2)
+        h += amp * crest * profile
+    return h, slow
 
 
 @njit(cache=True, nogil=True)
@@ -340,17 +380,30 @@ def _ground_first_hit(
     if dz >= slope and oz + dz * ta > ground_height(ground, perm, ox + dx * ta, oy + dy * ta, 0.0):
         return _INF  # climbing faster than the ground can rise: it never comes back down
     rate = abs(dz) + slope
+    # above the band around the slow part the ray can only meet the ground once it sinks
+    # to the band's top, which itself rises at most slow_lipschitz per metre
+    horizontal_len = math.sqrt(dx * dx + dy * dy)
+    slow_rate = ground[G_SLOW_LIP] * horizontal_len - dz
+    fast = ground[G_FAST]
     # never step less than ~5 mm horizontally (the finest relief has wavelengths of
     # centimetres), nor less than 0.2 % of the distance travelled (a far pixel spans more)
-    horizontal = max(math.sqrt(dx * dx + dy * dy), 0.2)
+    horizontal = max(horizontal_len, 0.2)
     min_step = min(max((tb - ta) / 32.0, max(0.005, 0.002 * ta) / horizontal), tb - ta)
     t = ta
-    gap = oz + dz * t - ground_height(ground, perm, ox + dx * t, oy + dy * t, 0.0)
+    g, slow = _ground_geometry(ground, perm, ox + dx * t, oy + dy * t)
+    gap = oz + dz * t - g
     if gap <= 0.0:
         return t
     while t < tb:
-        tn = min(t + max(gap / rate, min_step), tb)
-        gap_n = oz + dz * tn - ground_height(ground, perm, ox + dx * tn, oy + dy * tn, 0.0)
+        step = max(gap / rate, min_step)
+        above_band = oz + dz * t - slow - fast
+        if above_band > 0.0:
+            if slow_rate <= 0.0:
+                return _INF  # rising faster than the band: never meets the ground
+            step = max(step, above_band / slow_rate)
+        tn = min(t + step, tb)
+        g, slow = _ground_geometry(ground, perm, ox + dx * tn, oy + dy * tn)
+        gap_n = oz + dz * tn - g
         if gap_n <= 0.0:
             return _refine_ground(ground, perm, ox, oy, oz, dx, dy, dz, t, gap, tn, gap_n)
         t = tn
@@ -364,7 +417,7 @@ def _refine_ground(ground, perm, ox, oy, oz, dx, dy, dz, lo, f_lo, hi, f_hi):
     side = 0
     for _ in range(24):
         t = (lo * f_hi - hi * f_lo) / (f_hi - f_lo)
-        f = oz + dz * t - ground_height(ground, perm, ox + dx * t, oy + dy * t, 0.0)
+        f = oz + dz * t - _ground_geometry(ground, perm, ox + dx * t, oy + dy * t)[0]
         if f > 0.0:
             lo, f_lo = t, f
             if side == -1:

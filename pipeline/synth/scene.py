@@ -147,6 +147,12 @@ def _make_ground(spec: ArchetypeSpec, rng: np.random.Generator) -> np.ndarray:
         dphase = 1.0 / lam + spec.ripple_warp * spec.ripple_warp_freq * lip
         slope += spec.ripple_amp * (0.35 * 1.3 * lip * 1.02 + 1.12 * 2 * math.pi * dphase * 1.2)
     g["lipschitz"] = 1.1 * slope + 1e-3
+    # slow part: undulation and the first relief octave; the rest stays within fast_bound
+    slow_slope = spec.relief_amp * spec.relief_freq * lip
+    slow_slope += spec.undulation_amp * spec.undulation_freq * lip
+    g["slow_lipschitz"] = 1.1 * slow_slope + 1e-4
+    fast = 1.05 * spec.relief_amp * sum(0.5**k for k in range(1, spec.relief_octaves))
+    g["fast_bound"] = fast + ripple_bound + 1e-4
     return np.array([g[n] for n in GROUND_FIELDS], dtype=np.float64)
 
 
