@@ -7,7 +7,6 @@ ground truth against them.
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
@@ -19,6 +18,8 @@ __all__ = ["measure_rock", "dense_labels", "rock_table", "SAMPLE_MAX_M"]
 SAMPLE_MAX_M = 0.10  # 'sample' when both width and height are at most this; else 'obstacle'
 _COLUMNS = 24
 _IDX = {n: i for i, n in enumerate(ROCK_FIELDS)}
+_ANGLES = np.radians(np.arange(0.0, 180.0, 3.0))  # 60 directions for the extents
+_COS, _SIN = np.cos(_ANGLES), np.sin(_ANGLES)
 
 
 def measure_rock(rock: np.ndarray, perm: np.ndarray, ground: np.ndarray) -> dict[str, float]:
@@ -48,11 +49,12 @@ def measure_rock(rock: np.ndarray, perm: np.ndarray, ground: np.ndarray) -> dict
     below = np.nansum(np.where(solid, np.clip(np.minimum(top, floor) - bottom, 0.0, None), 0.0))
     gx, gy = np.meshgrid(xs, xs)
     px, py = gx[above], gy[above]
-    extents = []
-    for angle in np.radians(np.arange(0.0, 180.0, 3.0)):
-        proj = px * math.cos(angle) + py * math.sin(angle)
-        extents.append(float(proj.max() - proj.min()) + cell if len(proj) else 0.0)
-    extents_arr = np.array(extents)
+    if len(px):
+        # projections of the columns above the ground on 60 directions at once
+        proj = np.multiply.outer(px, _COS) + np.multiply.outer(py, _SIN)
+        extents_arr = proj.max(axis=0) - proj.min(axis=0) + cell
+    else:
+        extents_arr = np.zeros(len(_COS))
     k = int(np.argmax(extents_arr))
     return {
         "x_m": cx,
