@@ -18,7 +18,7 @@ The scene is the union of solids in the ground frame (x right, y forward, z up):
 The first hit of a ray with a union is the smallest of the first hits with each solid, so
 the ground and each rock are intersected separately: the ground by sphere tracing the
 height gap, each rock (found through a 2-D grid over the ground, walked with a DDA) by
-sphere tracing its implicit function inside its bounding sphere; both roots are refined
+sphere tracing its implicit function inside its bounding box and facets; both roots are refined
 with the Illinois variant of regula falsi.
 
 Texture and shading depend only on the surface point (never on the camera), so the two
