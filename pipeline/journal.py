@@ -12,7 +12,13 @@ import pyarrow as pa
 
 from .plan import RunPlan
 from .state import PartRecord, RunState, StageRecord
-from .store import FRAMES_NAME, publish_table, write_parquet_atomic, write_part
+from .store import (
+    FRAMES_NAME,
+    publish_table,
+    sync_filesystem,
+    write_parquet_atomic,
+    write_part,
+)
 from .worker import FrameOutcome
 
 __all__ = ["Journal", "table_schema", "write_frames_table", "publish", "stage_attrs"]
@@ -41,6 +47,7 @@ class Journal:
     def flush(self) -> None:
         if not self.outcomes:
             return
+        sync_filesystem(self.plan.rundir)  # workers' chunks on disk before they are recorded
         rows: dict[str, list[pa.Table]] = {name: [] for name in self.schemas}
         for outcome in self.outcomes:
             for stage_out in outcome.completed:

@@ -16,7 +16,10 @@ write whole chunk-aligned frame slabs of existing arrays.
 
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
 import errno
+import functools
 import hashlib
 import math
 import os
@@ -52,6 +55,7 @@ __all__ = [
     "remove_orphan_temp_files",
     "is_disk_full",
     "file_sha256",
+    "sync_filesystem",
     "disk_full_error",
 ]
 
@@ -205,35 +209,69 @@ def _array(group: zarr.Group, name: str) -> zarr.Array:
     return node
 
 
+def _open_array(path: Path, mode: str) -> zarr.Array:
+    """Open a product array, reusing the handle while its metadata file is unchanged.
+
+    Opening reads and parses ``zarr.json``; a worker writes several arrays per frame, so the
+    handles are cached, keyed by the metadata file's identity (a recreated array, after a
+    parameter changed its shape, has a new file and gets a new handle).
+    """
+    meta = os.stat(path / "zarr.json")
+    return _cached_array(str(path), mode, meta.st_ino, meta.st_mtime_ns)
+
+
+@functools.lru_cache(maxsize=64)
+def _cached_array(path: str, mode: str, _ino: int, _mtime_ns: int) -> zarr.Array:
+    return zarr.open_array(path, mode=mode)
+
+
 def write_frame_array(rundir: Path, name: str, index: int, data: np.ndarray) -> str:
-    """Write one frame's slab of an array product and flush it to disk; return its checksum."""
-    array = zarr.open_array(_zarr_path(rundir) / name, mode="r+")
+    """Write one frame's slab of an array product; return its checksum.
+
+    The chunk files reach the disk when the driver calls :func:`sync_filesystem` before it
+    records the frame as complete (one flush per batch instead of one per chunk file).
+    """
+    array = _open_array(_zarr_path(rundir) / name, "r+")
     if tuple(array.shape[1:]) != data.shape or array.dtype != data.dtype:
         raise ValueError(
             f"product {name!r} expects per-frame shape {tuple(array.shape[1:])} and dtype "
             f"{array.dtype}, the stage returned {data.shape} {data.dtype}"
         )
     array[index] = data
-    _fsync_tree(_zarr_path(rundir) / name / "c" / str(index))
     return frame_checksum(data)
 
 
 def read_frame_array(rundir: Path, name: str, index: int) -> np.ndarray:
-    array = zarr.open_array(_zarr_path(rundir) / name, mode="r")
+    array = _open_array(_zarr_path(rundir) / name, "r")
     return np.asarray(array[index])
 
 
-def _fsync_tree(path: Path) -> None:
-    """Flush chunk files to disk before completion is recorded (power-loss safety)."""
-    if not path.exists():
-        return  # all-fill chunks are not stored at all
-    for root, _dirs, files in os.walk(path):
-        for name in files:
-            fd = os.open(os.path.join(root, name), os.O_RDONLY)
-            try:
-                os.fsync(fd)
-            finally:
-                os.close(fd)
+def sync_filesystem(path: Path) -> None:
+    """Flush every dirty page of the filesystem holding ``path`` (Linux ``syncfs``).
+
+    Called by the driver before it commits completion records, so products written by the
+    workers are on disk before they are recorded (power-loss safety). Falls back to
+    ``os.sync`` where ``syncfs`` is not available.
+    """
+    libc = _libc()
+    if libc is not None:
+        fd = os.open(path, os.O_RDONLY)
+        try:
+            if libc.syncfs(fd) == 0:
+                return
+        finally:
+            os.close(fd)
+    os.sync()
+
+
+@functools.lru_cache(maxsize=1)
+def _libc() -> Any:
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+        libc.syncfs  # noqa: B018 - probe: AttributeError where the call does not exist
+    except (OSError, AttributeError):
+        return None
+    return libc
 
 
 # -- tables -------------------------------------------------------------------------------
