@@ -22,8 +22,8 @@ import pyarrow.dataset as ds
 import pyarrow.parquet as pq
 import pytest
 import zarr
-from conftest import write_archive
 
+from conftest import write_archive
 from pipeline.runner import run
 
 FAKE = "arroyo_fake_stages"
