@@ -283,34 +283,43 @@ def _seed_from_global(level, modes, smoothed, prominence, continuity_range) -> N
         level[n // 2, n // 2] = target
 
 
-def _predict(level: np.ndarray, i: int, j: int) -> tuple[float, float]:
-    """Weighted mean of decided neighbours' levels and the total weight."""
+def _predict_all(level: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Weighted mean of decided neighbours' levels and the total weight, per sector.
+
+    Edge neighbours weigh 1, diagonal ones 1/sqrt(2); NaN prediction where none is decided.
+    """
     n = level.shape[0]
-    total = weight = 0.0
+    padded = np.full((n + 2, n + 2), np.nan)
+    padded[1:-1, 1:-1] = level
+    decided = np.isfinite(padded)
+    values = np.where(decided, padded, 0.0)
+    total = np.zeros((n, n))
+    weight = np.zeros((n, n))
     for dy, dx in _NEIGHBOURS:
-        y, x = i + dy, j + dx
-        if 0 <= y < n and 0 <= x < n and np.isfinite(level[y, x]):
-            w = 1.0 if dy == 0 or dx == 0 else 1.0 / math.sqrt(2.0)
-            total += w * level[y, x]
-            weight += w
-    return (total / weight if weight else math.nan), weight
+        w = 1.0 if dy == 0 or dx == 0 else 1.0 / math.sqrt(2.0)
+        window = (slice(1 + dy, n + 1 + dy), slice(1 + dx, n + 1 + dx))
+        # undecided neighbours add exactly 0.0, which leaves the running sums unchanged
+        total += np.where(decided[window], w * values[window], 0.0)
+        weight += np.where(decided[window], w, 0.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        predicted = np.where(weight > 0, total / weight, math.nan)
+    return predicted, weight
 
 
 def _propagate(level, phantom, modes, continuity_range) -> None:
     """Decide undecided sectors, best-supported first (in place)."""
     while True:
-        undecided = np.argwhere(~np.isfinite(level))
-        if undecided.size == 0:
+        undecided = ~np.isfinite(level)
+        if not undecided.any():
             return
-        scored = [(_predict(level, i, j), i, j) for i, j in undecided]
-        best = max(weight for (_, weight), _, _ in scored)
+        predicted_all, weight_all = _predict_all(level)
+        best = float(weight_all[undecided].max())
         if best == 0.0:  # cannot happen on a connected grid with one seed; guard anyway
             level[~np.isfinite(level)] = np.nanmedian(level)
             return
         decided_now = []
-        for (predicted, weight), i, j in scored:
-            if weight < best:
-                continue
+        for i, j in np.argwhere(undecided & (weight_all >= best)):
+            predicted = float(predicted_all[i, j])
             positions, heights = modes[i][j]
             distance = np.abs(positions - predicted)
             near = distance <= continuity_range

@@ -275,9 +275,12 @@ def _noisy_depth_rules(
         valid_components = np.where(valid, components, 0)
         n_valid = np.bincount(valid_components.ravel(), minlength=count)[1:]
         n_pixels = np.bincount(components.ravel(), minlength=count)[1:]
-        values, owners = relative[valid], valid_components[valid]
-        upper = _percentile_by_label(values, owners, count, _VOTE_PERCENTILE)[1:]
-        middle = _percentile_by_label(values, owners, count, 50.0)[1:]
+        # only objects are voted on: leave the (large) background out of the sort
+        in_object = valid_components > 0
+        values, owners = relative[in_object], valid_components[in_object]
+        upper, middle = _percentiles_by_label(values, owners, count, (_VOTE_PERCENTILE, 50.0))[
+            :, 1:
+        ]
         standard_error = 1.25 * sigma / np.sqrt(np.maximum(1.0, n_valid / _CORRELATED_PX))
         wide_flat = (
             (n_valid >= _WIDE_SAMPLES * _CORRELATED_PX)
@@ -304,7 +307,14 @@ def _percentile_by_label(
     values: np.ndarray, labels: np.ndarray, count: int, percentile: float
 ) -> np.ndarray:
     """Nearest-rank (lower) ``percentile`` of ``values`` per label 0..count-1 (+inf if empty)."""
-    result = np.full(count, np.inf)
+    return _percentiles_by_label(values, labels, count, (percentile,))[0]
+
+
+def _percentiles_by_label(
+    values: np.ndarray, labels: np.ndarray, count: int, percentiles: tuple[float, ...]
+) -> np.ndarray:
+    """Nearest-rank percentiles per label, shape ``(len(percentiles), count)``; one sort."""
+    result = np.full((len(percentiles), count), np.inf)
     if values.size == 0:
         return result
     order = np.lexsort((values, labels))
@@ -313,7 +323,8 @@ def _percentile_by_label(
     stops = np.searchsorted(sorted_labels, np.arange(count), side="right")
     sizes = stops - starts
     present = sizes > 0
-    # nearest-rank percentile: cheap and exact enough for a vote
-    rank = starts + np.floor((percentile / 100.0) * (sizes - 1)).astype(np.int64)
-    result[present] = sorted_values[rank[present]]
+    for row, percentile in zip(result, percentiles, strict=True):
+        # nearest-rank percentile: cheap and exact enough for a vote
+        rank = starts + np.floor((percentile / 100.0) * (sizes - 1)).astype(np.int64)
+        row[present] = sorted_values[rank[present]]
     return result
