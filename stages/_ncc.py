@@ -78,20 +78,28 @@ def window_stats(image, hys, hxs):  # pragma: no cover - numba
 @njit(cache=True)
 def _update_column_sums(cs, ref, other, y_add, y_sub, d_min):  # pragma: no cover - numba
     """Add product row ``y_add`` to ``cs`` and remove row ``y_sub`` (skipped when < 0)."""
+    # The inner loops run over row slices with a range index from 0: numba then needs no
+    # negative-index wraparound, and LLVM vectorises them (integer sums: same results).
     w = ref.shape[1]
     n_disp = cs.shape[1]
+    add_row = other[y_add]
+    sub_row = other[max(y_sub, 0)]
     for x in range(w):
         j0 = max(0, -x - d_min)
         j1 = min(n_disp, w - x - d_min)
+        if j1 <= j0:
+            continue
         ra = ref[y_add, x]
+        sums = cs[x, j0:j1]
+        added = add_row[x + d_min + j0 : x + d_min + j1]
         if y_sub >= 0:
             rs = ref[y_sub, x]
-            for j in range(j0, j1):
-                xo = x + d_min + j
-                cs[x, j] += ra * other[y_add, xo] - rs * other[y_sub, xo]
+            removed = sub_row[x + d_min + j0 : x + d_min + j1]
+            for j in range(j1 - j0):
+                sums[j] += ra * added[j] - rs * removed[j]
         else:
-            for j in range(j0, j1):
-                cs[x, j] += ra * other[y_add, x + d_min + j]
+            for j in range(j1 - j0):
+                sums[j] += ra * added[j]
 
 
 @njit(cache=True)
@@ -106,8 +114,12 @@ def _window_sums(hs, cs, hw):  # pragma: no cover - numba
             acc += cs[x, j]
         hs[hw, j] = acc
     for x in range(hw + 1, w - hw):
+        out = hs[x]
+        prev = hs[x - 1]
+        entering = cs[x + hw]
+        leaving = cs[x - hw - 1]
         for j in range(n_disp):
-            hs[x, j] = hs[x - 1, j] + cs[x + hw, j] - cs[x - hw - 1, j]
+            out[j] = prev[j] + entering[j] - leaving[j]
 
 
 @njit(cache=True)
@@ -146,17 +158,24 @@ def _row_curves(curves, hs, n, hw, rs_row, ri_row, os_row, oi_row, d_min):  # pr
 
     ``n`` is the window's pixel count, ``hw`` its half-width.
     """
+    # Row slices indexed from 0 let LLVM vectorise (see _update_column_sums); the float
+    # operations are the same, in the same order, as in _ncc.
     w, n_disp = curves.shape
     curves[:, :] = -2.0
     for x in range(hw, w - hw):
         j0 = max(0, hw - x - d_min)
         j1 = min(n_disp, w - hw - x - d_min)
+        if j1 <= j0:
+            continue
         rs = np.float64(rs_row[x])
         ri = np.float64(ri_row[x])
-        for j in range(j0, j1):
-            xo = x + d_min + j
-            num = n * np.float64(hs[x, j]) - rs * np.float64(os_row[xo])
-            curves[x, j] = np.float32(num * ri * oi_row[xo])
+        out = curves[x, j0:j1]
+        sums = hs[x, j0:j1]
+        o_sums = os_row[x + d_min + j0 : x + d_min + j1]
+        o_inv = oi_row[x + d_min + j0 : x + d_min + j1]
+        for j in range(j1 - j0):
+            num = n * np.float64(sums[j]) - rs * np.float64(o_sums[j])
+            out[j] = np.float32(num * ri * o_inv[j])
 
 
 @njit(cache=True)
@@ -166,17 +185,25 @@ def _left_best(left_index, left_value, curves, hw, d_min):  # pragma: no cover -
     The left-reference curve is the reference one re-indexed, ``C_left(xl, j) =
     C_ref(xl - d_min - j, j)``, so one pass over the row's curves finds every argmax.
     """
+    # Within one column x the indices j land on distinct xl, so the branch-free update of
+    # row slices vectorises; the strict '>' keeps the first maximum in visiting order.
     w, n_disp = curves.shape
     left_index[:] = -1
     left_value[:] = -np.inf
     for x in range(hw, w - hw):
         j0 = max(0, hw - x - d_min)
         j1 = min(n_disp, w - hw - x - d_min)
-        for j in range(j0, j1):
-            xl = x + d_min + j
-            if curves[x, j] > left_value[xl]:
-                left_value[xl] = curves[x, j]
-                left_index[xl] = j
+        if j1 <= j0:
+            continue
+        values = curves[x, j0:j1]
+        best_value = left_value[x + d_min + j0 : x + d_min + j1]
+        best_index = left_index[x + d_min + j0 : x + d_min + j1]
+        for i in range(j1 - j0):
+            v = values[i]
+            old = best_value[i]
+            better = v > old
+            best_value[i] = v if better else old
+            best_index[i] = (i + j0) if better else best_index[i]
 
 
 @njit(cache=True, fastmath={"nnan", "ninf", "nsz", "reassoc"})
