@@ -208,10 +208,14 @@ def _left_best(left_index, left_value, curves, hw, d_min):  # pragma: no cover -
 
 @njit(cache=True, fastmath={"nnan", "ninf", "nsz", "reassoc"})
 def _max(curve, j0, j1):  # pragma: no cover - numba
-    # A max is exact in any order, so letting LLVM vectorise it changes no result.
+    # A max is exact in any order, so letting LLVM vectorise it changes no result; the
+    # slice indexed from 0 spares numba's negative-index wraparound, which blocked that.
     best = np.float32(-np.inf)
-    for j in range(j0, j1):
-        best = max(best, curve[j])
+    if j1 <= j0:
+        return best
+    values = curve[j0:j1]
+    for j in range(j1 - j0):
+        best = max(best, values[j])
     return best
 
 
