@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 
+import cv2
 import numpy as np
 from scipy import ndimage
 
@@ -396,8 +397,20 @@ def _coerce_frame_inputs(
                 f"{name} must have the labels' shape {lab.shape}, got {a.shape}; pass arrays "
                 "of the same frame in reference-image geometry"
             )
-        out.append(a.astype(np.float64, copy=False))
+        out.append(a)
     return tuple(out)
+
+
+def _dilate_diamond(mask: np.ndarray, radius: int) -> np.ndarray:
+    """City-block dilation by ``radius`` pixels (``radius`` 4-connected dilations at once)."""
+    steps = np.abs(np.arange(-radius, radius + 1))
+    kernel = (steps[:, None] + steps[None, :] <= radius).astype(np.uint8)
+    return cv2.dilate(np.ascontiguousarray(mask).view(np.uint8), kernel).view(bool)
+
+
+def _float_crop(values: np.ndarray, crop: tuple[slice, slice]) -> np.ndarray:
+    """A crop in float64: converting crops, not whole frames, keeps the per-object cost low."""
+    return values[crop].astype(np.float64)
 
 
 def _empty_columns() -> dict[str, np.ndarray]:
@@ -464,10 +477,11 @@ def describe_objects(
         here only reflects background discontinuities (describe adds occluding objects).
     """
     lab, g, disp, rng, hgt = _coerce_frame_inputs(labels, gray, disparity, range_m, height)
+    if ring_px < 1:
+        raise ValueError(f"ring_px must be >= 1 (background ring width, pixels), got {ring_px!r}")
     if not isinstance(camera, Camera):
         raise TypeError(f"camera must be a pipeline.camera.Camera, got {type(camera).__name__}")
     ground = frame_ground(camera, ground_plane)
-    disp = np.where(disp > 0, disp, np.nan)
     has_height_map = bool(np.isfinite(hgt).any())
     slices = ndimage.find_objects(np.where(lab > 0, lab, 0))
     rows_out: list[dict[str, object]] = []
@@ -487,14 +501,17 @@ def describe_objects(
         mask = lab_c == index
         rr, cc = np.nonzero(mask)
         rows, cols = rr + y0, cc + x0
-        gray_px = g[crop][mask]
-        disp_px = disp[crop][mask]
-        range_px = rng[crop][mask]
+        gray_c = _float_crop(g, crop)
+        disp_c = _float_crop(disp, crop)
+        disp_c[~(disp_c > 0)] = np.nan
+        gray_px = gray_c[mask]
+        disp_px = disp_c[mask]
+        range_px = _float_crop(rng, crop)[mask]
         valid = np.isfinite(disp_px) & np.isfinite(range_px)
         valid_fraction = float(valid.mean())
         z_med = float(np.median(range_px[valid])) if valid.any() else math.nan
         range_err = z_med**2 / kb * disparity_error_px
-        heights = hgt[crop][mask]
+        heights = _float_crop(hgt, crop)[mask]
         x_m = y_m = z_m = length = height_err = math.nan
         if ground is not None and np.count_nonzero(valid) >= _MIN_DEPTH_PX:
             # ground level under the object: the height map's reference in this frame
@@ -540,10 +557,10 @@ def describe_objects(
             ray = np.array([(np.mean(cols[top]) - cx) / f, (top_row - cy) / f, 1.0])
             height_err = abs(float(ray @ ground.up)) * z_top**2 / kb * disparity_error_px
         mean_gray = float(gray_px.mean())
-        ring = ndimage.binary_dilation(mask, iterations=ring_px) & (lab_c == 0)
+        ring = _dilate_diamond(mask, ring_px) & (lab_c == 0)
         major, minor, angle = second_moment_ellipse(rows, cols)
         largest = np.nanmax([width, length]) if np.isfinite([width, length]).any() else math.nan
-        jump = background_jump_fraction(mask, lab_c, disp[crop], jump_px=background_jump_px)
+        jump = background_jump_fraction(mask, lab_c, disp_c, jump_px=background_jump_px)
         rows_out.append(
             {
                 "object_id": index,
@@ -567,9 +584,9 @@ def describe_objects(
                 "width_err_m": width_err,
                 "depth_valid_fraction": valid_fraction,
                 "mean_gray": mean_gray,
-                "polarity": polarity_against(mean_gray, g[crop][ring]),
+                "polarity": polarity_against(mean_gray, gray_c[ring]),
                 "texture_std": float(gray_px.std()),
-                "texture_contrast": cooccurrence_contrast(g[crop], mask),
+                "texture_contrast": cooccurrence_contrast(gray_c, mask),
                 "ellipse_major_px": major,
                 "ellipse_minor_px": minor,
                 "ellipse_angle_deg": angle,

@@ -16,6 +16,7 @@ or :func:`size_frequency_from_table`.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -258,6 +259,26 @@ def visible_ground_area_m2(
     """
     if camera_height_m <= 0:
         raise ValueError(f"camera_height_m must be > 0, got {camera_height_m!r}")
+    # frames of one archive share the camera: the area is computed once per geometry
+    return _visible_ground_area_m2(
+        tuple(int(v) for v in shape),
+        float(focal_px),
+        tuple(float(v) for v in principal_point),
+        tuple(float(v) for v in np.asarray(up, dtype=np.float64).reshape(-1)),
+        float(camera_height_m),
+        float(max_range_m),
+    )
+
+
+@functools.lru_cache(maxsize=32)
+def _visible_ground_area_m2(
+    shape: tuple[int, ...],
+    focal_px: float,
+    principal_point: tuple[float, ...],
+    up: tuple[float, ...],
+    camera_height_m: float,
+    max_range_m: float,
+) -> float:
     h, w = shape
     cx, cy = principal_point
     u = (np.arange(w, dtype=np.float64) - cx) / focal_px
