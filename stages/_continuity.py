@@ -134,6 +134,18 @@ def _sector_band(smoothed, background, positions, *, band_sigmas, min_band, merg
 _NEIGHBOURS = [(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if (dy, dx) != (0, 0)]
 
 
+def _median_without(values: np.ndarray, value: float) -> float:
+    """Median of ``values`` with one occurrence of ``value`` left out (as ``np.median``)."""
+    ordered = np.sort(values)
+    at = int(np.searchsorted(ordered, value))
+    if at < ordered.size and ordered[at] == value:
+        ordered = np.concatenate((ordered[:at], ordered[at + 1 :]))
+    half = ordered.size // 2
+    if ordered.size % 2:
+        return float(ordered[half])
+    return float((ordered[half - 1] + ordered[half]) / 2)
+
+
 def _seed_levels(modes, *, seed_dominance: float, continuity_range: float) -> np.ndarray:
     """Background levels of the unambiguous sectors (NaN elsewhere), inconsistent ones removed."""
     n = len(modes)
@@ -158,7 +170,7 @@ def _seed_levels(modes, *, seed_dominance: float, continuity_range: float) -> np
             if others.size >= 4:  # itself plus three others
                 break
         if others.size >= 2:
-            reference = np.median(np.delete(others, np.flatnonzero(others == levels[i, j])[:1]))
+            reference = _median_without(others, levels[i, j])
             if abs(levels[i, j] - reference) > continuity_range:
                 keep[i, j] = np.nan
     return keep
