@@ -6,6 +6,11 @@ Usage (from the repository root)::
     PYTHONPATH=. .venv/bin/python benchmarks/bench_segment.py --frames 4 --archetypes lab lava
     PYTHONPATH=. .venv/bin/python benchmarks/bench_segment.py --depth stage   # depth stage input
     PYTHONPATH=. .venv/bin/python benchmarks/bench_segment.py --speed-only
+    PYTHONPATH=. .venv/bin/python benchmarks/bench_segment.py --stage-speed  # + describe
+
+``--stage-speed`` prints the CPU time per frame of the segment and describe stages (the
+engine's entry points, depth stage products as input) for ``--frames`` seeds of each
+archetype, best of ``min(--repeats, 3)``.
 
 Speed: milliseconds per frame of :func:`stages.segment.segment_image` on one core (OpenCV
 single-threaded), best and median of ``--repeats`` runs, for both methods (the best is the
@@ -87,6 +92,55 @@ def speed(repeats: int, size: int) -> None:
             print(f"  {method:24s} {sectors:2d}x{sectors:<2d} {best:7.1f} / {median:7.1f} ms/frame")
 
 
+def stage_speed(
+    archetypes, frames: int, size: int, repeats: int, stages=("segment", "describe")
+) -> None:
+    """CPU ms per frame of the segment and describe stages as the engine runs them.
+
+    Each frame is rendered, run through the depth stage once, then ``segment`` (on the depth
+    products) and ``describe`` (on segment's labels) are timed with ``time.process_time``
+    (CPU time of this process: other agents on the machine do not count, library threads
+    do), best of ``repeats``, OpenCV single-threaded.
+    """
+    from pipeline.stage import FrameContext
+    from stages import depth as depth_stage
+    from stages import describe as describe_stage
+    from stages import segment as segment_stage
+
+    cv2.setNumThreads(1)
+    chosen = {"segment": segment_stage.STAGE, "describe": describe_stage.STAGE}
+    print(f"stage CPU time per {size}x{size} frame (process_time, best of {repeats}):")
+    print(f"{'archetype':9s} {'seed':>4s} " + " ".join(f"{name:>10s}" for name in stages))
+    for archetype in archetypes:
+        per_stage: dict[str, list[float]] = {name: [] for name in stages}
+        for seed in range(frames):
+            left, right, _, camera = _render(archetype, seed, size)
+            frame = FrameContext(frame_id="bench", archive="bench", camera=camera)
+            inputs = {"left": left, "right": right}
+            inputs.update(
+                depth_stage.STAGE.run(
+                    inputs, frame=frame, params=depth_stage.STAGE.defaults()
+                ).arrays
+            )
+            inputs.update(
+                segment_stage.STAGE.run(
+                    inputs, frame=frame, params=segment_stage.STAGE.defaults()
+                ).arrays
+            )
+            for name in stages:
+                stage = chosen[name]
+                best = float("inf")
+                for _ in range(repeats):
+                    start = time.process_time()
+                    stage.run(inputs, frame=frame, params=stage.defaults())
+                    best = min(best, time.process_time() - start)
+                per_stage[name].append(1e3 * best)
+            row = " ".join(f"{per_stage[name][-1]:8.1f}ms" for name in stages)
+            print(f"{archetype:9s} {seed:4d} {row}")
+        mean = " ".join(f"{np.mean(per_stage[name]):8.1f}ms" for name in stages)
+        print(f"{archetype:9s} mean {mean}")
+
+
 def _depth_inputs(kind: str, left, right, truth, camera, noise_px: float, rng):
     if kind == "truth":
         disparity = truth["disparity"].astype(np.float32)
@@ -164,7 +218,15 @@ def main() -> None:
     parser.add_argument("--speed-only", action="store_true")
     parser.add_argument("--scores-only", action="store_true")
     parser.add_argument("--set", nargs="*", default=[], help="segment_image overrides k=v")
+    parser.add_argument(
+        "--stage-speed",
+        action="store_true",
+        help="only: CPU ms per frame of the segment and describe stages (depth stage input)",
+    )
     args = parser.parse_args()
+    if args.stage_speed:
+        stage_speed(args.archetypes, args.frames, args.size, min(args.repeats, 3))
+        return
     if not args.scores_only:
         speed(args.repeats, args.size)
     if not args.speed_only:
