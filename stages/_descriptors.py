@@ -19,6 +19,7 @@ from pipeline.camera import Camera
 
 from ._ground import (
     GroundFrame,
+    _median,
     fit_disparity_surface,
     frame_ground,
     pixel_points,
@@ -175,7 +176,7 @@ def polarity_against(mean_inside: float, background: np.ndarray) -> str:
         is then returned only if the object is above mid-gray 127.5).
     """
     bg = np.asarray(background, dtype=np.float64)
-    level = float(np.median(bg)) if bg.size else 127.5
+    level = float(_median(bg)) if bg.size else 127.5
     return "darker" if mean_inside < level else "lighter"
 
 
@@ -299,8 +300,8 @@ def footprint_dimensions(
     for axis in (0, 1):
         values = (x, y)[axis]
         if values.size:
-            centre = np.median(values)
-            mad = 1.4826 * np.median(np.abs(values - centre))
+            centre = _median(values)
+            mad = 1.4826 * _median(np.abs(values - centre))
             inlier = np.abs(values - centre) <= 4.0 * mad + 1e-12
             x, y = x[inlier], y[inlier]
     if x.size < 2:
@@ -509,7 +510,7 @@ def describe_objects(
         range_px = _float_crop(rng, crop)[mask]
         valid = np.isfinite(disp_px) & np.isfinite(range_px)
         valid_fraction = float(valid.mean())
-        z_med = float(np.median(range_px[valid])) if valid.any() else math.nan
+        z_med = float(_median(range_px[valid])) if valid.any() else math.nan
         range_err = z_med**2 / kb * disparity_error_px
         heights = _float_crop(hgt, crop)[mask]
         x_m = y_m = z_m = length = height_err = math.nan
@@ -520,7 +521,7 @@ def describe_objects(
             )
             level = raw[:, 2] - heights[valid] if has_height_map else np.zeros(0)
             level = level[np.isfinite(level)]
-            z_m = float(np.median(level)) if level.size else 0.0
+            z_m = float(_median(level)) if level.size else 0.0
             # footprint and position on the denoised surface (see stages._ground); heights
             # stay per pixel: the surface flattens the peaks of large rocks
             smooth = ground.to_ground(
@@ -535,7 +536,7 @@ def describe_objects(
             if not has_height_map:
                 heights = np.full(rows.shape, np.nan)
                 heights[valid] = raw[:, 2]
-            x_m, y_m = float(np.median(smooth[:, 0])), float(np.median(smooth[:, 1]))
+            x_m, y_m = float(_median(smooth[:, 0])), float(_median(smooth[:, 1]))
             width, length = footprint_dimensions(smooth[:, 0], smooth[:, 1], pixel_m=z_med / f)
         elif ground is not None:  # no depth: stand the silhouette on the ground plane
             sil = silhouette_on_ground(rows, cols, camera=camera, ground=ground, shape=shape)
@@ -553,7 +554,7 @@ def describe_objects(
         width_err = math.hypot(width * range_err / z_med, z_med / f) if valid.any() else math.nan
         if ground is not None and top_row >= 0 and math.isfinite(h_top):
             top = rows == top_row
-            z_top = float(np.median(range_px[top][valid[top]])) if valid[top].any() else z_med
+            z_top = float(_median(range_px[top][valid[top]])) if valid[top].any() else z_med
             ray = np.array([(np.mean(cols[top]) - cx) / f, (top_row - cy) / f, 1.0])
             height_err = abs(float(ray @ ground.up)) * z_top**2 / kb * disparity_error_px
         mean_gray = float(gray_px.mean())

@@ -118,6 +118,27 @@ class GroundFrame:
         return np.stack([rel @ self.right, rel @ self.forward, rel @ self.up], axis=-1)
 
 
+def _median(values: np.ndarray) -> np.float64:
+    """``np.median`` of a 1-D float array (same partition, same value) without its overhead.
+
+    The describe stage takes thousands of medians of small arrays per frame; the generic
+    ``np.median`` spends most of its time in argument handling.
+    """
+    values = np.ravel(values)
+    size = values.size
+    if size == 0:
+        return np.float64(np.median(values))  # NaN with numpy's own warning
+    half = size // 2
+    kth = [half - 1, half, -1] if size % 2 == 0 else [half, -1]
+    part = np.partition(values, kth)
+    if np.isnan(part[-1]):
+        return np.float64(np.nan)
+    # np.mean's sum starts from +0.0: a median of -0.0 comes out as +0.0 there, and here
+    if size % 2:
+        return np.float64(0.0 + part[half])
+    return np.float64((0.0 + part[half - 1] + part[half]) / 2.0)
+
+
 def _coerce_plane(ground_plane: np.ndarray | None) -> np.ndarray | None:
     if ground_plane is None:
         return None
@@ -211,7 +232,7 @@ def fit_disparity_surface(
     if n == 0:
         return np.full(d.shape, np.nan)
     if n < 4:
-        return np.full(d.shape, float(np.median(d[ok])))
+        return np.full(d.shape, float(_median(d[ok])))
     scale = max(float(np.std(c)), float(np.std(r)), 1.0)
     x, y = (c - c.mean()) / scale, (r - r.mean()) / scale
     terms = [np.ones_like(x), x, y]
@@ -225,7 +246,7 @@ def fit_disparity_surface(
         sw = np.sqrt(weights)
         coef, *_ = np.linalg.lstsq(a * sw[:, None], b * sw, rcond=None)
         resid = np.abs(b - a @ coef)
-        sigma = 1.4826 * float(np.median(resid)) + 1e-9
+        sigma = 1.4826 * float(_median(resid)) + 1e-9
         weights = 1.0 / np.maximum(1.0, resid / (_HUBER_K * sigma))
         if round_ >= 1:  # once the fit is near, gross outliers get no say at all
             weights[resid > _REJECT_K * sigma] = 0.0

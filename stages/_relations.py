@@ -49,6 +49,8 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
+from ._ground import _median
+
 __all__ = [
     "RELATION_COLUMNS",
     "RELATIONS",
@@ -219,7 +221,7 @@ def boundary_disparity_difference(
     side_a, side_b = side_a[np.isfinite(side_a)], side_b[np.isfinite(side_b)]
     if side_a.size == 0 or side_b.size == 0:
         return float("nan")
-    return float(np.median(side_a) - np.median(side_b))
+    return float(_median(side_a) - _median(side_b))
 
 
 def contact_pixels(mask_a: np.ndarray, mask_b: np.ndarray, *, gap_px: int) -> int:

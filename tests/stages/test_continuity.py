@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
-from stages._continuity import analyse_sectors
+from stages._continuity import _median_without, analyse_sectors
 
 LEVELS = np.arange(256)
 
@@ -113,3 +115,11 @@ def test_ripple_facets_merge_into_the_ground_but_rocks_do_not():
     assert 40 < merged.low[2, 2] < 115
     # the study's rule puts a threshold between the facets
     assert np.any((study.low > 120) & (study.low < 142) | (study.high > 120) & (study.high < 142))
+
+
+@given(st.lists(st.integers(0, 255), min_size=2, max_size=30), st.data())
+def test_median_without_leaves_out_one_occurrence_like_np_delete(levels, data):
+    values = np.array(levels, dtype=np.float64)
+    value = values[data.draw(st.integers(0, values.size - 1))]
+    expected = np.median(np.delete(values, np.flatnonzero(values == value)[:1]))
+    assert _median_without(values, value) == expected

@@ -12,6 +12,7 @@ from hypothesis import strategies as st
 from pipeline.camera import Camera
 from stages._ground import (
     GroundFrame,
+    _median,
     fit_disparity_surface,
     pixel_points,
     silhouette_on_ground,
@@ -102,3 +103,24 @@ def test_silhouette_on_ground_of_a_flat_patch():
         shape=shape,
     )  # fmt: skip
     assert all(math.isnan(v) for v in above_horizon.values())
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    st.lists(
+        st.one_of(
+            st.sampled_from([0.0, -0.0, 1.0, -1.0, math.nan]),
+            st.floats(-1e6, 1e6, allow_nan=False),
+        ),
+        min_size=1,
+        max_size=40,
+    )
+)
+def test_median_is_numpys_median_to_the_sign_of_zero(values):
+    array = np.array(values, dtype=np.float64)
+    expected, result = np.median(array), _median(array)
+    if np.isnan(expected):
+        assert np.isnan(result)
+    else:
+        assert result == expected
+        assert np.signbit(result) == np.signbit(expected)
