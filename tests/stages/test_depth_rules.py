@@ -6,8 +6,15 @@ import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+from scipy.ndimage import median_filter
 
-from stages._depth_rules import _percentile_by_label, apply_depth_rules, smooth_height
+from stages._depth_rules import (
+    _median_filter_nearest,
+    _percentile_by_label,
+    _percentiles_by_label,
+    apply_depth_rules,
+    smooth_height,
+)
 
 
 def disk(shape, cy, cx, r):
@@ -115,3 +122,25 @@ def test_percentile_by_label_matches_numpy_nearest_rank(pairs):
         else:
             expected = np.percentile(chosen, 90, method="lower")
             assert result[label] == pytest.approx(expected)
+
+
+@given(
+    st.integers(1, 40),
+    st.integers(1, 40),
+    st.sampled_from([1, 2, 3, 5, 8, 9]),
+    st.integers(0, 2**31 - 1),
+)
+def test_median_filter_nearest_equals_scipy(rows, cols, size, seed):
+    rng = np.random.default_rng(seed)
+    image = np.round(rng.normal(0, 0.01, (rows, cols)) * 500).astype(np.float32) / 500
+    expected = median_filter(image, size=size, mode="nearest")
+    np.testing.assert_array_equal(_median_filter_nearest(image, size=size), expected)
+
+
+def test_percentiles_by_label_match_one_at_a_time():
+    rng = np.random.default_rng(3)
+    values = rng.normal(size=500)
+    labels = rng.integers(0, 7, 500)
+    both = _percentiles_by_label(values, labels, 8, (90.0, 50.0))
+    np.testing.assert_array_equal(both[0], _percentile_by_label(values, labels, 8, 90.0))
+    np.testing.assert_array_equal(both[1], _percentile_by_label(values, labels, 8, 50.0))
