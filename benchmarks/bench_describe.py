@@ -16,6 +16,7 @@ camera for the descriptor targets; relations between matched rocks).
 Usage::
 
     PYTHONPATH=. .venv/bin/python benchmarks/bench_describe.py --frames 4 --inputs truth
+    PYTHONPATH=. .venv/bin/python benchmarks/bench_describe.py --stage-speed  # CPU ms/frame
 """
 
 from __future__ import annotations
@@ -128,7 +129,17 @@ def main() -> None:
     parser.add_argument("--size", type=int, default=500)
     parser.add_argument("--near", type=float, default=2.0)
     parser.add_argument("--inputs", choices=("truth", "depth", "pipeline"), default="truth")
+    parser.add_argument(
+        "--stage-speed",
+        action="store_true",
+        help="only: CPU ms per frame of the describe stage on depth + segment stage products",
+    )
     args = parser.parse_args()
+    if args.stage_speed:
+        from bench_segment import stage_speed  # sibling script (benchmarks/ is on sys.path)
+
+        stage_speed(args.archetypes.split(","), args.frames, args.size, 3, stages=("describe",))
+        return
     print(
         f"{'archetype':9} {'rocks':>5} {'near':>5} {'|dh|max':>8} {'|dh|top':>8} "
         f"{'dw/w':>6} {'dw/wx':>6} {'dr/r':>6} {'class':>6} {'rel':>6} {'occl':>6} {'ms':>6}"
