@@ -25,6 +25,7 @@ __all__ = ["Journal", "table_schema", "write_frames_table", "publish", "stage_at
 
 _FLUSH_FRAMES = 32
 _FLUSH_SECONDS = 10.0
+_FRAMES_TABLE_SECONDS = 30.0  # frames.parquet is rewritten whole: not after every batch
 
 
 class Journal:
@@ -34,6 +35,7 @@ class Journal:
         self.plan, self.state, self.run_id = plan, state, run_id
         self.outcomes: list[FrameOutcome] = []
         self.last_flush = time.monotonic()
+        self.last_table = float("-inf")
         self.schemas = {p.name: table_schema(p.schema) for p in plan.graph.table_products}
 
     def add(self, outcome: FrameOutcome) -> None:
@@ -90,7 +92,9 @@ class Journal:
         self.state.commit_batch(records, failures, parts, cleared)
         self.outcomes.clear()
         self.last_flush = time.monotonic()
-        write_frames_table(self.plan, self.state)
+        if self.last_flush - self.last_table >= _FRAMES_TABLE_SECONDS:
+            write_frames_table(self.plan, self.state)
+            self.last_table = time.monotonic()
 
     def _rows(self, name: str, frame_id: str, columns: Mapping[str, Any]) -> pa.Table:
         schema = self.schemas[name]

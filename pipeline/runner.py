@@ -13,7 +13,7 @@ from typing import Any
 
 from .errors import RunDirError, StoreError
 from .executor import open_executor
-from .journal import Journal, publish, stage_attrs
+from .journal import Journal, publish, stage_attrs, write_frames_table
 from .lock import RunLock
 from .plan import RunPlan, default_rundir, plan_run, validate_request
 from .provenance import environment, new_run_id, now_iso
@@ -165,7 +165,8 @@ def _execute(
     expected = _prepare_store(plan, state)
     executor = None
     started = now_iso()
-    frame_jobs = [
+    pending = [f for f in plan.frames if plan.todo[f.frame_id]]
+    frame_jobs = (  # built lazily: the executor keeps only a window of jobs in flight
         FrameJob(
             rundir=str(plan.rundir.resolve()),
             index=plan.indices[f.frame_id],
@@ -184,16 +185,15 @@ def _execute(
             expected=expected,
             stage_package=plan.stage_package,
         )
-        for f in plan.frames
-        if plan.todo[f.frame_id]
-    ]
+        for f in pending
+    )
     journal = Journal(plan, state, run_id)
     meta = _run_json(plan, run_id, "not started", started)
     _write_json(plan.rundir / RUN_JSON, meta)
     fatal: str | None = None
-    total = len(frame_jobs)
+    total = len(pending)
     try:
-        if frame_jobs:
+        if pending:
             executor = open_executor(scheduler=scheduler, workers=workers)
             meta["scheduler"] = executor.name
             _write_json(plan.rundir / RUN_JSON, meta)
@@ -218,6 +218,7 @@ def _execute(
             publish(plan, state, product.name)
     finally:
         journal.flush()
+        write_frames_table(plan, state)
         if executor is not None:
             executor.close()
     failures = state.failed()

@@ -119,10 +119,11 @@ def write_parquet_atomic(table: pa.Table, path: Path) -> str:
 def remove_orphan_temp_files(rundir: Path) -> int:
     """Delete temporary files left by a killed run; returns how many."""
     removed = 0
-    for path in Path(rundir).rglob(f"*{_TMP_MARK}*"):
-        if path.is_file():
-            path.unlink(missing_ok=True)
-            removed += 1
+    for pattern in (f"*{_TMP_MARK}*", "*.partial"):  # ours, and zarr's chunk temporaries
+        for path in Path(rundir).rglob(pattern):
+            if path.is_file():
+                path.unlink(missing_ok=True)
+                removed += 1
     return removed
 
 
@@ -313,30 +314,42 @@ def publish_table(
         Recorded in each file's key-value metadata (stage, version, params).
     """
     rundir = Path(rundir)
-    pieces = []
-    for part_id, rel in parts:
-        frames = [f for f, p in live.items() if p == part_id]
-        if not frames:
-            continue
-        table = pq.read_table(rundir / rel)
-        mask = pc.is_in(table["frame_id"], value_set=pa.array(frames, pa.string()))
-        pieces.append(table.filter(mask).cast(schema))
-    merged = pa.concat_tables(pieces) if pieces else schema.empty_table()
-    if merged.num_rows:
-        order = np.array([frame_order.get(f, 0) for f in merged["frame_id"].to_pylist()])
-        id_cols = [c for c in ("object_id", "subject_id") if c in merged.column_names]
-        keys = [merged[c].to_numpy() for c in reversed(id_cols)] + [order]
-        merged = merged.take(pa.array(np.lexsort(keys)))
+    frames_of: dict[str, list[str]] = {}
+    for frame_id, part_id in live.items():
+        frames_of.setdefault(part_id, []).append(frame_id)
+    order_ids = pa.array(list(frame_order), pa.string())
+    order_pos = np.fromiter(frame_order.values(), dtype=np.int64, count=len(frame_order))
+    wanted = [(part_id, rel) for part_id, rel in parts if part_id in frames_of]
+    # parts in catalog order of their first frame, rows sorted inside each part: one part in
+    # memory at a time, however large the archive
+    wanted.sort(key=lambda item: min(frame_order.get(f, 0) for f in frames_of[item[0]]))
+    body_schema = (
+        schema.remove(schema.get_field_index("archive")) if "archive" in schema.names else schema
+    )
+    # the archive lives in the directory name only (hive style): a column of the same name in
+    # the files would clash with the partition field in pyarrow's readers
+    if provenance:
+        body_schema = body_schema.with_metadata({**(body_schema.metadata or {}), **provenance})
     generation = uuid.uuid4().hex[:12]
     target = rundir / PUBLISHED / f"{product}-{generation}" / f"archive={archive}"
     target.mkdir(parents=True, exist_ok=True)
-    # the archive lives in the directory name only (hive style): a column of the same name in
-    # the files would clash with the partition field in pyarrow's readers
-    body = merged.drop_columns(["archive"]) if "archive" in merged.column_names else merged
-    if provenance:
-        body = body.replace_schema_metadata({**(body.schema.metadata or {}), **provenance})
-    for k, start in enumerate(range(0, max(body.num_rows, 1), max_rows_per_file)):
-        write_parquet_atomic(body.slice(start, max_rows_per_file), target / f"part-{k}.parquet")
+    files = _RollingWriter(target, body_schema, max_rows_per_file)
+    try:
+        for part_id, rel in wanted:
+            table = pq.read_table(rundir / rel)
+            keep = pa.array(frames_of[part_id], pa.string())
+            table = table.filter(pc.is_in(table["frame_id"], value_set=keep)).cast(schema)
+            positions = order_pos[
+                pc.index_in(table["frame_id"], value_set=order_ids).to_numpy(zero_copy_only=False)
+            ]
+            id_cols = [c for c in ("object_id", "subject_id") if c in table.column_names]
+            keys = [table[c].to_numpy() for c in reversed(id_cols)] + [positions]
+            table = table.take(pa.array(np.lexsort(keys)))
+            if "archive" in table.column_names:
+                table = table.drop_columns(["archive"])
+            files.write(table.cast(body_schema))
+    finally:
+        files.close()
     link = published_path(rundir, product)
     tmp_link = link.with_name(f".{link.name}{_TMP_MARK}{generation}")
     os.symlink(Path(PUBLISHED) / f"{product}-{generation}", tmp_link)
@@ -348,6 +361,51 @@ def publish_table(
         if old.name not in keep:
             shutil.rmtree(old, ignore_errors=True)
     return link
+
+
+class _RollingWriter:
+    """Parquet files of at most ``max_rows`` rows, ``part-0.parquet``, ``part-1.parquet``...,
+    each fsynced when closed; at least one file (possibly empty) is written."""
+
+    def __init__(self, target: Path, schema: pa.Schema, max_rows: int) -> None:
+        self.target, self.schema, self.max_rows = target, schema, max_rows
+        self.index, self.rows = 0, 0
+        self.writer: pq.ParquetWriter | None = None
+
+    def _path(self) -> Path:
+        return self.target / f"part-{self.index}.parquet"
+
+    def _open(self) -> pq.ParquetWriter:
+        if self.writer is None:
+            self.writer = pq.ParquetWriter(self._path(), self.schema, compression="zstd")
+        return self.writer
+
+    def write(self, table: pa.Table) -> None:
+        start = 0
+        while start < table.num_rows:
+            room = self.max_rows - self.rows
+            piece = table.slice(start, room)
+            self._open().write_table(piece)
+            self.rows += piece.num_rows
+            start += piece.num_rows
+            if self.rows >= self.max_rows:
+                self._finish()
+                self.index, self.rows = self.index + 1, 0
+
+    def _finish(self) -> None:
+        if self.writer is not None:
+            self.writer.close()
+            self.writer = None
+            fd = os.open(self._path(), os.O_RDONLY)
+            try:
+                os.fsync(fd)
+            finally:
+                os.close(fd)
+
+    def close(self) -> None:
+        if self.writer is None and self.index == 0:
+            self._open()  # an empty table still publishes one typed file
+        self._finish()
 
 
 def disk_full_error(exc: OSError, what: Path | str) -> StoreError:
