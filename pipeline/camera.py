@@ -68,9 +68,7 @@ class Camera:
         if self.pitch_deg is not None and not (0 <= self.pitch_deg < 90):
             raise ValueError(f"camera pitch_deg must be in [0, 90), got {self.pitch_deg!r}")
         if self.reference not in ("right", "left"):
-            raise ValueError(
-                f"camera reference must be 'right' or 'left', got {self.reference!r}"
-            )
+            raise ValueError(f"camera reference must be 'right' or 'left', got {self.reference!r}")
 
     @property
     def k_m_px(self) -> float:

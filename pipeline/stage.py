@@ -72,9 +72,7 @@ class Param:
             value = float(value)
         wrong_bool = self.type is not bool and isinstance(value, bool)
         if wrong_bool or not isinstance(value, self.type):
-            raise ParamError(
-                f"{label} expects {expected}, got {type(value).__name__} {value!r}"
-            )
+            raise ParamError(f"{label} expects {expected}, got {type(value).__name__} {value!r}")
         if isinstance(value, float) and not math.isfinite(value):
             raise ParamError(f"{label} expects a finite float, got {value!r}")
         if self.choices is not None and value not in self.choices:
