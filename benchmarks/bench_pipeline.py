@@ -465,10 +465,11 @@ def _without_fsync() -> Any:
     import contextlib
     from unittest import mock
 
+    import pipeline.journal
     import pipeline.store
 
     stack = contextlib.ExitStack()
-    stack.enter_context(mock.patch.object(pipeline.store, "_fsync_tree", lambda path: None))
+    stack.enter_context(mock.patch.object(pipeline.journal, "sync_filesystem", lambda path: None))
     stack.enter_context(mock.patch.object(pipeline.store.os, "fsync", lambda fd: None))
     return stack
 
