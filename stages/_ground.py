@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -30,6 +31,7 @@ from pipeline.camera import Camera
 
 __all__ = [
     "GroundFrame",
+    "coerce_ground_plane",
     "frame_ground",
     "fit_disparity_surface",
     "pixel_points",
@@ -139,7 +141,8 @@ def _median(values: np.ndarray) -> np.float64:
     return np.float64((0.0 + part[half - 1] + part[half]) / 2.0)
 
 
-def _coerce_plane(ground_plane: np.ndarray | None) -> np.ndarray | None:
+def coerce_ground_plane(ground_plane: Any) -> np.ndarray | None:
+    """The plane as 4 finite float64 coefficients, or None (absent or not fitted)."""
     if ground_plane is None:
         return None
     coef = np.asarray(ground_plane, dtype=np.float64).reshape(-1)
@@ -161,7 +164,7 @@ def frame_ground(camera: Camera, ground_plane: np.ndarray | None) -> GroundFrame
     """
     if camera.has_pose:
         return GroundFrame.from_camera(camera)
-    plane = _coerce_plane(ground_plane)
+    plane = coerce_ground_plane(ground_plane)
     return GroundFrame.from_plane(plane) if plane is not None else None
 
 

@@ -29,6 +29,7 @@ from pipeline.camera import Camera
 from pipeline.stage import FrameContext, Param, Product, Stage, StageResult
 
 from ._descriptors import DESCRIPTOR_COLUMNS, describe_objects, frame_ground
+from ._ground import coerce_ground_plane
 from ._relations import RELATION_COLUMNS, relate_objects
 from ._sizefreq import fit_size_frequency, visible_ground_area_m2
 
@@ -57,17 +58,6 @@ RELATION_SCHEMA: pa.Schema = pa.schema(
     [(name, _ARROW_TYPES[kind]) for name, kind in RELATION_COLUMNS.items()]
 )
 """Arrow schema of the relation columns the stage returns (without archive/run_id/frame_id)."""
-
-
-def _coerce_plane(ground_plane: Any) -> np.ndarray | None:
-    if ground_plane is None:
-        return None
-    coef = np.asarray(ground_plane, dtype=np.float64).reshape(-1)
-    if coef.shape != (4,):
-        raise ValueError(
-            f"ground_plane must hold 4 coefficients (a, b, c, d), got shape {coef.shape}"
-        )
-    return coef if np.all(np.isfinite(coef)) else None
 
 
 def describe_frame(
@@ -128,7 +118,7 @@ def describe_frame(
     figures : dict of str to number or str
         Per-frame figures.
     """
-    plane = _coerce_plane(ground_plane)
+    plane = coerce_ground_plane(ground_plane)
     desc = describe_objects(
         labels,
         gray,
