@@ -10,11 +10,6 @@ from collections.abc import Callable, Sequence
 
 from .errors import (
     ArroyoError,
-    CatalogError,
-    FrameError,
-    GraphError,
-    ParamError,
-    RunDirError,
     RunLockedError,
     StoreError,
 )
@@ -191,12 +186,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _exit_code(exc: BaseException) -> int:
+    """3 for a locked run directory, 4 for a store that cannot be written, else 2 (a bad
+    catalog, parameter, graph or run directory: nothing was done)."""
     if isinstance(exc, RunLockedError):
         return EXIT_LOCKED
     if isinstance(exc, StoreError):
         return EXIT_STORE
-    if isinstance(exc, CatalogError | ParamError | GraphError | RunDirError | FrameError):
-        return EXIT_USAGE
     return EXIT_USAGE
 
 

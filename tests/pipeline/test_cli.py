@@ -57,3 +57,18 @@ def test_bad_set_exits_2_and_locked_exits_3(archive, tmp_path, capsys):
 def test_status_of_missing_rundir_exits_2(tmp_path, capsys):
     assert main(["status", str(tmp_path / "nothing")]) == 2
     assert "does not exist" in capsys.readouterr().err
+
+
+def test_disk_full_exits_4_with_a_message(archive, tmp_path, capsys, monkeypatch):
+    import errno
+    import os
+
+    import pipeline.worker
+
+    def full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(pipeline.worker, "write_frame_array", full)
+    out = tmp_path / "run"
+    assert main(["run", str(archive), "--out", str(out), "--scheduler", "synchronous"]) == 4
+    assert "No space left" in capsys.readouterr().err
