@@ -19,25 +19,11 @@ import time
 
 from pipeline._baselines import sgbm_disparity
 from pipeline.camera import Camera
+from pipeline.graph import default_graph, parse_set_overrides
 from pipeline.metrics import disparity_errors, pool_disparity_errors
 from pipeline.synth import render_pair
 from stages._stereo import match_disparity
 from stages.geometry import derive_max_disparity
-
-
-def _parse_sets(items: list[str]) -> dict[str, object]:
-    out: dict[str, object] = {}
-    for item in items:
-        key, _, value = item.partition("=")
-        for cast in (int, float):
-            try:
-                out[key] = cast(value)
-                break
-            except ValueError:
-                continue
-        else:
-            out[key] = value
-    return out
 
 
 def main() -> None:
@@ -48,7 +34,10 @@ def main() -> None:
     parser.add_argument("--methods", default="adaptive,sgm")
     parser.add_argument("--set", nargs="*", default=[], help="match_disparity keyword=value")
     args = parser.parse_args()
-    settings = _parse_sets(args.set)
+    # the engine's own --set parsing: typed and validated against the depth stage
+    settings = parse_set_overrides(default_graph(), [f"depth.{i}" for i in args.set]).get(
+        "depth", {}
+    )
     methods = args.methods.split(",")
     print(
         f"{'archetype':<10}{'method':<12}{'bad1':>8}{'bad2':>8}{'epe':>8}{'density':>9}"

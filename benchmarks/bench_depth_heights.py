@@ -28,6 +28,7 @@ import numpy as np
 
 from pipeline._baselines import sgbm_disparity
 from pipeline.camera import Camera
+from pipeline.graph import default_graph, parse_set_overrides
 from pipeline.metrics import disparity_errors, pool_disparity_errors
 from pipeline.stage import FrameContext
 from pipeline.synth import render_pair
@@ -38,21 +39,6 @@ CATALOG_PARAMS: dict[str, dict[str, object]] = {
     "lab": {"windows": "9,15x41,31x63,51x63"},
     "dunes": {"method": "sgm"},
 }
-
-
-def _parse_sets(items: list[str]) -> dict[str, object]:
-    out: dict[str, object] = {}
-    for item in items:
-        key, _, value = item.partition("=")
-        for cast in (int, float):
-            try:
-                out[key] = cast(value)
-                break
-            except ValueError:
-                continue
-        else:
-            out[key] = value
-    return out
 
 
 def _rock_errors(height: np.ndarray, truth: dict) -> tuple[list[float], list[float]]:
@@ -79,7 +65,10 @@ def main() -> None:
     parser.add_argument("--no-sgbm", action="store_true")
     parser.add_argument("--set", nargs="*", default=[], help="depth stage param=value")
     args = parser.parse_args()
-    overrides = _parse_sets(args.set)
+    # the engine's own --set parsing: typed and validated against the depth stage
+    overrides = parse_set_overrides(default_graph(), [f"depth.{i}" for i in args.set]).get(
+        "depth", {}
+    )
     print(
         f"{'archetype':<10}{'method':<10}{'bad2':>8}{'epe':>7}{'density':>9}{'rock_dh':>9}"
         f"{'rock_top':>9}{'ground_sd':>10}{'ms':>7}"
