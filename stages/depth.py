@@ -14,7 +14,9 @@ pitched 38 deg) that is about 51 px; for the 0.8 m Viking baseline about 380 px.
 
 Choosing the method. ``adaptive`` (default) is the most accurate where the ground has
 texture (mojave, lava: about a quarter of StereoSGBM's bad-2 rate, see
-``benchmarks/bench_depth_accuracy.py``). On nearly textureless floors add a taller window
+``benchmarks/bench_depth_accuracy.py``). Both ZNCC methods match high-passed images
+(``prefilter``, see :mod:`stages._stereo`), which removes lamp shading. On nearly
+textureless floors add a taller window
 (``windows = "9,15x41,31x63,51x63"``, lab) or use ``method = "sgm"`` (lab, dunes), which
 propagates matches across weak texture.
 
@@ -83,6 +85,14 @@ PARAMS: tuple[Param, ...] = (
     Param("lr_tolerance", float, 1.0, "left-right check tolerance (px)", minimum=0.0),
     Param("speckle_size", int, 50, "largest region removed as a speckle (px); 0 = off", minimum=0),
     Param("speckle_range", float, 1.0, "disparity step joining a region (px)", minimum=0.0625),
+    Param(
+        "prefilter",
+        int,
+        15,
+        "high-pass box (odd px) before adaptive/sgm matching; 0 = off",
+        minimum=0,
+        maximum=63,
+    ),
     Param("sgm_window", int, 15, "sgm: ZNCC window (odd px)", minimum=3, maximum=63),
     Param("sgm_p1", float, 0.2, "sgm: penalty of a 1 px step (cost units)", minimum=0.0),
     Param("sgm_p2", float, 3.0, "sgm: penalty of a larger jump (cost units)", minimum=0.0),
@@ -163,7 +173,7 @@ def resolve_disparity_range(
 
 _SETTING_KEYS = (
     "method", "windows", "min_texture", "min_ncc", "distinctness", "lr_tolerance",
-    "speckle_size", "speckle_range", "sgm_window", "sgm_p1", "sgm_p2", "sgm_paths",
+    "speckle_size", "speckle_range", "sgm_window", "sgm_p1", "sgm_p2", "sgm_paths", "prefilter",
 )  # fmt: skip
 
 
@@ -296,7 +306,7 @@ def run_depth(
 
 STAGE = Stage(
     name="depth",
-    version="2",
+    version="3",
     inputs=("left", "right"),
     outputs=OUTPUTS,
     params=PARAMS,
