@@ -275,10 +275,18 @@ def adaptive_match(
     pending = np.empty(w, np.int64)
     centre = np.empty(n_disp, np.int64)
     peak_seen = np.zeros(w, np.bool_)
+    # Row of each window's centre: the pixel's row, or the nearest row where the window fits
+    # (near the top and bottom the window is shifted vertically, by at most its half-height,
+    # like the sideways shift below). The sums advance one row at a time from row hy.
+    centre_row = np.full(n_win, -1, np.int64)
     for y in range(h):
         for k in range(n_win):
-            if y >= hys[k] and y + hys[k] < h:
-                _refresh_row(cs[k], hs[k], ref, other, y, hys[k], hxs[k], d_min)
+            if 2 * hys[k] + 1 > h:
+                continue
+            yc = min(max(y, hys[k]), h - 1 - hys[k])
+            if yc != centre_row[k]:
+                _refresh_row(cs[k], hs[k], ref, other, yc, hys[k], hxs[k], d_min)
+                centre_row[k] = yc
         n_pending = 0
         for x in range(w):
             pending[n_pending] = x
@@ -291,14 +299,15 @@ def adaptive_match(
         for k in range(n_win):
             hw = hxs[k]
             hy = hys[k]
-            if n_pending == 0 or y < hy or y + hy >= h:
+            if n_pending == 0 or 2 * hy + 1 > h:
                 break
+            yc = centre_row[k]
             n = (2 * hy + 1) * (2 * hw + 1)
             hs_k = hs[k]
-            rs_row = ref_sums[k, y]
-            ri_row = ref_inv[k, y]
-            os_row = other_sums[k, y]
-            oi_row = other_inv[k, y]
+            rs_row = ref_sums[k, yc]
+            ri_row = ref_inv[k, yc]
+            os_row = other_sums[k, yc]
+            oi_row = other_inv[k, yc]
             textured = 0
             kept = 0
             if w < 2 * hw + 1:
@@ -307,7 +316,7 @@ def adaptive_match(
                 x = pending[i]
                 pending[kept] = x
                 kept += 1
-                if ref_std[k, y, min(max(x, hw), w - 1 - hw)] >= min_texture:
+                if ref_std[k, yc, min(max(x, hw), w - 1 - hw)] >= min_texture:
                     textured += 1
             n_pending = kept
             use_row = 4 * textured > w - 2 * hw
@@ -320,7 +329,7 @@ def adaptive_match(
                 pending[kept] = x
                 kept += 1  # stays pending unless accepted below
                 x_ref = min(max(x, hw), w - 1 - hw)  # nearest centre with the window inside
-                if ref_std[k, y, x_ref] < min_texture:
+                if ref_std[k, yc, x_ref] < min_texture:
                     continue
                 interior = x == x_ref and hw - x - d_min <= 0 and w - hw - x - d_min >= n_disp
                 if interior:
