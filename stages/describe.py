@@ -75,6 +75,7 @@ def describe_frame(
     background_jump_px: float = 1.0,
     occlusion_jump_px: float = 0.1,
     margin_m: float = 0.05,
+    relation_radius_m: float = 1.0,
     gap_px: int = 2,
     contact_gap_px: int = 0,
     band_px: int = 3,
@@ -100,6 +101,10 @@ def describe_frame(
         Disparity difference (px) across a contact that makes the nearer region occlude.
     margin_m : float
         Near-tie margin of left/right and front/behind, metres.
+    relation_radius_m : float
+        left/right and front/behind edges link only objects at most this far apart on the
+        ground, metres, > 0 (a value beyond the scene, e.g. 1e6, orders every pair; see
+        :mod:`stages._relations`).
     gap_px, contact_gap_px, band_px : int
         Adjacency gap, contact gap and occlusion band, pixels
         (see :mod:`stages._relations`).
@@ -142,6 +147,7 @@ def describe_frame(
         bbox_x_min=desc["bbox_x_min"],
         bbox_x_max=desc["bbox_x_max"],
         margin_m=margin_m,
+        radius_m=relation_radius_m,
         gap_px=gap_px,
         band_px=band_px,
         contact_gap_px=contact_gap_px,
@@ -223,7 +229,7 @@ def run_describe(
 
 STAGE = Stage(
     name="describe",
-    version="2",
+    version="3",
     inputs=("left", "right", "labels", "disparity", "range", "height", "ground_plane"),
     outputs=(
         Product(
@@ -271,6 +277,13 @@ STAGE = Stage(
             minimum=0,
         ),
         Param("margin_m", float, 0.05, "near-tie margin of left_of/behind..., m", minimum=0),
+        Param(
+            "relation_radius_m",
+            float,
+            1.0,
+            "left_of/behind... only between rocks this close on the ground, m (1e6: all)",
+            minimum=0,
+        ),
         Param("gap_px", int, 2, "largest gap between adjacent regions, px", minimum=0),
         Param("contact_gap_px", int, 0, "gap still counted as contact, px", minimum=0),
         Param("band_px", int, 3, "boundary band of the occlusion test, px", minimum=1),

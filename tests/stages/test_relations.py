@@ -35,6 +35,22 @@ def test_ordering_matrices_with_margin():
         ordering_matrices(x, y, margin_m=-1.0)
 
 
+def test_ordering_matrices_only_within_radius():
+    # 0 and 1 are 0.5 m apart, 2 is 3 m from both: with a 1 m radius only 0-1 is ordered
+    x = np.array([0.0, 0.3, 0.0])
+    y = np.array([1.0, 1.4, 4.0])
+    local = ordering_matrices(x, y, margin_m=0.05, radius_m=1.0)
+    every = ordering_matrices(x, y, margin_m=0.05)
+    assert local["left_of"][0, 1] and local["in_front_of"][0, 1] and local["behind"][1, 0]
+    for name in local:
+        assert not local[name][2].any() and not local[name][:, 2].any()
+    assert every["in_front_of"][0, 2] and every["behind"][2, 1]
+    boundary = ordering_matrices(x, y, margin_m=0.05, radius_m=0.5)  # distance == radius
+    assert boundary["left_of"][0, 1]
+    with pytest.raises(ValueError, match="radius_m"):
+        ordering_matrices(x, y, margin_m=0.05, radius_m=0.0)
+
+
 @settings(max_examples=40, deadline=None)
 @given(
     st.lists(st.floats(-5, 5), min_size=2, max_size=6),
@@ -117,6 +133,7 @@ def test_relate_objects_known_graph():
         y_m=np.array([1.0, 1.5, 3.0]),
         bbox_x_min=np.array([5, 15, 33]),
         bbox_x_max=np.array([14, 24, 36]),
+        radius_m=math.inf,
     )
     expected = {
         (1, "left_of", 2), (2, "right_of", 1), (1, "left_of", 3), (3, "right_of", 1),
@@ -145,6 +162,38 @@ def test_relate_objects_known_graph():
     assert columns["shared_boundary"][adjacent][0] == pytest.approx(14 / 36)
     far = (columns["subject_id"] == 3) & (columns["object_id"] == 1)
     np.testing.assert_allclose(columns["shared_boundary"][far], 0.0)
+
+
+def test_relate_objects_radius_leaves_adjacent_and_occludes_alone():
+    # same scene as test_relate_objects_known_graph with the default 1 m radius: object 3
+    # (2.3 m from 1, 1.7 m from 2) loses its ordering edges; 1-2 (0.64 m) keep theirs
+    labels = np.zeros((30, 40), dtype=np.int32)
+    labels[10:20, 5:15] = 1
+    labels[10:20, 15:25] = 2
+    labels[2:6, 33:37] = 3
+    disparity = np.where(labels == 1, 20.0, np.where(labels == 2, 15.0, 4.0))
+    kwargs = {
+        "object_ids": np.array([1, 2, 3]),
+        "bbox_x_min": np.array([5, 15, 33]),
+        "bbox_x_max": np.array([14, 24, 36]),
+    }
+    columns = relate_objects(
+        labels, disparity, x_m=np.array([-0.4, 0.0, 0.8]), y_m=np.array([1.0, 1.5, 3.0]), **kwargs
+    )
+    assert _edges(columns) == {
+        (1, "left_of", 2), (2, "right_of", 1), (1, "in_front_of", 2), (2, "behind", 1),
+        (1, "adjacent", 2), (2, "adjacent", 1), (1, "occludes", 2),
+    }  # fmt: skip
+    # regions touching in the image are adjacent (and 1 occludes 2) whatever their distance
+    apart = relate_objects(
+        labels,
+        disparity,
+        x_m=np.array([-0.4, 0.0, 0.8]),
+        y_m=np.array([1.0, 5.0, 3.0]),
+        radius_m=0.5,
+        **kwargs,
+    )
+    assert _edges(apart) == {(1, "adjacent", 2), (2, "adjacent", 1), (1, "occludes", 2)}
 
 
 def test_relate_objects_equal_depth_neighbours_do_not_occlude():
