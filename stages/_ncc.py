@@ -6,11 +6,11 @@ Layout and exactness. Images are int32 gray levels minus 128. Every window sum (
 ``R**2``, ``R*L``...) is an exact integer: box sums come from int64 integral images
 (per-window image statistics) and from sliding int32 column/row sums of the products
 ``R[y, x] * L[y, x + d]`` (the row kernel), which cannot overflow because centred products
-are at most 128**2 and a window of at most 63 x 63 px keeps every partial sum below 2**31.
-Window sums of gray levels (< 2**24) are stored as exact float32. Only the final ZNCC
-division is floating point, and it is done with the same operations for a pixel whatever
-the image or tile it sits in, so matching a tile gives bit-identical results to matching the
-whole frame.
+are at most 128**2 and a window of at most 255 x 255 px keeps every partial sum below 2**31
+(255**2 * 128**2 < 1.1e9). Window sums of gray levels (< 128 * 255**2 < 2**24) are stored
+as exact float32. Only the final ZNCC division is floating point, and it is done with the
+same operations for a pixel whatever the image or tile it sits in, so matching a tile gives
+bit-identical results to matching the whole frame.
 
 Per image row the kernel keeps, for every window (half-height ``hy``, half-width ``hw``) and
 every disparity index ``j`` (disparity ``d = d_min + j``), the column sums ``cs[x, j]`` of

@@ -16,8 +16,8 @@ Choosing the method. ``adaptive`` (default) is the most accurate where the groun
 texture (mojave, lava: about a quarter of StereoSGBM's bad-2 rate, see
 ``benchmarks/bench_depth_accuracy.py``). Both ZNCC methods match high-passed images
 (``prefilter``, see :mod:`stages._stereo`), which removes lamp shading. On nearly
-textureless floors add a taller window
-(``windows = "9,15x41,31x63,51x63"``, lab) or use ``method = "sgm"`` (lab, dunes), which
+textureless floors add a wide window
+(``windows = "9,15x41,31x63,63x255"``, lab) or use ``method = "sgm"`` (lab, dunes), which
 propagates matches across weak texture.
 
 Residual. The right (reference) image is forward-warped by its disparity into the left
@@ -71,7 +71,7 @@ PARAMS: tuple[Param, ...] = (
         "windows",
         str,
         _stereo.DEFAULT_WINDOWS,
-        "adaptive ZNCC windows, odd px, increasing; 'RxC' = rows x columns",
+        "adaptive ZNCC windows, odd px up to 255, increasing; 'RxC' = rows x columns",
     ),
     Param("min_texture", float, 1.0, "least gray-level std of a matched window", minimum=0.0),
     Param("min_ncc", float, 0.1, "least ZNCC of an accepted peak", minimum=-1.0, maximum=1.0),
