@@ -71,14 +71,15 @@ Methods
 ``opencv-sgbm``
     OpenCV's StereoSGBM as a reference (:func:`sgbm_disparity`).
 
-Prefilter. ``adaptive`` and ``sgm`` match high-passed images (``prefilter`` > 0, default
-15): each image minus its ``prefilter`` x ``prefilter`` box mean, times 2, rounded to integer
-gray levels around 128 (:func:`prefilter_image`). Why: ZNCC removes a window's mean but not
-a brightness *gradient* across it. Under lamps (lab) the slow shading of a nearly uniform
-floor dominates a large window's variance, so the correlation curve is a broad hump whose
-maximum wanders, and the peak fails the distinctness test although fine texture is there.
-Removing the shading leaves the fine texture to correlate (lab bad-2 25.3 -> 21.7 %, mojave
-and lava slightly better too; ``benchmarks/bench_depth_accuracy.py``). The arithmetic is
+Prefilter (opt-in). With ``prefilter`` > 0, ``adaptive`` and ``sgm`` match high-passed
+images: each image minus its ``prefilter`` x ``prefilter`` box mean, times 2, rounded to
+integer gray levels around 128 (:func:`prefilter_image`). Why: ZNCC removes a window's mean
+but not a brightness *gradient* across it; under lamps the slow shading of a nearly uniform
+floor can dominate a window's variance, so the curve is a broad hump and the peak is not
+distinct although fine texture is there. Measured on the 12-frame catalogs: ``sgm`` on
+dunes bad-2 23.1 -> 20.9 % with 15 px; lab 25.3 -> 21.7 % with the old 51x63 windows but
+no gain with the wide 63x255 window (EPE 0.45 -> 0.49); mojave and lava bad-2 within
+0.1 % but segmentation F1 about 0.7 points lower. Hence off by default. The arithmetic is
 exact integer, so tiles still match the whole frame bit for bit.
 
 All methods finish by removing speckles: 4-connected regions of at most ``speckle_size``
@@ -307,7 +308,7 @@ _MATCHERS = {"adaptive": _adaptive_coded, "sgm": _sgm_coded, "opencv-sgbm": _sgb
 _DEFAULTS: dict[str, Any] = {
     "method": "adaptive", "windows": DEFAULT_WINDOWS, "min_texture": 1.0, "min_ncc": 0.1,
     "distinctness": 1.0, "lr_tolerance": 1.0, "speckle_size": 50, "speckle_range": 1.0,
-    "sgm_window": 15, "sgm_p1": 0.2, "sgm_p2": 3.0, "sgm_paths": 8, "prefilter": 15,
+    "sgm_window": 15, "sgm_p1": 0.2, "sgm_p2": 3.0, "sgm_paths": 8, "prefilter": 0,
 }  # fmt: skip
 
 
@@ -412,7 +413,7 @@ def match_disparity(
     sgm_p1: float = 0.2,
     sgm_p2: float = 3.0,
     sgm_paths: int = 8,
-    prefilter: int = 15,
+    prefilter: int = 0,
 ) -> Matching:
     """Match a rectified pair along rows.
 

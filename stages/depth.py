@@ -14,11 +14,10 @@ pitched 38 deg) that is about 51 px; for the 0.8 m Viking baseline about 380 px.
 
 Choosing the method. ``adaptive`` (default) is the most accurate where the ground has
 texture (mojave, lava: about a quarter of StereoSGBM's bad-2 rate, see
-``benchmarks/bench_depth_accuracy.py``). Both ZNCC methods match high-passed images
-(``prefilter``, see :mod:`stages._stereo`), which removes lamp shading. On nearly
-textureless floors add a wide window
+``benchmarks/bench_depth_accuracy.py``). On nearly textureless floors add a wide window
 (``windows = "9,15x41,31x63,63x255"``, lab) or use ``method = "sgm"`` (lab, dunes), which
-propagates matches across weak texture.
+propagates matches across weak texture; ``prefilter = 15`` (a high-pass, see
+:mod:`stages._stereo`) helps ``sgm`` on dunes (bad-2 23.1 -> 20.9 %).
 
 Residual. The right (reference) image is forward-warped by its disparity into the left
 image's geometry (the "pseudo-left" image); ``residual = left - pseudo_left`` lives in the
@@ -88,7 +87,7 @@ PARAMS: tuple[Param, ...] = (
     Param(
         "prefilter",
         int,
-        15,
+        0,
         "high-pass box (odd px) before adaptive/sgm matching; 0 = off",
         minimum=0,
         maximum=63,
