@@ -9,7 +9,11 @@ machine inflate them less than wall-clock time would (cache sharing still does).
 Usage::
 
     PYTHONPATH=. .venv/bin/python benchmarks/bench_depth_speed.py [--repeats 5] [--size 500]
-        [--archetypes mojave,lava,lab,dunes] [--methods adaptive,sgm]
+        [--archetypes mojave,lava,lab,dunes] [--methods adaptive,sgm] [--set name=value ...]
+
+``x sgbm`` is each method's time over OpenCV StereoSGBM's on the same pair in the same run.
+``--set`` passes depth-stage settings (for example ``windows=9,15x41,31x63,63x255``, the lab
+catalog's) to every method.
 """
 
 from __future__ import annotations
@@ -25,6 +29,7 @@ import time  # noqa: E402
 import cv2  # noqa: E402
 
 from pipeline._baselines import sgbm_disparity  # noqa: E402
+from pipeline.graph import default_graph, parse_set_overrides  # noqa: E402
 from pipeline.synth import render_pair  # noqa: E402
 from stages._stereo import match_disparity  # noqa: E402
 
@@ -47,10 +52,18 @@ def main() -> None:
     parser.add_argument("--size", type=int, default=500)
     parser.add_argument("--archetypes", default="mojave,lava,lab,dunes")
     parser.add_argument("--methods", default="adaptive,sgm")
+    parser.add_argument("--set", nargs="*", default=[], help="match_disparity keyword=value")
     args = parser.parse_args()
+    # the engine's own --set parsing: typed and validated against the depth stage
+    settings = parse_set_overrides(default_graph(), [f"depth.{i}" for i in args.set]).get(
+        "depth", {}
+    )
     cv2.setNumThreads(1)
     methods = args.methods.split(",")
-    print(f"{args.size}x{args.size}, disparities 0..{D_MAX}, 1 thread, median of {args.repeats}")
+    print(
+        f"{args.size}x{args.size}, disparities 0..{D_MAX}, 1 thread, median of {args.repeats}"
+        + (f", settings {settings}" if settings else "")
+    )
     print(f"{'archetype':<10}{'method':<10}{'ms/pair':>9}{'pairs/s':>9}{'x sgbm':>8}")
     for archetype in args.archetypes.split(","):
         left, right, *_ = render_pair(archetype, seed=0, size=args.size)
@@ -63,7 +76,7 @@ def main() -> None:
         for method in methods:
             secs = _median_seconds(
                 lambda m=method, lft=left, rgt=right: match_disparity(
-                    rgt, lft, min_disparity=0, max_disparity=D_MAX, method=m
+                    rgt, lft, min_disparity=0, max_disparity=D_MAX, method=m, **settings
                 ),
                 args.repeats,
             )
