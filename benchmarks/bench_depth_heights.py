@@ -36,7 +36,7 @@ from stages import depth as depth_stage
 
 #: The shipped catalogs' depth settings (catalogs/*.toml).
 CATALOG_PARAMS: dict[str, dict[str, object]] = {
-    "lab": {"windows": "9,15x41,31x63,51x63"},
+    "lab": {"windows": "9,15x41,31x63,63x255"},
     "dunes": {"method": "sgm"},
 }
 
