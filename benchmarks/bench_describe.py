@@ -9,6 +9,11 @@ Renders pairs with ``pipeline.synth.pair.render_pair`` and runs
   plane (describe + matching errors);
 * ``--inputs pipeline``: depth stage + segment stage (objects matched to truth rocks at
   IoU >= 0.5 with ``pipeline.metrics.match_objects``).
+* ``--rundir DIR [DIR ...]``: the depth and segment products of finished ``arroyo run``
+  directories of archives with truth, described again with the current code and
+  ``--set describe.PARAM=VALUE`` overrides, scored like ``arroyo evaluate`` (same matching,
+  same rock table). The products stay fixed, so describe changes can be compared while the
+  depth and segment stages change underneath (copy a run directory to freeze it).
 
 Scores against the truth rocks with ``pipeline.metrics`` (rocks within ``--near`` m of the
 camera for the descriptor targets; relations between matched rocks).
@@ -17,12 +22,16 @@ Usage::
 
     PYTHONPATH=. .venv/bin/python benchmarks/bench_describe.py --frames 4 --inputs truth
     PYTHONPATH=. .venv/bin/python benchmarks/bench_describe.py --stage-speed  # CPU ms/frame
+    PYTHONPATH=. .venv/bin/python benchmarks/bench_describe.py --rundir runs/lab runs/lava \
+        --set describe.relation_radius_m=1e6
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -122,6 +131,101 @@ def _cat(frames: list[dict], key: str) -> dict:
     return {n: np.concatenate([p[n] for p in parts]) for n in names}
 
 
+def _rundir_scores(rundir: str, overrides: dict, near: float) -> dict:
+    """Describe every frame of a finished run again and score it like ``arroyo evaluate``."""
+    import pyarrow.parquet as pq
+    import xarray as xr
+
+    path = Path(rundir)
+    run = json.loads((path / "run.json").read_text())
+    truth_dir = Path(run["catalog"]["truth_dir"])
+    camera = Camera(**run["camera"])
+    rocks = pq.read_table(truth_dir / "rocks.parquet").to_pylist()
+    products = xr.open_zarr(path / "products.zarr", consolidated=False)
+    pred_cols = ("height_max_m", "height_m", "width_m", "range_m", "size_class")
+    true_cols = ("height_m", "width_m", "range_m", "size_class")
+    pairs: dict[str, list] = {name: [] for name in pred_cols + tuple("t_" + n for n in true_cols)}
+    edges: dict[str, list] = {k: [] for k in ("relation", "sx", "sy", "ox", "oy", "occ")}
+    n_rel, n_frames, cpu = 0, 0, 0.0
+    for frame_id in map(str, products["frame"].values):
+        frame = products.sel(frame=frame_id)
+        with np.load(truth_dir / f"{frame_id}.npz") as npz:
+            truth_labels = npz["labels"].astype(np.int32)
+            truth_range = npz["range"]
+        labels = np.asarray(frame["labels"].values).astype(np.int32)
+        start = time.process_time()
+        desc, rel, _ = describe_frame(
+            labels,
+            np.asarray(frame[camera.reference].values),
+            np.asarray(frame["disparity"].values),
+            np.asarray(frame["range"].values),
+            np.asarray(frame["height"].values),
+            camera=camera,
+            ground_plane=np.asarray(frame["ground_plane"].values),
+            **overrides,
+        )
+        cpu += time.process_time() - start
+        n_rel += rel["subject_id"].size
+        n_frames += 1
+        by_rock = {int(r["rock_id"]): r for r in rocks if r["frame_id"] == frame_id}
+        matches = match_objects(labels, truth_labels)
+        to_true = dict(zip(matches.pred_ids.tolist(), matches.true_ids.tolist(), strict=True))
+        row_of = {int(o): i for i, o in enumerate(desc["object_id"])}
+        for p, t in to_true.items():
+            if p in row_of and t in by_rock:
+                for name in pred_cols:
+                    pairs[name].append(desc[name][row_of[p]])
+                for name in true_cols:
+                    pairs["t_" + name].append(by_rock[t][name])
+        occ = true_occlusions(truth_labels, truth_range)
+        for s, r, o in zip(rel["subject_id"], rel["relation"], rel["object_id"], strict=True):
+            ts, to = to_true.get(int(s)), to_true.get(int(o))
+            if ts in by_rock and to in by_rock:
+                edges["relation"].append(str(r))
+                edges["sx"].append(by_rock[ts]["x_m"])
+                edges["sy"].append(by_rock[ts]["y_m"])
+                edges["ox"].append(by_rock[to]["x_m"])
+                edges["oy"].append(by_rock[to]["y_m"])
+                edges["occ"].append((ts, to) in occ)
+    err = descriptor_errors(
+        {n: np.asarray(pairs[n]) for n in pred_cols},
+        {n: np.asarray(pairs["t_" + n]) for n in true_cols},
+        near_range_m=near,
+    )
+    agreement = relation_agreement(
+        np.asarray(edges["relation"], dtype=str),
+        {"x_m": np.asarray(edges["sx"], float), "y_m": np.asarray(edges["sy"], float)},
+        {"x_m": np.asarray(edges["ox"], float), "y_m": np.asarray(edges["oy"], float)},
+        occludes_truth=np.asarray(edges["occ"], dtype=bool),
+    )
+    return {
+        "archive": run["archive"],
+        "err": err,
+        "rel": agreement["agreement"],
+        "rows": n_rel / max(n_frames, 1),
+        "ms": 1000 * cpu / max(n_frames, 1),
+    }
+
+
+def _rundir_main(rundirs: list[str], items: list[str], near: float) -> None:
+    from pipeline.graph import default_graph, parse_set_overrides
+
+    overrides = parse_set_overrides(default_graph(), items).get("describe", {})
+    print(
+        f"{'archive':9} {'rocks':>5} {'near':>5} {'dw/w':>6} {'class':>6} "
+        f"{'all dw/w':>8} {'all cls':>7} {'rel':>6} {'rows/fr':>8} {'cpu ms':>7}"
+    )
+    for rundir in rundirs:
+        r = _rundir_scores(rundir, overrides, near)
+        e = r["err"]
+        print(
+            f"{r['archive']:9} {int(e['n_rocks']):5d} {int(e['near_n_rocks']):5d} "
+            f"{e['near_width_rel_err_median']:6.3f} {e['near_class_accuracy']:6.3f} "
+            f"{e['width_rel_err_median']:8.3f} {e['class_accuracy']:7.3f} {r['rel']:6.3f} "
+            f"{r['rows']:8.0f} {r['ms']:7.1f}"
+        )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--archetypes", default="lab,mojave,lava,dunes")
@@ -134,7 +238,14 @@ def main() -> None:
         action="store_true",
         help="only: CPU ms per frame of the describe stage on depth + segment stage products",
     )
+    parser.add_argument("--rundir", nargs="+", help="re-describe finished run directories")
+    parser.add_argument(
+        "--set", action="append", default=[], metavar="describe.PARAM=VALUE", dest="overrides"
+    )
     args = parser.parse_args()
+    if args.rundir:
+        _rundir_main(args.rundir, args.overrides, args.near)
+        return
     if args.stage_speed:
         from bench_segment import stage_speed  # sibling script (benchmarks/ is on sys.path)
 
