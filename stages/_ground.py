@@ -265,9 +265,14 @@ def silhouette_on_ground(
 
     The object is assumed to stand on the ground: the ray through the middle of its lowest
     row (at the pixel's lower edge) meets the ground at its base point B. Its width is the
-    widest row span at B's depth; its height is that of the ray through the top of the
-    silhouette where it passes above B (the study's farthest perceivable point, placed at
-    the base's distance). A rough fallback for objects the matcher left without depth.
+    widest row span at B's depth. Its height comes from the ray through the top of the
+    silhouette, which grazes the rock: the rock is taken as a half-ellipse in the vertical
+    plane of the line of sight, as deep as it is wide (horizontal semi-axis width / 2,
+    centred that far beyond B), and its height is the one that makes the ellipse tangent
+    to that ray (0 when the ray meets the ground before the centre). Reading the height off
+    the ray straight above B instead treats the rock as a wall facing the camera and
+    overstates low rocks seen from above several times. A rough fallback for objects the
+    matcher left without depth.
 
     Parameters
     ----------
@@ -305,19 +310,29 @@ def silhouette_on_ground(
         return nan
     t_base = -centre[2] / base_dir[2]  # ray parameter = camera depth Z
     base = centre + t_base * base_dir
-    top_dir = ray(float(c[r == top].mean()), top - 0.5)
-    height = math.nan
-    if top_dir[1] > 0:
-        height = float(centre[2] + (base[1] - centre[1]) / top_dir[1] * top_dir[2])
     uniq, inverse = np.unique(r, return_inverse=True)
     cmin = np.full(uniq.size, np.iinfo(np.int64).max)
     cmax = np.full(uniq.size, np.iinfo(np.int64).min)
     np.minimum.at(cmin, inverse, c)
     np.maximum.at(cmax, inverse, c)
+    width = float((cmax - cmin + 1).max() * t_base / f)
+    top_dir = ray(float(c[r == top].mean()), top - 0.5)
+    height = math.nan
+    run = math.hypot(top_dir[0], top_dir[1])  # horizontal progress per unit of Z
+    if run > 0 and top_dir[2] < 0:
+        # the rock as a half-ellipse in the vertical plane of the line of sight, as deep as
+        # it is wide (semi-axis R = width / 2, centre R beyond the base point B), tangent to
+        # the ray through the top of the silhouette: for a line z = z0 - m (s - s_c) and
+        # the ellipse (s - s_c)^2 / R^2 + z^2 / h^2 = 1, tangency means z0^2 = h^2 + m^2 R^2
+        semi = width / 2.0
+        slope = -top_dir[2] / run
+        s_centre = math.hypot(base[0] - centre[0], base[1] - centre[1]) + semi
+        z0 = float(centre[2]) - slope * s_centre
+        height = math.sqrt(max(z0 * z0 - (slope * semi) ** 2, 0.0)) if z0 > 0 else 0.0
     return {
         "range_m": float(t_base),
         "x_m": float(base[0]),
         "y_m": float(base[1]),
-        "width_m": float((cmax - cmin + 1).max() * t_base / f),
+        "width_m": width,
         "height_m": height,
     }

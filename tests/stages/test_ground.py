@@ -126,3 +126,38 @@ def test_median_is_numpys_median_to_the_sign_of_zero(values):
     else:
         assert result == expected
         assert np.signbit(result) == np.signbit(expected)
+
+
+def _dome_silhouette(camera: Camera, shape, *, radius_m: float, height_m: float, y_m: float):
+    """Pixels whose ray meets a half-ellipsoid dome (circular footprint) before the ground."""
+    ground = GroundFrame.from_camera(camera)
+    rows, cols = np.mgrid[0 : shape[0], 0 : shape[1]]
+    cx, cy = camera.principal_point(shape)
+    d_cam = np.stack(
+        [(cols - cx) / camera.focal_px, (rows - cy) / camera.focal_px, np.ones(shape)], -1
+    )
+    d = np.stack([d_cam @ ground.right, d_cam @ ground.forward, d_cam @ ground.up], -1)
+    o = ground.to_ground(np.zeros(3)) - np.array([0.0, y_m, 0.0])
+    scale = np.array([radius_m, radius_m, height_m])
+    a = np.sum((d / scale) ** 2, -1)
+    b = 2.0 * np.sum(d * o / scale**2, -1)
+    c = np.sum((o / scale) ** 2) - 1.0
+    disc = b * b - 4 * a * c
+    t = (-b - np.sqrt(np.clip(disc, 0, None))) / (2 * a)
+    hit = (disc >= 0) & (o[2] + t * d[..., 2] >= 0)
+    return np.nonzero(hit)
+
+
+def test_silhouette_height_of_a_dome_seen_from_above():
+    # regression: the height was read off the top ray straight above the base point (a wall
+    # facing the camera), 2-3x too high for low rocks; 19 depthless rocks of the lab, mojave
+    # and lava catalogs had a median |height error| of 3.7 cm that way, 1.0 cm now
+    camera = Camera(focal_px=800.0, baseline_m=0.1, height_m=1.0, pitch_deg=40.0)
+    shape = (600, 800)
+    for radius, height in ((0.05, 0.02), (0.08, 0.06)):
+        rows, cols = _dome_silhouette(camera, shape, radius_m=radius, height_m=height, y_m=1.2)
+        ground = GroundFrame.from_camera(camera)
+        sil = silhouette_on_ground(rows, cols, camera=camera, ground=ground, shape=shape)
+        assert sil["y_m"] == pytest.approx(1.2 - radius, abs=0.01)
+        assert sil["width_m"] == pytest.approx(2 * radius, rel=0.1)
+        assert sil["height_m"] == pytest.approx(height, rel=0.2)
