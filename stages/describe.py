@@ -6,7 +6,9 @@ in :mod:`stages._descriptors`) and ``relations`` (one row per edge, definitions 
 :mod:`stages._relations`). Per-frame figures: rock count, the fraction of the ground covered
 by rocks and the Golombek-Rapp size-frequency fit (:mod:`stages._sizefreq`).
 
-Example: which samples lie behind an obstacle (DuckDB over the run's Parquet files)::
+Example: which samples lie behind an obstacle, in line with it as seen from the camera
+(``overlap > 0``) and within ``relation_radius_m`` of it on the ground (ordering edges are
+local, see :mod:`stages._relations`); DuckDB over the run's Parquet files::
 
     SELECT s.frame_id, s.object_id AS sample_id, o.object_id AS obstacle_id, r.overlap
     FROM descriptors s
