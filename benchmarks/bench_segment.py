@@ -192,6 +192,57 @@ def scores(archetypes, frames: int, size: int, depth: str, noise_px: float, over
             )
 
 
+def rundir_scores(rundirs: list[str], overrides: dict, verbose: bool = False) -> None:
+    """Segment a finished run's frames again (its depth products) and score like evaluate.
+
+    Reads the reference image, height and disparity of every frame of ``products.zarr``,
+    runs :func:`stages.segment.segment_image` with the catalog's segment params plus
+    ``overrides`` (the current code, not the run's), and pools the object scores against
+    the archive's truth labels, as ``arroyo evaluate`` does.
+    """
+    import json
+    import tomllib
+    from pathlib import Path
+
+    import xarray as xr
+
+    from stages import segment as segment_stage
+
+    for rundir in rundirs:
+        path = Path(rundir)
+        run = json.loads((path / "run.json").read_text())
+        truth_dir = Path(run["catalog"]["truth_dir"])
+        reference = run["camera"].get("reference", "right")
+        # the current defaults and the catalog's current segment params, not the run's
+        catalog = tomllib.loads(Path(run["catalog"]["source"]).read_text())
+        params = dict(segment_stage.STAGE.defaults())
+        params.update(catalog.get("params", {}).get("segment", {}))
+        params.pop("tile_px", None)
+        params.update(overrides)
+        products = xr.open_zarr(path / "products.zarr", consolidated=False)
+        results = []
+        for frame_id in map(str, products["frame"].values):
+            frame = products.sel(frame=frame_id)
+            with np.load(truth_dir / f"{frame_id}.npz") as npz:
+                true_labels = npz["labels"].astype(np.int32)
+            labels = segment_image(
+                np.asarray(frame[reference].values),
+                height=np.asarray(frame["height"].values),
+                disparity=np.asarray(frame["disparity"].values),
+                **params,
+            ).labels
+            results.append(segmentation_scores(labels, true_labels))
+            if verbose:
+                r = results[-1]
+                print(f"  {frame_id}: tp {r['tp']:.0f} fp {r['fp']:.0f} fn {r['fn']:.0f}")
+        pooled = pool_segmentation_scores(results)
+        print(
+            f"{run['archive']:9s} {params['method']:24s} {pooled['precision']:6.3f} "
+            f"{pooled['recall']:6.3f} {pooled['f1']:6.3f} {pooled['mean_iou']:6.3f}"
+            f"   (tp {pooled['tp']:.0f} fp {pooled['fp']:.0f} fn {pooled['fn']:.0f})  {rundir}"
+        )
+
+
 def _parse_overrides(items: list[str]) -> dict:
     overrides = {}
     for item in items:
@@ -223,7 +274,16 @@ def main() -> None:
         action="store_true",
         help="only: CPU ms per frame of the segment and describe stages (depth stage input)",
     )
+    parser.add_argument(
+        "--rundir",
+        nargs="+",
+        help="only: segment finished run directories again (their depth products) and score",
+    )
+    parser.add_argument("--verbose", action="store_true", help="--rundir: per-frame counts")
     args = parser.parse_args()
+    if args.rundir:
+        rundir_scores(args.rundir, _parse_overrides(args.set), args.verbose)
+        return
     if args.stage_speed:
         stage_speed(args.archetypes, args.frames, args.size, min(args.repeats, 3))
         return
