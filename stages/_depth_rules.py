@@ -21,14 +21,17 @@ Precise depth (``sigma <= 5 mm``):
 
 Noisy depth (``5 mm < sigma <= 15 mm``, typical of window-based stereo on real texture):
 pixels are not trusted one by one; no object is added from height alone (R1 off). **R2
-vote** -- each intensity object with most of its pixels valid votes with its unsmoothed
-relative heights: it lies flat (shadow, stain, texture blotch) and is removed whole when
-the 90th percentile of its heights stays below ``0.8 sigma``. The upper percentile, not the
-median, because a rock's visible face rises from a foot at ground level and the stereo
-windows pull small rocks' heights down; measured on the built-in archives it keeps 87-97 %
-of the true rocks and removes 80 % of the texture objects. A large object (at least 4
-independent samples, one per 15 x 15 pixels, the scale of the matching windows) is also
-flat when its 90th percentile stays below ``1.5 sigma`` and its median height plus one
+vote** -- each intensity object with at least 30 % (and 20) of its pixels valid votes with
+its unsmoothed relative heights: it lies flat (shadow, stain, texture blotch) and is
+removed whole when the 90th percentile of its heights stays within ``0.8 sigma`` of the
+median height of a 4-pixel band of ground around it (the ground it stands on; the coarse
+local ground where the band has fewer than 10 heights). 30 %, not half: a ripple or blotch
+cut by the frame's border rows, where the matcher has no heights, still votes. The upper
+percentile, not the median, because a rock's visible face rises from a foot at ground level
+and the stereo windows pull small rocks' heights down; measured on the built-in archives it
+keeps 87-97 % of the true rocks and removes 80 % of the texture objects. A large object (at
+least 4 independent samples, one per 15 x 15 pixels, the scale of the matching windows) is
+also flat when its 90th percentile stays below ``1.5 sigma`` and its median height plus one
 standard error (``1.25 sigma / sqrt(n / 225)``) stays below 11 mm: over many pixels the
 noise itself lifts the upper percentile.
 
@@ -59,6 +62,12 @@ _UNUSABLE_SIGMA_M = 0.015
 # many ground sigmas (tuned on the built-in archives with the depth stage).
 _VOTE_PERCENTILE = 90.0
 _VOTE_SIGMAS = 0.8
+# An object votes when this share of its pixels (and at least this many) have a height: a
+# ripple cut by the frame's bottom rows, where the matcher has no rows below, still votes.
+_VOTE_VALID_FRACTION = 0.3
+_VOTE_VALID_PX = 20
+# Width of the band around an object whose median height is the object's own ground level.
+_RING_PX = 4
 # ... or when its median height plus one standard error stays below this (metres): large flat
 # objects, whose upper percentile is lifted by the noise itself. Stereo heights are
 # correlated over the matching window: one independent sample per 15 x 15 pixels.
@@ -283,7 +292,11 @@ def apply_depth_rules(
 def _noisy_depth_rules(
     mask: np.ndarray, relative: np.ndarray, sigma: float
 ) -> tuple[np.ndarray, DepthRuleStats]:
-    """R2 vote: remove whole objects whose upper heights stay within the ground noise."""
+    """R2 vote: remove whole objects whose upper heights stay within the ground noise.
+
+    Heights are read relative to the median valid height of a ``_RING_PX`` band of ground
+    around the object (the coarse local ground where the band has fewer than 10 heights).
+    """
     valid = np.isfinite(relative)
     count, components = cv2.connectedComponents(mask.view(np.uint8), connectivity=8)
     lying = np.zeros(count, dtype=bool)
@@ -303,8 +316,13 @@ def _noisy_depth_rules(
             & (upper < _WIDE_VOTE_SIGMAS * sigma)
             & (middle + standard_error < _NOISY_FLAT_M)
         )
-        flat = (upper < _VOTE_SIGMAS * sigma) | wide_flat
-        lying[1:] = (n_valid >= 0.5 * n_pixels) & flat
+        # the upper heights are read against the ground right around the object, not the
+        # coarse local ground: a blotch on a swell the 72 px median does not follow is flat
+        ring_level = _ring_levels(components, count, relative, ring_px=_RING_PX)
+        above = upper - np.where(np.isfinite(ring_level), ring_level, 0.0)
+        flat = (above < _VOTE_SIGMAS * sigma) | wide_flat
+        voting = (n_valid >= _VOTE_VALID_FRACTION * n_pixels) & (n_valid >= _VOTE_VALID_PX)
+        lying[1:] = voting & flat
     removed = lying[components]
     stats = DepthRuleStats(
         flat_removed_px=int(np.count_nonzero(removed)),
@@ -317,6 +335,22 @@ def _noisy_depth_rules(
         ],
     )
     return mask & ~removed, stats
+
+
+def _ring_levels(
+    components: np.ndarray, count: int, relative: np.ndarray, *, ring_px: int
+) -> np.ndarray:
+    """Median valid height in a ``ring_px`` band around each object (NaN if < 10 values)."""
+    size = 2 * ring_px + 1
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
+    # grey dilation of the ids: a ring pixel between two objects goes to the higher id
+    ids = components.astype(np.uint16 if count < 2**16 else np.float32)
+    grown = cv2.dilate(ids, kernel).astype(np.int64)
+    ring = (components == 0) & (grown > 0) & np.isfinite(relative)
+    owners = grown[ring]
+    levels = _percentile_by_label(relative[ring], owners, count, 50.0)[1:]
+    n_ring = np.bincount(owners, minlength=count)[1:]
+    return np.where(n_ring >= 10, levels, np.nan)
 
 
 def _percentile_by_label(

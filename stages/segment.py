@@ -398,7 +398,7 @@ def _sector_product(name: str, dtype: str, long_name: str, units: str = "") -> P
 
 STAGE = Stage(
     name="segment",
-    version="4",
+    version="5",
     inputs=("left", "right", "disparity", "height"),
     outputs=(
         Product(

@@ -99,6 +99,42 @@ def test_noisy_depth_votes_out_a_flat_blotch_and_keeps_a_low_rock():
     assert not (combined & ~(blotch | rock)).any()  # no object from height alone
 
 
+def test_noisy_vote_reads_a_partly_depthless_object():
+    # regression: on dunes a bright ripple cut by the frame's bottom rows (no height there)
+    # had under half its pixels valid, escaped the vote and was reported as a rock
+    shape = (120, 120)
+    # fine-grained noise: the 4 px ring around the object holds many independent heights
+    height = _correlated_noise(shape, 0.018, block_px=2, seed=1)
+    height[96:] = np.nan  # the matcher has no rows below the frame
+    ripple = np.zeros(shape, bool)
+    ripple[80:120, 20:60] = True  # 40 % of it has a height, all at ground level
+    height[ripple] *= 0.3  # smooth sand: the matcher's heights on it barely scatter
+    combined, stats = apply_depth_rules(ripple, height)
+    assert "object vote" in stats.notes[0]
+    assert not combined.any()
+    # with no height at all the intensity decision stands (R3)
+    height[60:] = np.nan
+    combined, _ = apply_depth_rules(ripple, height)
+    assert combined[ripple].all()
+
+
+def test_noisy_vote_reads_heights_against_the_ground_around_the_object():
+    # a blotch on a 30 px swell (too narrow for the 72 px local ground) lies on the swell;
+    # a rock as high above its own surroundings on flat ground stands
+    shape = (156, 156)
+    height = _correlated_noise(shape, 0.008, seed=2)
+    swell = disk(shape, 40, 80, 22)
+    height[swell] += 0.02
+    blotch = disk(shape, 40, 80, 8)
+    height[blotch] = 0.02 + 0.3 * (height[blotch] - 0.02)  # a smooth stain on the swell
+    rock = disk(shape, 120, 80, 8)
+    height[rock] += 0.02
+    combined, stats = apply_depth_rules(blotch | rock, height)
+    assert "object vote" in stats.notes[0]
+    assert not combined[blotch].any()
+    assert combined[rock].all()
+
+
 def test_unusable_depth_keeps_the_intensity_decision():
     shape = (120, 120)
     height = _correlated_noise(shape, 0.03)
