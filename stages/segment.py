@@ -42,7 +42,8 @@ from pipeline.compute import compute
 from pipeline.stage import FrameContext, Param, Product, Stage, StageResult
 
 from ._continuity import SectorAnalysis, analyse_sectors
-from ._depth_rules import DepthRuleStats, apply_depth_rules
+from ._depth_rules import _UNUSABLE_SIGMA_M as _USABLE_SIGMA_M
+from ._depth_rules import DepthRuleStats, apply_depth_rules, drop_faint_depthless
 from ._regions import (
     depth_edges,
     drop_streaks,
@@ -241,6 +242,18 @@ def segment_image(
         if disparity is not None and split_disparity_px > 0 and np.isfinite(disparity).any():
             edges = depth_edges(disparity, jump_px=split_disparity_px)
     labels = label_objects(mask, min_area_px=min_area_px, fill=fill_holes, edges=edges)
+    if depth_stats is not None and depth_stats.ground_sigma_m <= _USABLE_SIGMA_M:
+        # R3b: where the vote could not judge an object, its gray level must be clear
+        labels, faint = drop_faint_depthless(
+            labels,
+            image,
+            height,
+            background=interpolate_sector_grid(analysis.background, shape),
+            low=low,
+            high=high,
+        )
+        if faint:
+            notes.append(f"{faint} faint object(s) without heights dropped")
     streaks = 0
     heights_precise = depth_stats is not None and depth_stats.ground_sigma_m <= 0.005
     if method == "sector-histogram+depth" and not heights_precise:

@@ -13,6 +13,7 @@ from stages._depth_rules import (
     _percentile_by_label,
     _percentiles_by_label,
     apply_depth_rules,
+    drop_faint_depthless,
     smooth_height,
 )
 
@@ -133,6 +134,35 @@ def test_noisy_vote_reads_heights_against_the_ground_around_the_object():
     assert "object vote" in stats.notes[0]
     assert not combined[blotch].any()
     assert combined[rock].all()
+
+
+def test_drop_faint_depthless_judges_only_objects_without_heights():
+    # regression: mojave texture blotches in the matcher's blind band along the right border
+    # (no heights, so no vote) were reported as rocks
+    shape = (60, 100)
+    image = np.full(shape, 150, np.uint8)
+    labels = np.zeros(shape, np.int32)
+    height = np.zeros(shape, np.float32)
+    height[:, 80:] = np.nan  # blind band
+    background = np.full(shape, 150.0, np.float32)
+    low, high = background - 10, background + 10
+    labels[10:20, 85:95], image[10:20, 85:95] = 1, 135  # faint: 1.5 bands below the ground
+    labels[30:40, 85:95], image[30:40, 85:95] = 2, 100  # clear: 5 bands below
+    labels[10:20, 10:20], image[10:20, 10:20] = 3, 162  # faint but has heights: the vote's
+    labels[30:40, 40:50], image[30:40, 40:50] = 4, 175  # clear, light, with heights
+    out, dropped = drop_faint_depthless(
+        labels, image, height, background=background, low=low, high=high
+    )
+    assert dropped == 1
+    assert not out[10:20, 85:95].any()
+    # renumbered 1..3, the others whole
+    assert sorted(np.unique(out)) == [0, 1, 2, 3]
+    for region in (np.s_[30:40, 85:95], np.s_[10:20, 10:20], np.s_[30:40, 40:50]):
+        assert (out[region] > 0).all() and np.unique(out[region]).size == 1
+    with pytest.raises(ValueError, match="min_contrast"):
+        drop_faint_depthless(
+            labels, image, height, background=background, low=low, high=high, min_contrast=0.5
+        )
 
 
 def test_unusable_depth_keeps_the_intensity_decision():
