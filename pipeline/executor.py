@@ -65,9 +65,33 @@ class _DistributedExecutor(Executor):
                 done.add(new)
 
     def close(self) -> None:
+        if self.cluster is not None:
+            # a local cluster's scheduler may close while a worker is mid-heartbeat; the
+            # worker then logs a harmless traceback after the run's summary (dask/distributed
+            # #9032): filter exactly that record on the workers before closing
+            try:
+                self.client.run(_install_heartbeat_filter)
+            except Exception:  # a dead worker must not turn a finished run into a failure
+                pass
         self.client.close()
         if self.cluster is not None:
             self.cluster.close()
+
+
+class _ShutdownHeartbeatFilter(logging.Filter):
+    """Drop the worker's "failed heartbeat" record, which only a closing scheduler causes."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not str(record.msg).startswith(_HEARTBEAT_FAILURE)
+
+
+_HEARTBEAT_FAILURE = "Failed to communicate with scheduler during heartbeat"
+
+
+def _install_heartbeat_filter() -> None:
+    worker_log = logging.getLogger("distributed.worker")
+    if not any(isinstance(f, _ShutdownHeartbeatFilter) for f in worker_log.filters):
+        worker_log.addFilter(_ShutdownHeartbeatFilter())
 
 
 def open_executor(*, scheduler: str | None, workers: int | None) -> Executor:
