@@ -59,7 +59,7 @@ import cv2
 import numpy as np
 from scipy.ndimage import median_filter
 
-from ._regions import _coerce_mask
+from ._regions import _coerce_mask, _renumber
 
 # Ground height noise (MAD sigma, metres) above which single heights are not trusted.
 _NOISY_SIGMA_M = 0.005
@@ -460,8 +460,4 @@ def drop_faint_depthless(
     faint[judged] = np.abs(gray - ground) < min_contrast * np.maximum(band, 1.0)
     if not faint.any():
         return labels, 0
-    keep = ~faint
-    keep[0] = False
-    new_ids = np.zeros(count, dtype=np.int32)
-    new_ids[keep] = np.arange(1, int(keep.sum()) + 1, dtype=np.int32)
-    return new_ids[labels], int(faint.sum())
+    return _renumber(np.where(faint[labels], 0, labels), 1), int(faint.sum())
