@@ -333,12 +333,8 @@ def _settings(
         raise ValueError(f"speckle_size must be an int >= 0 (0 disables), got {speckle_size!r}")
     if sgm_paths not in (4, 8):
         raise ValueError(f"sgm_paths must be 4 or 8, got {sgm_paths!r}")
-    if (
-        isinstance(prefilter, bool)
-        or not isinstance(prefilter, int | np.integer)
-        or not (prefilter == 0 or (3 <= prefilter <= 63 and prefilter % 2 == 1))
-    ):
-        raise ValueError(f"prefilter must be 0 (off) or an odd int in [3, 63], got {prefilter!r}")
+    if not (_is_int(prefilter) and prefilter == 0):
+        _check_prefilter_size("prefilter", prefilter, off="0 (off) or ")
     if sgm_window < 3 or sgm_window % 2 == 0 or sgm_window > 63:
         raise ValueError(f"sgm_window must be an odd integer in [3, 63], got {sgm_window!r}")
     return {
@@ -558,10 +554,7 @@ def prefilter_image(image: np.ndarray, *, size: int) -> np.ndarray:
         for bit, wherever the image is cut.
     """
     img = _coerce_image(image, "image")
-    if isinstance(size, bool) or not isinstance(size, int | np.integer) or size < 3:
-        raise ValueError(f"size must be an odd int in [3, 63], got {size!r}")
-    if size % 2 == 0 or size > 63:
-        raise ValueError(f"size must be an odd int in [3, 63], got {size!r}")
+    _check_prefilter_size("size", size)
     half = int(size) // 2
     n = int(size) * int(size)
     padded = np.pad(img.astype(np.int64), half, mode="symmetric")  # = cv2.BORDER_REFLECT
@@ -572,6 +565,16 @@ def prefilter_image(image: np.ndarray, *, size: int) -> np.ndarray:
     # 2 (I - S/n) rounded half up, in integers: floor((4 (n I - S) + n) / (2 n))
     high = (4 * (n * img.astype(np.int64) - box) + n) // (2 * n)
     return np.clip(high + 128, 0, 255).astype(np.uint8)
+
+
+def _is_int(value: Any) -> bool:
+    return not isinstance(value, bool) and isinstance(value, int | np.integer)
+
+
+def _check_prefilter_size(name: str, value: Any, *, off: str = "") -> None:
+    """The prefilter's box side: an odd int in [3, 63] (``off`` names the disabling value)."""
+    if not (_is_int(value) and 3 <= value <= 63 and value % 2 == 1):
+        raise ValueError(f"{name} must be {off}an odd int in [3, 63], got {value!r}")
 
 
 def remove_speckles(
