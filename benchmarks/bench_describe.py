@@ -131,10 +131,25 @@ def _cat(frames: list[dict], key: str) -> dict:
     return {n: np.concatenate([p[n] for p in parts]) for n in names}
 
 
+def _as_rows(columns: dict) -> list[dict]:
+    """Column arrays of one frame's table as the row dicts ``pipeline.evaluate`` reads."""
+    names = list(columns)
+    return [dict(zip(names, values, strict=True)) for values in zip(*columns.values(), strict=True)]
+
+
 def _rundir_scores(rundir: str, overrides: dict, near: float) -> dict:
     """Describe every frame of a finished run again and score it like ``arroyo evaluate``."""
     import pyarrow.parquet as pq
     import xarray as xr
+
+    from pipeline.evaluate import (
+        _PRED_COLUMNS,
+        _TRUE_COLUMNS,
+        _columns,
+        _edges,
+        _pair_columns,
+        _relation_scores,
+    )
 
     path = Path(rundir)
     run = json.loads((path / "run.json").read_text())
@@ -142,10 +157,8 @@ def _rundir_scores(rundir: str, overrides: dict, near: float) -> dict:
     camera = Camera(**run["camera"])
     rocks = pq.read_table(truth_dir / "rocks.parquet").to_pylist()
     products = xr.open_zarr(path / "products.zarr", consolidated=False)
-    pred_cols = ("height_max_m", "height_m", "width_m", "range_m", "size_class")
-    true_cols = ("height_m", "width_m", "range_m", "size_class")
-    pairs: dict[str, list] = {name: [] for name in pred_cols + tuple("t_" + n for n in true_cols)}
-    edges: dict[str, list] = {k: [] for k in ("relation", "sx", "sy", "ox", "oy", "occ")}
+    pairs: tuple[list, list] = ([], [])
+    edges: dict[str, list] = {}
     n_rel, n_frames, cpu = 0, 0, 0.0
     for frame_id in map(str, products["frame"].values):
         frame = products.sel(frame=frame_id)
@@ -167,37 +180,19 @@ def _rundir_scores(rundir: str, overrides: dict, near: float) -> dict:
         cpu += time.process_time() - start
         n_rel += rel["subject_id"].size
         n_frames += 1
-        by_rock = {int(r["rock_id"]): r for r in rocks if r["frame_id"] == frame_id}
+        # score with arroyo evaluate's own pairing and edge helpers, on the same row dicts
+        rocks_by_id = {int(r["rock_id"]): r for r in rocks if r["frame_id"] == frame_id}
         matches = match_objects(labels, truth_labels)
-        to_true = dict(zip(matches.pred_ids.tolist(), matches.true_ids.tolist(), strict=True))
-        row_of = {int(o): i for i, o in enumerate(desc["object_id"])}
-        for p, t in to_true.items():
-            if p in row_of and t in by_rock:
-                for name in pred_cols:
-                    pairs[name].append(desc[name][row_of[p]])
-                for name in true_cols:
-                    pairs["t_" + name].append(by_rock[t][name])
-        occ = true_occlusions(truth_labels, truth_range)
-        for s, r, o in zip(rel["subject_id"], rel["relation"], rel["object_id"], strict=True):
-            ts, to = to_true.get(int(s)), to_true.get(int(o))
-            if ts in by_rock and to in by_rock:
-                edges["relation"].append(str(r))
-                edges["sx"].append(by_rock[ts]["x_m"])
-                edges["sy"].append(by_rock[ts]["y_m"])
-                edges["ox"].append(by_rock[to]["x_m"])
-                edges["oy"].append(by_rock[to]["y_m"])
-                edges["occ"].append((ts, to) in occ)
+        p_rows, t_rows = _pair_columns(matches, _as_rows(desc), rocks_by_id)
+        pairs[0].extend(p_rows)
+        pairs[1].extend(t_rows)
+        occlusions = true_occlusions(truth_labels, truth_range)
+        for key, values in _edges(_as_rows(rel), matches, rocks_by_id, occlusions).items():
+            edges.setdefault(key, []).extend(values)
     err = descriptor_errors(
-        {n: np.asarray(pairs[n]) for n in pred_cols},
-        {n: np.asarray(pairs["t_" + n]) for n in true_cols},
-        near_range_m=near,
+        _columns(pairs[0], _PRED_COLUMNS), _columns(pairs[1], _TRUE_COLUMNS), near_range_m=near
     )
-    agreement = relation_agreement(
-        np.asarray(edges["relation"], dtype=str),
-        {"x_m": np.asarray(edges["sx"], float), "y_m": np.asarray(edges["sy"], float)},
-        {"x_m": np.asarray(edges["ox"], float), "y_m": np.asarray(edges["oy"], float)},
-        occludes_truth=np.asarray(edges["occ"], dtype=bool),
-    )
+    agreement = _relation_scores(edges)
     return {
         "archive": run["archive"],
         "err": err,
