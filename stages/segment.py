@@ -43,7 +43,12 @@ from pipeline.stage import FrameContext, Param, Product, Stage, StageResult
 
 from ._continuity import SectorAnalysis, analyse_sectors
 from ._depth_rules import _UNUSABLE_SIGMA_M as _USABLE_SIGMA_M
-from ._depth_rules import DepthRuleStats, apply_depth_rules, drop_faint_depthless
+from ._depth_rules import (
+    DepthRuleStats,
+    apply_depth_rules,
+    drop_faint_depthless,
+    gray_contrast,
+)
 from ._regions import (
     depth_edges,
     drop_streaks,
@@ -224,6 +229,7 @@ def segment_image(
         disparity = _coerce_depth(disparity, shape, "disparity")
         valid_fraction = float(np.isfinite(height).mean()) if height is not None else 0.0
         if height is not None and valid_fraction >= min_depth_valid_fraction:
+            background = interpolate_sector_grid(analysis.background, shape)
             mask, depth_stats = apply_depth_rules(
                 mask,
                 height,
@@ -233,6 +239,7 @@ def segment_image(
                 smoothing_px=height_smoothing_px,
                 ground_window_px=ground_window_px,
                 min_raised_fraction=min_raised_fraction,
+                contrast=gray_contrast(image, background=background, low=low, high=high),
             )
         else:
             notes.append(
@@ -248,7 +255,7 @@ def segment_image(
             labels,
             image,
             height,
-            background=interpolate_sector_grid(analysis.background, shape),
+            background=background,
             low=low,
             high=high,
         )
@@ -411,7 +418,7 @@ def _sector_product(name: str, dtype: str, long_name: str, units: str = "") -> P
 
 STAGE = Stage(
     name="segment",
-    version="5",
+    version="6",
     inputs=("left", "right", "disparity", "height"),
     outputs=(
         Product(

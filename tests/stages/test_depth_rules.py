@@ -14,6 +14,7 @@ from stages._depth_rules import (
     _percentiles_by_label,
     apply_depth_rules,
     drop_faint_depthless,
+    gray_contrast,
     smooth_height,
 )
 
@@ -163,6 +164,60 @@ def test_drop_faint_depthless_judges_only_objects_without_heights():
         drop_faint_depthless(
             labels, image, height, background=background, low=low, high=high, min_contrast=0.5
         )
+
+
+def test_gray_contrast_counts_threshold_bands_on_each_side():
+    image = np.array([[100, 130, 140, 150, 170, 200]], dtype=np.uint8)
+    background = np.full(image.shape, 140, np.float32)
+    low = np.full(image.shape, 120, np.float32)  # 20 levels below
+    high = np.full(image.shape, 150, np.float32)  # 10 levels above
+    contrast = gray_contrast(image, background=background, low=low, high=high)
+    assert contrast.dtype == np.float32
+    np.testing.assert_allclose(contrast[0], [-2.0, -0.5, 0.0, 1.0, 3.0, 6.0])
+    # a threshold on the ground level itself counts one gray level as the band
+    flat = gray_contrast(image, background=background, low=background, high=high)
+    assert flat[0, 0] == pytest.approx(-40.0)
+    with pytest.raises(ValueError, match="one shape"):
+        gray_contrast(image, background=background[:, :3], low=low, high=high)
+
+
+def test_noisy_vote_asks_less_height_of_a_clear_rock_than_of_a_faint_blotch():
+    # rule R2c: stereo windows flatten a small rock's heights to a few mm, as low as a
+    # blotch's noise; its gray level, far past the threshold, is the evidence that remains
+    shape = (120, 160)
+    height = _correlated_noise(shape, 0.012, block_px=2, seed=3)
+    rock, blotch = disk(shape, 60, 40, 9), disk(shape, 60, 120, 9)
+    for region in (rock, blotch):
+        height[region] = 0.004 + 0.2 * height[region]  # the same flattened bump on both
+    contrast = np.zeros(shape, np.float32)
+    contrast[rock] = -3.0  # three threshold bands darker than the ground
+    contrast[blotch] = -1.2  # barely past the low threshold: ground texture
+    combined, stats = apply_depth_rules(rock | blotch, height, contrast=contrast)
+    assert "object vote" in stats.notes[0]
+    assert combined[rock].all()
+    assert not combined[blotch].any()
+    # without the gray level the height evidence alone calls both flat
+    combined, _ = apply_depth_rules(rock | blotch, height)
+    assert not combined.any()
+    with pytest.raises(ValueError, match="contrast"):
+        apply_depth_rules(rock, height, contrast=contrast[:, :10])
+
+
+def test_drop_faint_depthless_judges_objects_the_vote_could_not_read():
+    # regression: on dunes the end of a ripple trough at the bottom border had 17 % valid
+    # heights, too few for the vote (30 %) and too many for the old 10 % limit: kept
+    labels = np.zeros((60, 60), np.int32)
+    labels[40:60, 10:30] = 1
+    image = np.full(labels.shape, 150, np.uint8)
+    image[labels == 1] = 125  # 1.25 bands below the ground: faint
+    background = np.full(labels.shape, 150, np.float32)
+    low, high = background - 20, background + 20
+    height = np.full(labels.shape, np.nan, np.float32)
+    height[:44] = 0.0  # 4 of 20 rows of the object have heights: 20 %
+    out, dropped = drop_faint_depthless(
+        labels, image, height, background=background, low=low, high=high
+    )
+    assert dropped == 1 and not out.any()
 
 
 def test_unusable_depth_keeps_the_intensity_decision():
