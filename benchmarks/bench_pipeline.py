@@ -68,25 +68,37 @@ _MB = 1024 * 1024
 
 # -- measuring -------------------------------------------------------------------------------
 class PeakRSS:
-    """Peak resident memory of this process and all its descendants, sampled in a thread.
+    """Peak resident memory and CPU time of this process and its descendants, sampled in a
+    thread.
 
     ``total`` sums RSS over the tree (shared pages counted once per process, so it
     overestimates); ``driver`` is this process alone; ``worker`` the largest descendant.
+    ``cpu_driver`` / ``cpu_workers`` are user + system CPU seconds spent inside the block
+    (a descendant's last sample before it exits: at most one interval is missed per
+    process). CPU seconds do not count time the run waited for a core another job held, so
+    they compare runs on a shared machine better than wall time.
     """
 
     def __init__(self, interval: float = 0.05) -> None:
         self.interval = interval
         self.total = self.driver = self.worker = 0
+        self._cpu: dict[int, float] = {}
+        self._cpu_start = 0.0
+        self.cpu_driver = self.cpu_workers = 0.0
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._sample, daemon=True)
 
     def __enter__(self) -> PeakRSS:
+        self._cpu_start = _cpu_seconds(psutil.Process())
         self._thread.start()
         return self
 
     def __exit__(self, *exc: object) -> None:
         self._stop.set()
         self._thread.join()
+        me = psutil.Process()
+        self.cpu_driver = _cpu_seconds(me) - self._cpu_start
+        self.cpu_workers = sum(v for pid, v in self._cpu.items() if pid != me.pid)
 
     def _sample(self) -> None:
         me = psutil.Process()
@@ -95,6 +107,7 @@ class PeakRSS:
             for proc in [me, *me.children(recursive=True)]:
                 try:
                     rss[proc.pid] = proc.memory_info().rss
+                    self._cpu[proc.pid] = _cpu_seconds(proc)
                 except psutil.Error:  # a worker exiting between listing and reading
                     continue
             self.total = max(self.total, sum(rss.values()))
@@ -108,7 +121,14 @@ class PeakRSS:
             "peak_rss_total_mb": round(self.total / _MB, 1),
             "peak_rss_driver_mb": round(self.driver / _MB, 1),
             "peak_rss_worker_mb": round(self.worker / _MB, 1),
+            "cpu_driver_s": round(self.cpu_driver, 2),
+            "cpu_workers_s": round(self.cpu_workers, 2),
         }
+
+
+def _cpu_seconds(proc: psutil.Process) -> float:
+    times = proc.cpu_times()
+    return times.user + times.system
 
 
 def machine() -> dict[str, Any]:
@@ -281,6 +301,7 @@ def timed_run(
     }
     n = summary.done + summary.failed
     steady = (len(finished) - 1) / (finished[-1] - finished[0]) if len(finished) > 2 else None
+    cpu = memory.cpu_driver + memory.cpu_workers
     return {
         "scheduler": scheduler or "local processes",
         "workers": workers,
@@ -291,6 +312,8 @@ def timed_run(
         "pairs_per_s": round(n / wall, 3),
         "steady_pairs_per_s": round(steady, 3) if steady else None,
         "time_to_first_frame_s": round(finished[0] - start, 2) if finished else None,
+        "cpu_s": round(cpu, 2),
+        "cpu_s_per_frame": round(cpu / n, 4) if n else None,
         "stage_seconds_mean": {s: round(v, 4) for s, v in per_stage.items()},
         "task_seconds_mean": round(sum(per_stage.values()), 4),
         "tasks_per_frame": 1,  # process_frame: one task runs every pending stage of a frame
@@ -342,14 +365,19 @@ def pure_compute(catalog: Path, stage_package: str, limit: int) -> dict[str, Any
 
     one(contexts[0])
     per_stage = dict.fromkeys(per_stage, 0.0)
-    start = time.perf_counter()
-    for ctx in contexts:
-        one(ctx)
-    wall = time.perf_counter() - start
+    # sampled like the engine's runs (timed_run), so that the sampler's own CPU cancels
+    with PeakRSS():
+        start, cpu_start = time.perf_counter(), time.process_time()
+        for ctx in contexts:
+            one(ctx)
+        wall = time.perf_counter() - start
+        cpu = time.process_time() - cpu_start
     n = len(contexts)
     return {
         "frames": n,
         "wall_s": round(wall, 2),
+        "cpu_s": round(cpu, 2),
+        "cpu_s_per_frame": round(cpu / n, 4),
         "pairs_per_s": round(n / wall, 3),
         "stage_seconds_mean": {s: round(v / n, 4) for s, v in per_stage.items()},
     }
@@ -477,7 +505,9 @@ def _without_fsync() -> Any:
 def cmd_overhead(args: argparse.Namespace) -> dict[str, Any]:
     """Pure compute and the engine alternately (``--repeats`` rounds) so that load drift on a
     shared machine hits both; the engine's own time is also measured inside each run as
-    wall time minus the stage time it recorded."""
+    wall time minus the stage time it recorded, and as CPU seconds of the engine run minus
+    those of the pure loop (``engine_own_cpu_s_per_frame``; both run in this process, so
+    the CPU of zarr's and blosc's threads is counted)."""
     frames = args.frames[0]
     catalog = _catalog(args, frames)
     pures, engines, bare = [], [], []
@@ -517,11 +547,24 @@ def cmd_overhead(args: argparse.Namespace) -> dict[str, Any]:
     engine_s = statistics.median(r["wall_s"] for r in engines)
     own_s = statistics.median(own(r) for r in engines)
     compute_s = statistics.median(r["task_seconds_mean"] for r in engines)
+    # each round's pure loop and engine run are minutes apart at most: their ratio is less
+    # exposed to load drift than the ratio of medians over rounds
+    rounds = [
+        {
+            "wall": round(e["wall_s"] / p["wall_s"], 3),
+            "cpu": round(e["cpu_s"] / p["cpu_s"], 3),
+            "own_cpu_s_per_frame": round(e["cpu_s_per_frame"] - p["cpu_s_per_frame"], 4),
+        }
+        for p, e in zip(pures, engines, strict=True)
+    ]
     return {
         "catalog": str(catalog),
         "pure_compute": pures,
         "engine_synchronous": engines,
         "engine_without_fsync": bare,
+        "rounds": rounds,
+        "engine_over_pure_cpu": statistics.median(r["cpu"] for r in rounds),
+        "engine_own_cpu_s_per_frame": statistics.median(r["own_cpu_s_per_frame"] for r in rounds),
         "engine_over_pure_wall": round(engine_s / pure_s, 3),
         "engine_own_seconds_per_frame": round(own_s, 4),
         "engine_own_over_stage_compute": round(own_s / compute_s, 3),
