@@ -135,7 +135,7 @@ def process_frame(job: FrameJob) -> FrameOutcome:
                     )
                     produced[product.name] = data
             for rel, content in result.files.items():
-                atomic_write_bytes(rundir / rel, content)
+                atomic_write_bytes(rundir / rel, content, durable=False)
         except Exception as exc:
             if is_disk_full(exc):
                 outcome.fatal = (
