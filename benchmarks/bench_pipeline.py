@@ -502,6 +502,41 @@ def _without_fsync() -> Any:
     return stack
 
 
+def _stage_cpu_meter(stage_package: str) -> Any:
+    """Context in which every stage's ``run`` adds its CPU seconds (``time.process_time``)
+    to the yielded dict under ``'stages'``, for in-process (synchronous) engine runs: the
+    engine's own CPU is then the run's CPU minus that, without the pure loop's noise."""
+    import contextlib
+    import dataclasses
+
+    import pipeline.worker
+
+    @contextlib.contextmanager
+    def meter() -> Any:
+        stages = pipeline.worker._stages(stage_package)  # the worker's cached stage objects
+        original = dict(stages)
+        spent = {"stages": 0.0}
+
+        def wrap(run_: Any) -> Any:
+            def timed(*a: Any, **k: Any) -> Any:
+                start = time.process_time()
+                try:
+                    return run_(*a, **k)
+                finally:
+                    spent["stages"] += time.process_time() - start
+
+            return timed
+
+        for name, stage in original.items():
+            stages[name] = dataclasses.replace(stage, run=wrap(stage.run))
+        try:
+            yield spent
+        finally:
+            stages.update(original)
+
+    return meter()
+
+
 def cmd_overhead(args: argparse.Namespace) -> dict[str, Any]:
     """Pure compute and the engine alternately (``--repeats`` rounds) so that load drift on a
     shared machine hits both; the engine's own time is also measured inside each run as
@@ -515,15 +550,19 @@ def cmd_overhead(args: argparse.Namespace) -> dict[str, Any]:
         pures.append(pure_compute(catalog, args.stage_package, frames))
         print("pure", json.dumps(pures[-1]), flush=True)
         rundir = args.workdir / "runs" / "overhead-sync"
-        engines.append(
-            timed_run(
+        with _stage_cpu_meter(args.stage_package) as spent:
+            engine = timed_run(
                 catalog,
                 rundir,
                 scheduler="synchronous",
                 workers=None,
                 stage_package=args.stage_package,
             )
+        engine["stage_cpu_s"] = round(spent["stages"], 2)
+        engine["own_cpu_s_per_frame"] = round(
+            (engine["cpu_s"] - spent["stages"]) / engine["frames"], 4
         )
+        engines.append(engine)
         print("engine", json.dumps(engines[-1]), flush=True)
         if round_ == 0:
             with _without_fsync():
@@ -565,6 +604,13 @@ def cmd_overhead(args: argparse.Namespace) -> dict[str, Any]:
         "rounds": rounds,
         "engine_over_pure_cpu": statistics.median(r["cpu"] for r in rounds),
         "engine_own_cpu_s_per_frame": statistics.median(r["own_cpu_s_per_frame"] for r in rounds),
+        # measured inside each engine run: its CPU minus the CPU spent in the stages' run()
+        "engine_own_cpu_in_run_s_per_frame": statistics.median(
+            e["own_cpu_s_per_frame"] for e in engines
+        ),
+        "engine_own_cpu_over_stage_cpu": statistics.median(
+            e["own_cpu_s_per_frame"] * e["frames"] / e["stage_cpu_s"] for e in engines
+        ),
         "engine_over_pure_wall": round(engine_s / pure_s, 3),
         "engine_own_seconds_per_frame": round(own_s, 4),
         "engine_own_over_stage_compute": round(own_s / compute_s, 3),
