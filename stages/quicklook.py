@@ -10,12 +10,18 @@
 ``quicklooks/<frame_id>/residual.png``
     Left minus right beside left minus pseudo-left (Fig. 15 and 18), both on the same gray
     scale (mid-gray = 0); undefined residual pixels are dark blue.
+
+With ``every = N`` (> 1) only about one frame in N gets quicklooks: those whose frame id's
+CRC-32 is a multiple of N, so the choice does not depend on which frames a run selects or in
+which order they finish (``arroyo report`` draws the others from the products). Drawing and
+encoding the three PNGs is ~40 ms per 500x500 frame, a seventh of a frame's compute.
 """
 
 from __future__ import annotations
 
 import functools
 import math
+import zlib
 from typing import Any
 
 import cv2
@@ -30,6 +36,7 @@ __all__ = [
     "range_contours_image",
     "residual_image",
     "encode_png",
+    "draws_frame",
     "run_quicklook",
 ]
 
@@ -259,12 +266,36 @@ def residual_image(left: np.ndarray, right: np.ndarray, residual: np.ndarray) ->
     return out
 
 
+# zlib level 1 after the "sub" row filter: as fast as OpenCV's default here and 35-40 %
+# smaller files (measured on mojave quicklooks: 395 -> 258 KB for objects.png, 6.5 ms each)
+_PNG_PARAMS = (
+    cv2.IMWRITE_PNG_COMPRESSION,
+    1,
+    cv2.IMWRITE_PNG_FILTER,
+    cv2.IMWRITE_PNG_FILTER_SUB,
+)
+
+
 def encode_png(image: np.ndarray) -> bytes:
     """PNG bytes of an 8-bit gray or BGR image."""
-    ok, buffer = cv2.imencode(".png", np.ascontiguousarray(image))
+    ok, buffer = cv2.imencode(".png", np.ascontiguousarray(image), _PNG_PARAMS)
     if not ok:
         raise ValueError(f"cv2.imencode could not encode an image of shape {image.shape}")
     return buffer.tobytes()
+
+
+def draws_frame(frame_id: str, *, every: int) -> bool:
+    """Whether a frame gets quicklooks when only about one frame in ``every`` does.
+
+    Parameters
+    ----------
+    frame_id : str
+    every : int
+        >= 1; 1 draws every frame.
+    """
+    if isinstance(every, bool) or not isinstance(every, int) or every < 1:
+        raise ValueError(f"every must be an integer >= 1, got {every!r}; use 1 for all frames")
+    return zlib.crc32(frame_id.encode()) % every == 0
 
 
 def run_quicklook(
@@ -273,6 +304,9 @@ def run_quicklook(
     """Stage entry point: three PNGs under ``quicklooks/<frame_id>/``."""
     if not params.get("enabled", True):
         return StageResult(notes=["quicklooks disabled"])
+    every = params.get("every", 1)
+    if not draws_frame(frame.frame_id, every=every):
+        return StageResult(notes=[f"no quicklooks: drawn for about one frame in {every}"])
     prefix = f"quicklooks/{frame.frame_id}"
     reference = inputs[frame.camera.reference]
     step = params.get("range_step_m", 0.25)
@@ -290,11 +324,18 @@ def run_quicklook(
 
 STAGE = Stage(
     name="quicklook",
-    version="2",
+    version="3",
     inputs=("left", "right", "labels", "range", "residual"),
     outputs=(Product("quicklooks", kind="files"),),
     params=(
         Param("enabled", bool, True, "write quicklook PNGs"),
+        Param(
+            "every",
+            int,
+            1,
+            "draw for about one frame in N (chosen by frame id); 1 = every frame",
+            minimum=1,
+        ),
         Param("range_step_m", float, 0.25, "spacing of the range contours, m", minimum=0.001),
     ),
     run=run_quicklook,

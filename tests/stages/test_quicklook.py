@@ -10,6 +10,7 @@ from pipeline.camera import Camera
 from pipeline.stage import FrameContext
 from stages.quicklook import (
     STAGE,
+    draws_frame,
     encode_png,
     objects_image,
     range_contours_image,
@@ -150,3 +151,29 @@ def test_stage_disabled_writes_nothing():
     frame = FrameContext(frame_id="f0", archive="t", camera=Camera(focal_px=100.0, baseline_m=0.1))
     params = STAGE.resolve_params({"enabled": False})
     assert STAGE.run(_inputs(), frame=frame, params=params).files == {}
+
+
+def test_png_encoding_is_lossless_and_smaller_than_opencv_default():
+    rng = np.random.default_rng(3)
+    gray = cv2.GaussianBlur(rng.integers(0, 256, SHAPE, dtype=np.uint8), (5, 5), 1.5)
+    image = objects_image(gray, _labels())
+    content = encode_png(image)
+    decoded = cv2.imdecode(np.frombuffer(content, np.uint8), cv2.IMREAD_UNCHANGED)
+    np.testing.assert_array_equal(decoded, image)
+    assert len(content) < len(cv2.imencode(".png", image)[1])
+
+
+def test_every_n_draws_about_one_frame_in_n_chosen_by_frame_id():
+    camera = Camera(focal_px=100.0, baseline_m=0.1)
+    params = STAGE.resolve_params({"every": 4})
+    ids = [f"mojave-{k:05d}" for k in range(400)]
+    drawn = [fid for fid in ids if draws_frame(fid, every=4)]
+    assert 60 <= len(drawn) <= 140  # about a quarter
+    assert all(draws_frame(fid, every=1) for fid in ids)
+    for fid in (drawn[0], next(f for f in ids if f not in drawn)):
+        frame = FrameContext(frame_id=fid, archive="t", camera=camera)
+        result = STAGE.run(_inputs(), frame=frame, params=params)
+        assert (len(result.files) == 3) == (fid in drawn)
+        assert bool(result.notes) == (fid not in drawn)
+    with pytest.raises(ValueError, match="integer >= 1"):
+        draws_frame("f0", every=0)
