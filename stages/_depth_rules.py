@@ -60,8 +60,8 @@ are noise at the scale of the rocks; the intensity decision stands everywhere.
   with 10-30 % valid heights were judged by neither rule (dunes ripple ends at the bottom
   border).
 
-Rules R4 (split at disparity jumps) and R5 (streaks) act on labelled objects and live in
-:mod:`stages._regions`.
+Rules R4 (split at disparity jumps), R5 (streaks, R5b: unless clear in gray level) and R6
+(attached shadows) act on labelled objects and live in :mod:`stages._regions`.
 """
 
 from __future__ import annotations

@@ -224,12 +224,14 @@ def segment_image(
     notes: list[str] = []
     depth_stats = None
     edges = None
+    contrast = None
     if method == "sector-histogram+depth":
+        background = interpolate_sector_grid(analysis.background, shape)
+        contrast = gray_contrast(image, background=background, low=low, high=high)
         height = _coerce_depth(height, shape, "height")
         disparity = _coerce_depth(disparity, shape, "disparity")
         valid_fraction = float(np.isfinite(height).mean()) if height is not None else 0.0
         if height is not None and valid_fraction >= min_depth_valid_fraction:
-            background = interpolate_sector_grid(analysis.background, shape)
             mask, depth_stats = apply_depth_rules(
                 mask,
                 height,
@@ -239,7 +241,7 @@ def segment_image(
                 smoothing_px=height_smoothing_px,
                 ground_window_px=ground_window_px,
                 min_raised_fraction=min_raised_fraction,
-                contrast=gray_contrast(image, background=background, low=low, high=high),
+                contrast=contrast,
             )
         else:
             notes.append(
@@ -271,7 +273,7 @@ def segment_image(
             trimmed > 0, min_area_px=min_area_px, fill=False, edges=_seams(trimmed)
         )
     if method == "sector-histogram+depth" and max_elongation > 0:
-        labels, streaks = drop_streaks(labels, max_elongation=max_elongation)
+        labels, streaks = drop_streaks(labels, max_elongation=max_elongation, contrast=contrast)
         if streaks:
             notes.append(f"{streaks} streak(s) longer than {max_elongation:g}x their width dropped")
     return Segmentation(
@@ -418,7 +420,7 @@ def _sector_product(name: str, dtype: str, long_name: str, units: str = "") -> P
 
 STAGE = Stage(
     name="segment",
-    version="6",
+    version="7",
     inputs=("left", "right", "disparity", "height"),
     outputs=(
         Product(

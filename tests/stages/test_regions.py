@@ -97,6 +97,31 @@ def test_drop_streaks_keeps_compact_objects_and_renumbers():
         drop_streaks(labels, max_elongation=1.0)
 
 
+def test_drop_streaks_keeps_a_clear_flat_rock_but_not_a_faint_trough_or_a_long_streak():
+    # rule R5b: far rocks seen edge-on measured 3.0-3.6x wider than tall on mojave and lava
+    # and were dropped as streaks; they stand out in gray level, ripple troughs barely do
+    from stages._regions import drop_streaks, elongation
+
+    labels = np.zeros((80, 100), np.int32)
+    labels[10:17, 10:35] = 1  # a flat rock, 3.6x, 3 threshold bands dark
+    labels[30:37, 10:35] = 2  # a trough of the same shape, 1.5 bands dark
+    labels[50:54, 10:70] = 3  # a long streak, 15x, 3 bands dark
+    contrast = np.zeros(labels.shape, np.float32)
+    contrast[labels == 1] = contrast[labels == 3] = -3.0
+    contrast[labels == 2] = -1.5
+    assert 3.0 < elongation(labels)[1] < 4.0
+    kept, dropped = drop_streaks(labels, max_elongation=3.0, contrast=contrast)
+    assert dropped == 2
+    assert kept[12, 20] == 1 and not kept[30:37].any() and not kept[50:54].any()
+    # without the gray levels every elongated object goes
+    _, dropped = drop_streaks(labels, max_elongation=3.0)
+    assert dropped == 3
+    with pytest.raises(ValueError, match="one shape"):
+        drop_streaks(labels, max_elongation=3.0, contrast=contrast[:10])
+    with pytest.raises(ValueError, match="clear_elongation"):
+        drop_streaks(labels, max_elongation=3.0, contrast=contrast, clear_elongation=1.0)
+
+
 def test_trim_attached_shadows_removes_the_lighter_class_of_a_dark_rock_only():
     from stages._regions import trim_attached_shadows
 
