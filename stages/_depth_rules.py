@@ -54,11 +54,14 @@ are noise at the scale of the rocks; the intensity decision stands everywhere.
   object with too few valid heights to vote (under 30 % or under 20 pixels, typically in the
   matcher's blind band along the frame's right or bottom border) escapes the vote that
   removes texture blotches everywhere else, so it is kept only when its median gray level
-  lies at least twice as far from the ground level as the threshold that found it. With a
-  10 % limit this removed 4 of dunes' 9 invented rocks, 14 of mojave's 47 false positives
-  for 1 true rock and 22 of lava's 158 for 5; the limit is the vote's own since objects
-  with 10-30 % valid heights were judged by neither rule (dunes ripple ends at the bottom
-  border).
+  is clear: at least ``CLEAR_CONTRAST`` (2.5) times as far from the ground level as the
+  threshold that found it (:data:`stages._regions.CLEAR_CONTRAST`, shared with R5b). With
+  a 10 % limit and 2 bands this removed 4 of dunes' 9 invented rocks, 14 of mojave's 47
+  false positives for 1 true rock and 22 of lava's 158 for 5; the limit is now the vote's
+  own since objects with 10-30 % valid heights were judged by neither rule (dunes ripple
+  ends at the bottom border), and 2.5 bands instead of 2 removed dunes' last invented rock
+  (a ripple trough 2.3 bands dark in the blind band) for 2 true rocks of mojave's 340 and 4
+  of lava's 486 (and 2 and 3 false positives).
 
 Rules R4 (split at disparity jumps), R5 (streaks, R5b: unless clear in gray level) and R6
 (attached shadows) act on labelled objects and live in :mod:`stages._regions`.
@@ -72,7 +75,7 @@ import cv2
 import numpy as np
 from scipy.ndimage import median_filter
 
-from ._regions import _coerce_mask, _renumber
+from ._regions import CLEAR_CONTRAST, _coerce_mask, _renumber
 
 # Ground height noise (MAD sigma, metres) above which single heights are not trusted.
 _NOISY_SIGMA_M = 0.005
@@ -104,8 +107,8 @@ _CORRELATED_PX = 225.0
 _RAISE_SIGMAS = 4.0
 # R3b: objects with fewer valid heights than this share (the vote's) cannot be voted on ...
 _DEPTHLESS_FRACTION = _VOTE_VALID_FRACTION
-# ... and are kept only when their gray level lies this many threshold bands from the ground.
-_DEPTHLESS_CONTRAST = 2.0
+# ... and are kept only when their gray level is clear (threshold bands from the ground).
+_DEPTHLESS_CONTRAST = CLEAR_CONTRAST
 __all__ = [
     "DepthRuleStats",
     "smooth_height",

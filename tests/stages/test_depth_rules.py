@@ -220,6 +220,24 @@ def test_drop_faint_depthless_judges_objects_the_vote_could_not_read():
     assert dropped == 1 and not out.any()
 
 
+def test_drop_faint_depthless_needs_a_clear_gray_level():
+    # regression: a dunes ripple trough in the right border's blind band lay 2.3 threshold
+    # bands below the ground, past the old 2-band bar, and was reported as a rock
+    labels = np.zeros((40, 80), np.int32)
+    labels[10:30, 5:25], labels[10:30, 45:65] = 1, 2
+    background = np.full(labels.shape, 150, np.float32)
+    low, high = background - 10, background + 10
+    image = np.full(labels.shape, 150, np.uint8)
+    image[labels == 1] = 127  # 2.3 bands: a trough
+    image[labels == 2] = 120  # 3 bands: clear
+    height = np.full(labels.shape, np.nan, np.float32)
+    out, dropped = drop_faint_depthless(
+        labels, image, height, background=background, low=low, high=high
+    )
+    assert dropped == 1
+    assert not out[10:30, 5:25].any() and out[10:30, 45:65].all()
+
+
 def test_unusable_depth_keeps_the_intensity_decision():
     shape = (120, 120)
     height = _correlated_noise(shape, 0.03)
