@@ -238,6 +238,21 @@ def test_drop_faint_depthless_needs_a_clear_gray_level():
     assert not out[10:30, 5:25].any() and out[10:30, 45:65].all()
 
 
+def test_precise_depth_reads_far_rows_against_their_own_noise():
+    # rule R0b, regression: on dunes frames with 5 mm noise overall the rows near the
+    # horizon scattered by 0.2 m and R1 made "raised" objects of that noise
+    shape = (200, 120)
+    rng = np.random.default_rng(4)
+    height = rng.normal(0, 0.001, shape).astype(np.float32)
+    height[:40] = _correlated_noise((40, 120), 0.2, block_px=4, seed=5)  # the far rows
+    rock = disk(shape, 150, 60, 8)
+    height[rock] += 0.03  # a 3 cm rock as gray as the sand, near the camera
+    combined, stats = apply_depth_rules(np.zeros(shape, bool), height)
+    assert stats.ground_sigma_m <= 0.005  # precise regime: R1 adds objects from height
+    assert combined[rock].mean() > 0.9
+    assert not combined[:20].any()
+
+
 def test_unusable_depth_keeps_the_intensity_decision():
     shape = (120, 120)
     height = _correlated_noise(shape, 0.03)
