@@ -68,6 +68,32 @@ def test_phantom_follows_an_illumination_gradient():
     assert analysis.high[2, 4] < 230
 
 
+def test_continuity_follows_a_steep_lamp_falloff_to_the_frame_edge():
+    # rule C1, regression: the lab's ground darkens by 30-40 gray levels per sector towards
+    # the top rows; the plain mean of the neighbours lagged behind, no mode lay in range and
+    # the whole top band became phantom-peak object
+    n = 8
+    levels = [60, 95, 130, 160, 180, 190, 195, 198]  # ground level of each sector row
+    hist = np.stack([np.stack([gaussian_hist((lv, 5, 900))] * n) for lv in levels])
+    hist[0, 2] = gaussian_hist((60, 5, 600), (15, 5, 300))  # a dark rock in the top row
+    analysis = analyse_sectors(hist)
+    expected = np.broadcast_to(np.array(levels[:2], float)[:, None], (2, n))
+    np.testing.assert_allclose(analysis.background[:2], expected, atol=2)
+    assert not analysis.phantom.any()
+    assert analysis.low[0, 2] > 15  # the rock is found, not the ground
+    assert analysis.low[0, 0] < 60 - 5
+
+
+def test_continuity_does_not_carry_a_patchwork_on():
+    # C1 needs a gradient: neighbours whose carried levels disagree keep the study's rule
+    hist = grid_of(gaussian_hist((150, 6, 900)), 8)
+    hist[3, 3] = gaussian_hist((60, 6, 900))  # a sector wholly covered by a dark rock
+    hist[3, 5] = gaussian_hist((100, 6, 900))  # and a darker patch two sectors away
+    analysis = analyse_sectors(hist)
+    assert analysis.phantom[3, 3]
+    assert analysis.background[3, 3] == pytest.approx(150, abs=15)
+
+
 def test_light_object_threshold_at_the_upper_valley():
     hist = grid_of(gaussian_hist((90, 6, 900)), 6)
     hist[1, 1] = gaussian_hist((90, 6, 600), (200, 8, 300))
