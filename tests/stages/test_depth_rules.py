@@ -238,6 +238,26 @@ def test_drop_faint_depthless_needs_a_clear_gray_level():
     assert not out[10:30, 5:25].any() and out[10:30, 45:65].all()
 
 
+def test_drop_faint_depthless_does_not_trust_an_unusually_narrow_band():
+    # regression: on smooth dunes sand a sector's ground peak was a few gray levels wide and
+    # ripple shading cut by the frame's border lay 3-6 of those bands out: "clear"
+    labels = np.zeros((60, 60), np.int32)
+    labels[40:55, 40:55] = 1
+    background = np.full(labels.shape, 150, np.float32)
+    low, high = background - 20, background + 20  # the frame's band: 20 levels
+    low[30:, 30:], high[30:, 30:] = 146, 154  # a narrow sector: 4 levels
+    image = np.full(labels.shape, 150, np.uint8)
+    image[labels == 1] = 134  # 4 narrow bands, 1.6 of half the frame's band
+    height = np.full(labels.shape, np.nan, np.float32)
+    fields = {"background": background, "low": low, "high": high}
+    out, dropped = drop_faint_depthless(labels, image, height, **fields)
+    assert dropped == 1 and not out.any()
+    out, dropped = drop_faint_depthless(labels, image, height, **fields, min_band_fraction=0)
+    assert dropped == 0 and out[labels == 1].all()
+    with pytest.raises(ValueError, match="min_band_fraction"):
+        drop_faint_depthless(labels, image, height, **fields, min_band_fraction=2)
+
+
 def test_precise_depth_reads_far_rows_against_their_own_noise():
     # rule R0b, regression: on dunes frames with 5 mm noise overall the rows near the
     # horizon scattered by 0.2 m and R1 made "raised" objects of that noise
