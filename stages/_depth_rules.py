@@ -46,14 +46,17 @@ noise itself lifts the upper percentile.
 
 **R2c contrast** -- the vote weighs the height evidence against the gray-level evidence
 (:func:`gray_contrast`: an object's median distance from the ground level, in threshold
-bands). Ground texture that crosses a threshold (blotches, ripple troughs) barely crosses it:
-on the built-in archives the median texture object lies 1.4-1.6 bands from the ground, the
-median true rock 2-2.6. So the bar of the vote is ``0.8 sigma`` for an object 1.7 bands out
-and moves by ``0.8 sigma`` per band: a clear rock whose stereo heights the matching windows
-flattened stays, a faint blotch must stand higher to stay. On the catalog frames (with the
-R3b change below; ``benchmarks/bench_segment.py --rundir runs/eval/<archive>``) mojave kept
-17 more true rocks for 4 more false ones, lava 34 more true rocks and 21 fewer false ones,
-dunes 2 fewer false ones, lab (unusable heights) is unchanged.
+bands). Ground texture that crosses a threshold (blotches, ripple troughs) barely crosses
+it: on the built-in archives the median texture object lies 1.4-1.6 bands from the ground,
+the median true rock 2-2.6. So the bar of the vote is ``0.8 sigma`` for an object 1.7 bands
+out and moves by ``0.8 sigma`` per band: a clear rock whose stereo heights the matching
+windows flattened stays, a faint blotch must stand higher to stay. On the catalog frames
+(with the R3b change below; ``benchmarks/bench_segment.py --rundir runs/eval/<archive>``)
+mojave kept 17 more true rocks for 4 more false ones, lava 34 more true rocks and 21 fewer
+false ones, dunes 2 fewer false ones, lab (unusable heights) is unchanged. A band counts
+as at least half the frame's median band (a sector whose ground peak is unusually narrow,
+smooth sand, is a poor unit); that made mojave's catalog frames lose 4 false positives,
+lava's 4 (and 2 true rocks), lab 1 true rock; seed 2 mojave 5 false positives, lava 5.
 
 Unusable depth (``sigma > 15 mm``, e.g. a uniform floor the matcher cannot texture): heights
 are noise at the scale of the rocks; the intensity decision stands everywhere.
@@ -491,8 +494,24 @@ def _percentiles_by_label(
     return result
 
 
+def _frame_bands(
+    background: np.ndarray, low: np.ndarray, high: np.ndarray
+) -> tuple[float, float]:
+    """Median low and high threshold bands of the frame (every fourth row and column)."""
+    coarse = np.s_[::4, ::4]
+    return (
+        float(np.median(background[coarse] - low[coarse])),
+        float(np.median(high[coarse] - background[coarse])),
+    )
+
+
 def gray_contrast(
-    image: np.ndarray, *, background: np.ndarray, low: np.ndarray, high: np.ndarray
+    image: np.ndarray,
+    *,
+    background: np.ndarray,
+    low: np.ndarray,
+    high: np.ndarray,
+    min_band_fraction: float = _DEPTHLESS_BAND_FRACTION,
 ) -> np.ndarray:
     """Signed distance of each gray level from the ground level, in threshold bands.
 
@@ -502,14 +521,21 @@ def gray_contrast(
         Reference gray image.
     background, low, high : (M, N) ndarray of float32
         Interpolated ground level and low/high thresholds (gray levels).
+    min_band_fraction : float
+        In ``[0, 1]``; the band counts as at least this fraction of the frame's median band
+        on its side: a sector whose ground peak is unusually narrow (smooth sand) is a poor
+        unit.
 
     Returns
     -------
     contrast : (M, N) ndarray of float32
         ``(gray - ground) / band``, the band being ``ground - low`` for pixels darker than
-        the ground and ``high - ground`` otherwise (at least one gray level): below -1 a pixel
-        is past the low threshold, above 1 past the high one.
+        the ground and ``high - ground`` otherwise (at least one gray level; see
+        ``min_band_fraction``): with ``min_band_fraction = 0``, below -1 a pixel is past the
+        low threshold, above 1 past the high one.
     """
+    if not 0 <= min_band_fraction <= 1:
+        raise ValueError(f"min_band_fraction must be in [0, 1], got {min_band_fraction}")
     if not image.shape == background.shape == low.shape == high.shape:
         raise ValueError(
             f"image {image.shape}, background {background.shape}, low {low.shape} and high "
@@ -517,6 +543,10 @@ def gray_contrast(
         )
     gray = image.astype(np.float32)
     band = np.where(gray < background, background - low, high - background)
+    if min_band_fraction > 0:
+        frame_low, frame_high = _frame_bands(background, low, high)
+        floor = np.where(gray < background, frame_low, frame_high)
+        band = np.maximum(band, np.float32(min_band_fraction) * floor)
     return ((gray - background) / np.maximum(band, np.float32(1.0))).astype(np.float32)
 
 
@@ -588,9 +618,7 @@ def drop_faint_depthless(
     band = np.where(gray < ground, ground - low_m, high_m - ground)
     # a sector whose ground peak is unusually narrow makes a poor unit: smooth sand's
     # ripple shading lies 3-6 of its bands out (dunes); the frame's median band bounds it
-    coarse = np.s_[::4, ::4]
-    frame_low = float(np.median(background[coarse] - low[coarse]))
-    frame_high = float(np.median(high[coarse] - background[coarse]))
+    frame_low, frame_high = _frame_bands(background, low, high)
     band = np.maximum(band, min_band_fraction * np.where(gray < ground, frame_low, frame_high))
     faint = np.zeros(count, dtype=bool)
     faint[judged] = np.abs(gray - ground) < min_contrast * np.maximum(band, 1.0)

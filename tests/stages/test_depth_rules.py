@@ -179,6 +179,21 @@ def test_gray_contrast_counts_threshold_bands_on_each_side():
     assert flat[0, 0] == pytest.approx(-40.0)
     with pytest.raises(ValueError, match="one shape"):
         gray_contrast(image, background=background[:, :3], low=low, high=high)
+    with pytest.raises(ValueError, match="min_band_fraction"):
+        gray_contrast(image, background=background, low=low, high=high, min_band_fraction=-1)
+
+
+def test_gray_contrast_band_is_at_least_half_the_frames_band():
+    # a sector with an unusually narrow ground peak (smooth sand) is a poor unit
+    image = np.full((8, 8), 150, np.uint8)
+    image[0, 0] = 130
+    background = np.full(image.shape, 150, np.float32)
+    low, high = background - 20, background + 20
+    low[0, 0] = 148  # a 2-level band where the frame's is 20
+    contrast = gray_contrast(image, background=background, low=low, high=high)
+    assert contrast[0, 0] == pytest.approx(-2.0)  # 20 levels over half of 20
+    local = gray_contrast(image, background=background, low=low, high=high, min_band_fraction=0)
+    assert local[0, 0] == pytest.approx(-10.0)
 
 
 def test_noisy_vote_asks_less_height_of_a_clear_rock_than_of_a_faint_blotch():
