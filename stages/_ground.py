@@ -193,16 +193,49 @@ def pixel_points(
     return np.stack([x, y, z], axis=-1)
 
 
+def _weighted_least_squares(
+    a: np.ndarray, b: np.ndarray, weights: np.ndarray, *, well_conditioned: bool
+) -> np.ndarray:
+    """Coefficients minimising sum(w (a c - b)^2).
+
+    The describe stage fits thousands of small surfaces per frame; solving the (p, p)
+    normal equations costs a fraction of an SVD of the (K, p) design. When the design is
+    ill-conditioned (``well_conditioned`` False, e.g. all pixels in one row) or the
+    weights make the system singular, ``np.linalg.lstsq``'s minimum-norm solution is used.
+    """
+    if well_conditioned:
+        aw = a * weights[:, None]
+        try:
+            coef = np.linalg.solve(aw.T @ a, aw.T @ b)
+        except np.linalg.LinAlgError:
+            coef = None
+        if coef is not None and np.all(np.isfinite(coef)):
+            return coef
+    sw = np.sqrt(weights)
+    return np.linalg.lstsq(a * sw[:, None], b * sw, rcond=None)[0]
+
+
+def _well_conditioned(a: np.ndarray) -> bool:
+    """Whether the normal equations of design ``a`` have a condition number below 1e10."""
+    eig = np.linalg.eigvalsh(a.T @ a)  # ascending
+    return bool(eig[0] > 1e-10 * eig[-1])
+
+
 def fit_disparity_surface(
-    rows: np.ndarray, cols: np.ndarray, disparity: np.ndarray, *, iterations: int = 5
+    rows: np.ndarray,
+    cols: np.ndarray,
+    disparity: np.ndarray,
+    *,
+    iterations: int = 5,
+    min_quadratic: int = 12,
 ) -> np.ndarray:
     """Robust quadratic surface ``d(col, row)`` through an object's disparities.
 
     Huber-weighted least squares (residuals beyond 2 robust sigmas down-weighted; from the
     second round on, beyond 4 robust sigmas dropped, such as a run of pixels that took the
     ground's disparity), ``iterations`` reweighting rounds. The model degrades with the
-    support: a quadratic (6 terms) from 12 valid pixels, a plane from 4, a constant (the
-    median) below. Values
+    support: a quadratic (6 terms) from ``min_quadratic`` valid pixels, a plane from 4, a
+    constant (the median) below. Values
     are clamped to the range the fit takes on the valid pixels, so pixels without a valid
     disparity get a bounded extrapolation.
 
@@ -214,6 +247,10 @@ def fit_disparity_surface(
         Measured disparity, NaN (or <= 0) where invalid.
     iterations : int
         Reweighting rounds, >= 1.
+    min_quadratic : int
+        Fewest valid pixels for the quadratic terms, >= 6 (the footprint of
+        :func:`stages._descriptors.describe_objects` asks for 500: on a small rock the
+        curvature terms follow the matching windows' blur at the rim rather than its shape).
 
     Returns
     -------
@@ -222,6 +259,10 @@ def fit_disparity_surface(
     """
     if iterations < 1:
         raise ValueError(f"iterations must be >= 1, got {iterations!r}")
+    if min_quadratic < 6:
+        raise ValueError(
+            f"min_quadratic must be >= 6 (a quadratic has 6 terms), got {min_quadratic!r}"
+        )
     d = np.asarray(disparity, dtype=np.float64)
     r = np.asarray(rows, dtype=np.float64)
     c = np.asarray(cols, dtype=np.float64)
@@ -239,15 +280,15 @@ def fit_disparity_surface(
     scale = max(float(np.std(c)), float(np.std(r)), 1.0)
     x, y = (c - c.mean()) / scale, (r - r.mean()) / scale
     terms = [np.ones_like(x), x, y]
-    if n >= 12:
+    if n >= min_quadratic:
         terms += [x * x, x * y, y * y]
     design = np.stack(terms, axis=1)
     a, b = design[ok], d[ok]
     weights = np.ones(n)
     coef = np.zeros(design.shape[1])
+    conditioned = _well_conditioned(a)
     for round_ in range(iterations):
-        sw = np.sqrt(weights)
-        coef, *_ = np.linalg.lstsq(a * sw[:, None], b * sw, rcond=None)
+        coef = _weighted_least_squares(a, b, weights, well_conditioned=conditioned)
         resid = np.abs(b - a @ coef)
         sigma = 1.4826 * float(_median(resid)) + 1e-9
         weights = 1.0 / np.maximum(1.0, resid / (_HUBER_K * sigma))

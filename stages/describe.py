@@ -83,6 +83,8 @@ def describe_frame(
     band_px: int = 3,
     sfd_max_range_m: float = 5.0,
     sfd_min_diameter_m: float = 0.0,
+    fringe_height_m: float = 0.004,
+    fringe_reach_px: int = 3,
 ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict[str, Any]]:
     """Descriptors, relations and per-frame figures of one frame.
 
@@ -115,6 +117,11 @@ def describe_frame(
         (far rocks are under-resolved and would bias ``k`` low).
     sfd_min_diameter_m : float
         Completeness limit of the size-frequency fit.
+    fringe_height_m, fringe_reach_px : float, int
+        Footprint (``width_m``, ``length_m``) without ground-level fringes such as a sun
+        shadow segmented with the rock: pixels lower than ``fringe_height_m`` (m, >= 0; 0
+        keeps all) and more than ``fringe_reach_px`` pixels from the rock's raised part are
+        left out (see :func:`stages._descriptors.ground_fringe_keep`).
 
     Returns
     -------
@@ -138,6 +145,8 @@ def describe_frame(
         rover_clearance_m=rover_clearance_m,
         min_valid_fraction=min_valid_fraction,
         background_jump_px=background_jump_px,
+        fringe_height_m=fringe_height_m,
+        fringe_reach_px=fringe_reach_px,
     )
     disp = np.asarray(disparity, dtype=np.float64)
     rel = relate_objects(
@@ -231,7 +240,7 @@ def run_describe(
 
 STAGE = Stage(
     name="describe",
-    version="3",
+    version="4",
     inputs=("left", "right", "labels", "disparity", "range", "height", "ground_plane"),
     outputs=(
         Product(
@@ -301,6 +310,20 @@ STAGE = Stage(
             float,
             0.0,
             "size-frequency: completeness limit, m",
+            minimum=0,
+        ),
+        Param(
+            "fringe_height_m",
+            float,
+            0.004,
+            "width/length leave out pixels lower than this far from the raised part, m (0: off)",
+            minimum=0,
+        ),
+        Param(
+            "fringe_reach_px",
+            int,
+            3,
+            "... farther than this from a raised pixel (shadows beside a rock), px",
             minimum=0,
         ),
     ),

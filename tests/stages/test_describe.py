@@ -188,6 +188,29 @@ def test_sql_samples_behind_an_obstacle():
     assert con.execute(query).fetchall() == [("f0", 2, 1)]
 
 
+def test_shadow_segmented_with_a_rock_does_not_widen_it():
+    # regression: a sun shadow segmented with the rock (dark like it, but on the ground)
+    # counted in the footprint; on runs/eval mojave the median width error was 11.3 %
+    x0, y0, width = 0.0, 1.6, 0.20
+    labels, gray, disparity, rng, height = plate_scene(CAMERA, SHAPE, [(x0, y0, width, 0.1, 60)])
+    cx, cy = CAMERA.principal_point(SHAPE)
+    v, u = np.indices(SHAPE, dtype=np.float64)
+    ground_x = (u - cx) / CAMERA.focal_px * rng  # camera X = ground x
+    rows = np.nonzero((labels == 1).any(axis=1))[0]
+    beside = (ground_x > x0 + width / 2) & (ground_x < x0 + width / 2 + 0.1)
+    shadow = beside & (labels == 0) & (v >= rows.min()) & (v <= rows.max())
+    labels[shadow] = 1  # 0.1 m of ground-level shadow to the right of the plate
+    kwargs = {"camera": CAMERA}
+    trimmed, _, _ = describe_frame(labels, gray, disparity, rng, height, **kwargs)
+    whole, _, _ = describe_frame(labels, gray, disparity, rng, height, fringe_height_m=0, **kwargs)
+    pixel_m = float(np.median(rng[labels == 1])) / CAMERA.focal_px
+    # the shadow's 3 px next to the plate stay (a rock's own low rim would lie there)
+    assert _row(trimmed, 1)["width_m"] == pytest.approx(width, abs=4.5 * pixel_m)
+    assert _row(whole, 1)["width_m"] > width + 0.08
+    for name in ("x_m", "y_m", "height_m", "range_m"):  # only the footprint changes
+        assert _row(trimmed, 1)[name] == _row(whole, 1)[name]
+
+
 def test_partly_invalid_depth_marks_unreliable():
     labels, gray, disparity, rng, height = plate_scene(CAMERA, SHAPE, [(0.0, 1.6, 0.3, 0.2, 60)])
     mask = labels == 1
@@ -247,7 +270,7 @@ def test_size_frequency_figures():
 
 
 def test_stage_declaration_and_run():
-    assert STAGE.name == "describe" and STAGE.version == "3"
+    assert STAGE.name == "describe" and STAGE.version == "4"
     assert STAGE.inputs == (
         "left", "right", "labels", "disparity", "range", "height", "ground_plane"
     )

@@ -19,6 +19,7 @@ from stages._descriptors import (
     describe_objects,
     footprint_dimensions,
     frame_ground,
+    ground_fringe_keep,
     polarity_against,
     robust_extent,
     second_moment_ellipse,
@@ -302,3 +303,41 @@ def test_footprint_dimensions_drop_far_outliers():
     x_out, y_out = np.r_[x, 0.05], np.r_[y, 3.0]  # a ground point far behind the rock
     assert footprint_dimensions(x_out, y_out, pixel_m=0.01) == pytest.approx(clean)
     assert all(math.isnan(v) for v in footprint_dimensions([1.0], [2.0], pixel_m=0.01))
+
+
+def _rock_and_shadow(rock_h: float = 0.03):
+    """A 10x30 object: a raised rock in columns 0-14, a ground-level shadow in 15-29."""
+    mask = np.zeros((12, 32), dtype=bool)
+    mask[1:11, 1:31] = True
+    heights = np.zeros(mask.shape)
+    heights[1:11, 1:16] = rock_h
+    return mask, heights[mask]
+
+
+def test_ground_fringe_keep_drops_a_shadow_but_not_the_rim():
+    mask, heights = _rock_and_shadow()
+    keep = ground_fringe_keep(mask, heights, min_height_m=0.004, reach_px=3)
+    cols = np.nonzero(mask)[1]
+    # the rock (columns 1-15) and 3 px of the shadow next to it stay: the rock's own low
+    # rim would lie there; the far shadow goes
+    assert keep[cols <= 18].all() and not keep[cols > 18].any()
+    # unknown heights count as raised: nothing next to them is dropped
+    heights[cols > 18] = np.nan
+    assert ground_fringe_keep(mask, heights, min_height_m=0.004, reach_px=3).all()
+
+
+def test_ground_fringe_keep_keeps_all_when_heights_cannot_tell():
+    mask, heights = _rock_and_shadow(rock_h=0.002)  # nothing stands above 4 mm: flat
+    assert ground_fringe_keep(mask, heights, min_height_m=0.004, reach_px=3).all()
+    mask, heights = _rock_and_shadow()
+    heights[np.nonzero(mask)[1] < 12] = 0.0  # a 4-column raised strip: most would go
+    assert ground_fringe_keep(mask, heights, min_height_m=0.004, reach_px=0).all()
+    assert ground_fringe_keep(mask, heights, min_height_m=0.0, reach_px=3).all()  # off
+
+
+def test_ground_fringe_keep_validates():
+    mask, heights = _rock_and_shadow()
+    with pytest.raises(ValueError, match="one value per mask pixel"):
+        ground_fringe_keep(mask, heights[:-1], min_height_m=0.004, reach_px=3)
+    with pytest.raises(ValueError, match=">= 0"):
+        ground_fringe_keep(mask, heights, min_height_m=-0.1, reach_px=3)

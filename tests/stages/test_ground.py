@@ -68,6 +68,30 @@ def test_fit_degrades_with_support():
         fit_disparity_surface(rows, cols[:3], disparity)
 
 
+def test_fit_min_quadratic_sets_where_the_curvature_terms_start():
+    rows, cols = _blob(15)  # 225 pixels
+    x, y = cols - 67.0, rows - 47.0
+    bowl = 20.0 + 0.01 * x * x + 0.02 * y * y
+    np.testing.assert_allclose(
+        fit_disparity_surface(rows, cols, bowl, min_quadratic=225), bowl, atol=1e-6
+    )
+    plane = fit_disparity_surface(rows, cols, bowl, min_quadratic=226)
+    # a plane cannot follow the bowl; being symmetric, the bowl gives a flat plane
+    assert np.ptp(plane) < 1e-6 and np.abs(plane - bowl).max() > 0.5
+    with pytest.raises(ValueError, match="min_quadratic"):
+        fit_disparity_surface(rows, cols, bowl, min_quadratic=5)
+
+
+def test_fit_of_a_single_row_is_finite():
+    # all pixels in one row: the row terms have no support (a singular normal matrix),
+    # the least-squares fallback still fits the slope along the row
+    cols = np.arange(50, 80)
+    rows = np.full(cols.shape, 40)
+    disparity = 10.0 + 0.1 * (cols - 50)
+    fitted = fit_disparity_surface(rows, cols, disparity)
+    np.testing.assert_allclose(fitted, disparity, atol=1e-6)
+
+
 def test_pixel_points_match_camera_points():
     rng = np.random.default_rng(0)
     disparity = rng.uniform(5, 30, (30, 40))
