@@ -13,7 +13,12 @@ Renders pairs with ``pipeline.synth.pair.render_pair`` and runs
   directories of archives with truth, described again with the current code and
   ``--set describe.PARAM=VALUE`` overrides, scored like ``arroyo evaluate`` (same matching,
   same rock table). The products stay fixed, so describe changes can be compared while the
-  depth and segment stages change underneath (copy a run directory to freeze it).
+  depth and segment stages change underneath (copy a run directory to freeze it). Columns:
+  rocks within ``--near`` m (median width error, class accuracy, median |height error| of
+  ``height_max_m``, median range error), all matched rocks, relation agreement, relation
+  rows per frame, CPU ms per frame of ``describe_frame`` alone; then the near rocks split
+  by the truth's ``touches_border``: rocks seen whole (interior) and rocks cut by the image
+  border, whose truth is of the whole rock while only part of it is visible.
 
 Scores against the truth rocks with ``pipeline.metrics`` (rocks within ``--near`` m of the
 camera for the descriptor targets; relations between matched rocks).
@@ -204,17 +209,25 @@ def _rundir_main(rundirs: list[str], items: list[str], near: float) -> None:
 
     overrides = parse_set_overrides(default_graph(), items).get("describe", {})
     print(
-        f"{'archive':9} {'rocks':>5} {'near':>5} {'dw/w':>6} {'class':>6} "
-        f"{'all dw/w':>8} {'all cls':>7} {'rel':>6} {'rows/fr':>8} {'cpu ms':>7}"
+        f"{'archive':9} {'rocks':>5} {'near':>5} {'dw/w':>6} {'class':>6} {'|dh| m':>7} "
+        f"{'dr/r':>6} {'all dw/w':>8} {'all cls':>7} {'rel':>6} {'rows/fr':>8} {'cpu ms':>7} "
+        f"| {'interior':>8} {'dw/w':>6} {'class':>6} | {'border':>6} {'dw/w':>6} {'class':>6}"
     )
     for rundir in rundirs:
         r = _rundir_scores(rundir, overrides, near)
         e = r["err"]
+        split = " | ".join(
+            f"{e.get(f'near_{part}_n_rocks', float('nan')):{w}.0f} "
+            f"{e.get(f'near_{part}_width_rel_err_median', float('nan')):6.3f} "
+            f"{e.get(f'near_{part}_class_accuracy', float('nan')):6.3f}"
+            for part, w in (("interior", 8), ("border", 6))
+        )
         print(
             f"{r['archive']:9} {int(e['n_rocks']):5d} {int(e['near_n_rocks']):5d} "
             f"{e['near_width_rel_err_median']:6.3f} {e['near_class_accuracy']:6.3f} "
+            f"{e['near_height_abs_err_median_m']:7.4f} {e['near_range_rel_err_median']:6.4f} "
             f"{e['width_rel_err_median']:8.3f} {e['class_accuracy']:7.3f} {r['rel']:6.3f} "
-            f"{r['rows']:8.0f} {r['ms']:7.1f}"
+            f"{r['rows']:8.0f} {r['ms']:7.1f} | {split}"
         )
 
 

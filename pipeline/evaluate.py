@@ -244,7 +244,9 @@ def _columns(rows: list[dict[str, Any]], names: Iterable[str]) -> dict[str, np.n
 
 
 _PRED_COLUMNS = ("height_max_m", "height_m", "width_m", "range_m", "size_class")
-_TRUE_COLUMNS = ("height_m", "width_m", "range_m", "size_class")
+#: ``touches_border`` gives the border / interior breakdown of :func:`metrics.descriptor_errors`
+#: (NaN, so no breakdown, for rock tables without it)
+_TRUE_COLUMNS = ("height_m", "width_m", "range_m", "size_class", "touches_border")
 
 
 def _edges(

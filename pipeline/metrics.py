@@ -399,7 +399,8 @@ def descriptor_errors(
         ({'sample', 'obstacle'}).
     truth : mapping of str to (K,) array
         Truth rock columns: ``height_m`` (highest point above ground), ``width_m``,
-        ``range_m``, ``size_class``.
+        ``range_m``, ``size_class``; optionally ``touches_border`` (bool, or 0/1 floats):
+        the rock's visible region reaches the image border, so only part of it is seen.
     near_range_m : float
         Also report every error restricted to rocks whose truth range is at most this (m).
 
@@ -412,7 +413,11 @@ def descriptor_errors(
         ``width_rel_err_{median,p90}``, ``range_rel_err_{median,p90}`` (|pred - truth| / truth),
         ``class_accuracy``, ``n_rocks``; then the same keys prefixed ``near_`` for rocks within
         ``near_range_m``. NaN predictions are left out of the quantiles (``n_rocks`` counts
-        pairs, so compare with it); all NaN when there are no pairs.
+        pairs, so compare with it); all NaN when there are no pairs. With a finite truth
+        ``touches_border`` column, a breakdown of the ``near_`` rocks follows: the same keys
+        prefixed ``near_interior_`` (rocks seen whole) and ``near_border_`` (rocks cut by
+        the image border, whose truth width and class are of the whole rock while only a
+        part of it can be measured). The headline keys do not change.
     """
     if not isinstance(pred, Mapping) or not isinstance(truth, Mapping):
         raise TypeError(
@@ -436,7 +441,13 @@ def descriptor_errors(
         "t_c": _coerce_column(truth, "size_class", "truth", n).astype(str),
     }
     out = _descriptor_block(cols, np.ones(n, dtype=bool), "")
-    out.update(_descriptor_block(cols, t_range <= near_range_m, "near_"))
+    near = t_range <= near_range_m
+    out.update(_descriptor_block(cols, near, "near_"))
+    if "touches_border" in truth:
+        border = _coerce_column(truth, "touches_border", "truth", n).astype(np.float64)
+        if np.isfinite(border).all():
+            out.update(_descriptor_block(cols, near & (border == 0), "near_interior_"))
+            out.update(_descriptor_block(cols, near & (border != 0), "near_border_"))
     return out
 
 

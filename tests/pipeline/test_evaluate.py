@@ -61,6 +61,7 @@ def _rocks(frame_id: str) -> list[dict]:
             "visible_px": 400,
             "size_class": "sample",
             "buried_fraction": 0.2,
+            "touches_border": False,
         },
         {
             "frame_id": frame_id,
@@ -77,6 +78,7 @@ def _rocks(frame_id: str) -> list[dict]:
             "visible_px": 600,
             "size_class": "obstacle",
             "buried_fraction": 0.1,
+            "touches_border": True,
         },
     ]
 
@@ -186,7 +188,8 @@ def test_evaluate_run_scores_fixture(rundir: Path):
     table = evaluate_run(rundir)
     assert table.schema == EVALUATION_SCHEMA
     written = pq.read_table(rundir / "evaluation.parquet")
-    assert written.equals(table)
+    # NaN-aware: an empty breakdown block (no border rocks within 2 m) scores NaN
+    pd.testing.assert_frame_equal(written.to_pandas(), table.to_pandas())
     assert set(table.column("frame_id").to_pylist()) == {"f0", "f1", AGGREGATE}
 
     def v(frame_id, product, method, metric):
@@ -216,6 +219,9 @@ def test_evaluate_run_scores_fixture(rundir: Path):
     assert v(AGGREGATE, "descriptors", "arroyo", "range_rel_err_p90") == 0.0
     assert v(AGGREGATE, "descriptors", "arroyo", "class_accuracy") == 1.0
     assert v(AGGREGATE, "descriptors", "arroyo", "near_n_rocks") == 2  # rock 1 at 1.6 m
+    # breakdown by the truth's touches_border: rock 1 (near) is seen whole
+    assert v(AGGREGATE, "descriptors", "arroyo", "near_interior_n_rocks") == 2
+    assert v(AGGREGATE, "descriptors", "arroyo", "near_border_n_rocks") == 0
 
     # per frame: left_of 1->2 ok, in_front_of ok, left_of 2->1 wrong, adjacent unchecked;
     assert v("f0", "relations", "arroyo", "agreement") == pytest.approx(2 / 3)

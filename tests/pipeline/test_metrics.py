@@ -250,6 +250,24 @@ def test_descriptor_errors_known_values():
     assert e["near_height_abs_err_p90_m"] == pytest.approx(np.percentile([0.01, 0.01, 0.02], 90))
 
 
+def test_descriptor_errors_border_breakdown():
+    truth = _rock_columns()  # ranges 1.0, 1.5, 2.0 within 2 m, then 2.5, 3.0
+    pred = {k: np.array(v, copy=True) for k, v in truth.items()}
+    pred["width_m"] = truth["width_m"] * np.array([1.0, 0.5, 1.2, 1.0, 1.0])
+    pred["size_class"] = np.array(["sample", "sample", "sample", "obstacle", "obstacle"])
+    headline = descriptor_errors(pred, truth)
+    assert not any(k.startswith(("near_interior_", "near_border_")) for k in headline)
+    truth["touches_border"] = np.array([False, True, False, True, False])
+    e = descriptor_errors(pred, truth)
+    assert {k: v for k, v in e.items() if k in headline} == headline  # headline unchanged
+    assert e["near_border_n_rocks"] == 1 and e["near_interior_n_rocks"] == 2
+    assert e["near_border_width_rel_err_median"] == pytest.approx(0.5)
+    assert e["near_interior_width_rel_err_median"] == pytest.approx(0.1)  # 0 and 0.2
+    assert e["near_interior_class_accuracy"] == pytest.approx(1 / 2)
+    truth["touches_border"] = np.array([0.0, 1.0, np.nan, 0.0, 0.0])  # unknown: no breakdown
+    assert "near_border_n_rocks" not in descriptor_errors(pred, truth)
+
+
 def test_descriptor_errors_no_pairs_and_bad_input():
     empty = {k: v[:0] for k, v in _rock_columns().items()}
     e = descriptor_errors(empty, empty)
