@@ -5,6 +5,14 @@ values) or a small crop around it, so every rule can be tested on a hand-made 20
 :func:`describe_objects` runs them over every object of a label image and returns the
 descriptor columns (see ``docs/design.md``). The ground frame and the per-object depth
 denoising (a robust quadratic disparity surface) live in :mod:`stages._ground`.
+
+``width_m`` and ``length_m`` are the largest horizontal dimension of the object's visible
+footprint and its dimension across that (:func:`footprint_dimensions`), measured on the
+object's pixels without its ground-level fringes (:func:`ground_fringe_keep`: a sun shadow
+segmented with the rock lies on the ground) on a disparity surface fitted to the pixels
+kept (a plane below 500 valid pixels, a quadratic above). For an object that touches the
+image border they are of the visible part only, a lower bound (``touches_border``); its
+``size_class`` is then 'obstacle' only if the visible part already exceeds the limits.
 """
 
 from __future__ import annotations
