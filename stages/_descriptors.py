@@ -615,6 +615,8 @@ def describe_objects(
             keep = ground_fringe_keep(
                 mask, heights, min_height_m=fringe_height_m, reach_px=fringe_reach_px
             )
+            if np.count_nonzero(valid & keep) < _MIN_DEPTH_PX:  # kept only depthless pixels
+                keep = np.ones(rows.shape, dtype=bool)
             foot = ground.to_ground(
                 pixel_points(
                     rows[keep],

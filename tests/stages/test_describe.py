@@ -211,6 +211,24 @@ def test_shadow_segmented_with_a_rock_does_not_widen_it():
         assert _row(trimmed, 1)[name] == _row(whole, 1)[name]
 
 
+def test_fringe_trimming_never_leaves_only_depthless_pixels():
+    # the raised part has no depth (unknown heights are kept), the ground-level part has:
+    # trimming the latter would leave no pixel to measure, so nothing is trimmed
+    labels, gray, disparity, rng, height = plate_scene(CAMERA, SHAPE, [(0.0, 1.6, 0.2, 0.1, 60)])
+    plate = labels == 1
+    rows = np.nonzero(plate.any(axis=1))[0]
+    cols = np.nonzero(plate.any(axis=0))[0]
+    strip = np.zeros(SHAPE, dtype=bool)
+    strip[rows.min() : rows.max() + 1, cols.max() + 1 : cols.max() + 6] = True
+    labels[strip & (labels == 0)] = 1  # ground-level pixels with depth beside the plate
+    for arr in (disparity, rng, height):
+        arr[plate] = np.nan
+    desc, _, _ = describe_frame(
+        labels, gray, disparity, rng, height, camera=CAMERA, fringe_reach_px=0
+    )
+    assert np.isfinite(_row(desc, 1)["width_m"])
+
+
 def test_partly_invalid_depth_marks_unreliable():
     labels, gray, disparity, rng, height = plate_scene(CAMERA, SHAPE, [(0.0, 1.6, 0.3, 0.2, 60)])
     mask = labels == 1
