@@ -313,50 +313,55 @@ def _seed_from_global(level, modes, smoothed, prominence, continuity_range) -> N
         level[n // 2, n // 2] = target
 
 
-def _predict_all(
-    level: np.ndarray, *, max_spread: float, max_step: float
-) -> tuple[np.ndarray, ...]:
-    """Levels the decided neighbours predict for each sector, and their total weight.
+def _predict_all(level: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Weighted mean of decided neighbours' levels and the total weight, per sector.
 
-    Returns the weighted mean of the decided neighbours' levels, the level their gradient
-    carries on to and the total weight. A neighbour carries its level on when the sector
-    beyond it in the same direction is decided too and the step between the two is at most
-    ``max_step`` (its level plus that step once more); the carried level is the weighted
-    mean of these, NaN where fewer than two
-    neighbours carry or where their carried levels disagree (weighted standard deviation
-    above ``max_spread``): a gradient, not a patchwork. Edge neighbours weigh 1, diagonal
-    ones 1/sqrt(2); NaN predictions where none is decided.
+    Edge neighbours weigh 1, diagonal ones 1/sqrt(2); NaN prediction where none is decided.
     """
     n = level.shape[0]
-    padded = np.full((n + 4, n + 4), np.nan)
-    padded[2:-2, 2:-2] = level
+    padded = np.full((n + 2, n + 2), np.nan)
+    padded[1:-1, 1:-1] = level
     decided = np.isfinite(padded)
     values = np.where(decided, padded, 0.0)
     total = np.zeros((n, n))
     weight = np.zeros((n, n))
-    carried = np.zeros((n, n))
-    carried_sq = np.zeros((n, n))
-    carried_weight = np.zeros((n, n))
-    carriers = np.zeros((n, n))
     for dy, dx in _NEIGHBOURS:
         w = 1.0 if dy == 0 or dx == 0 else 1.0 / math.sqrt(2.0)
-        near = (slice(2 + dy, n + 2 + dy), slice(2 + dx, n + 2 + dx))
-        far = (slice(2 + 2 * dy, n + 2 + 2 * dy), slice(2 + 2 * dx, n + 2 + 2 * dx))
+        window = (slice(1 + dy, n + 1 + dy), slice(1 + dx, n + 1 + dx))
         # undecided neighbours add exactly 0.0, which leaves the running sums unchanged
-        total += np.where(decided[near], w * values[near], 0.0)
-        weight += np.where(decided[near], w, 0.0)
-        both = decided[near] & decided[far] & (np.abs(values[near] - values[far]) <= max_step)
-        onward = 2.0 * values[near] - values[far]
-        carried += np.where(both, w * onward, 0.0)
-        carried_sq += np.where(both, w * onward * onward, 0.0)
-        carried_weight += np.where(both, w, 0.0)
-        carriers += both
+        total += np.where(decided[window], w * values[window], 0.0)
+        weight += np.where(decided[window], w, 0.0)
     with np.errstate(invalid="ignore", divide="ignore"):
         predicted = np.where(weight > 0, total / weight, math.nan)
-        mean = carried / carried_weight
-        spread = np.sqrt(np.maximum(carried_sq / carried_weight - mean * mean, 0.0))
-    extrapolated = np.where((carriers >= 2) & (spread <= max_spread), mean, math.nan)
-    return predicted, extrapolated, weight
+    return predicted, weight
+
+
+def _carried_level(level: np.ndarray, i: int, j: int, *, max_step: float, max_spread: float):
+    """Level the decided neighbours' gradient carries on to at sector ``(i, j)`` (rule C1).
+
+    A decided neighbour carries its level on when the sector beyond it in the same
+    direction is decided too and the step between the two is at most ``max_step`` (its
+    level plus that step once more). Returns the weighted mean of these (edge neighbours
+    weigh 1, diagonal ones 1/sqrt(2)), or None when fewer than two neighbours carry or
+    their carried levels disagree (weighted standard deviation above ``max_spread``): a
+    gradient, not a patchwork.
+    """
+    n = level.shape[0]
+    onward, weights = [], []
+    for dy, dx in _NEIGHBOURS:
+        near_y, near_x, far_y, far_x = i + dy, j + dx, i + 2 * dy, j + 2 * dx
+        if not (0 <= far_y < n and 0 <= far_x < n):
+            continue
+        near, far = level[near_y, near_x], level[far_y, far_x]
+        if np.isfinite(near) and np.isfinite(far) and abs(near - far) <= max_step:
+            onward.append(2.0 * near - far)
+            weights.append(1.0 if dy == 0 or dx == 0 else 1.0 / math.sqrt(2.0))
+    if len(onward) < 2:
+        return None
+    values, w = np.asarray(onward), np.asarray(weights)
+    mean = float(np.sum(w * values) / np.sum(w))
+    spread = math.sqrt(max(float(np.sum(w * (values - mean) ** 2) / np.sum(w)), 0.0))
+    return mean if spread <= max_spread else None
 
 
 def _nearest_mode(positions, heights, predicted: float, reach: float) -> float | None:
@@ -380,11 +385,7 @@ def _propagate(level, phantom, modes, continuity_range) -> None:
         undecided = ~np.isfinite(level)
         if not undecided.any():
             return
-        predicted_all, extrapolated_all, weight_all = _predict_all(
-            level,
-            max_spread=_CARRY_SPREAD * continuity_range,
-            max_step=_CARRY_STEP * continuity_range,
-        )
+        predicted_all, weight_all = _predict_all(level)
         best = float(weight_all[undecided].max())
         if best == 0.0:  # cannot happen on a connected grid with one seed; guard anyway
             level[~np.isfinite(level)] = np.nanmedian(level)
@@ -394,10 +395,16 @@ def _propagate(level, phantom, modes, continuity_range) -> None:
             predicted = float(predicted_all[i, j])
             positions, heights = modes[i][j]
             found = _nearest_mode(positions, heights, predicted, continuity_range)
-            if found is None and np.isfinite(extrapolated_all[i, j]):
-                found = _nearest_mode(
-                    positions, heights, float(extrapolated_all[i, j]), continuity_range
+            if found is None:
+                carried = _carried_level(
+                    level,
+                    i,
+                    j,
+                    max_step=_CARRY_STEP * continuity_range,
+                    max_spread=_CARRY_SPREAD * continuity_range,
                 )
+                if carried is not None:
+                    found = _nearest_mode(positions, heights, carried, continuity_range)
             if found is not None:
                 decided_now.append((i, j, found, False))
             else:

@@ -369,8 +369,8 @@ def _row_band_sigma(
     usable : (M, N) ndarray of bool
         Valid ground pixels whose heights measure the noise.
     bands : int
-        Horizontal bands of rows; each gets the MAD sigma of its usable heights (0 with
-        fewer than 100), interpolated linearly between band centres.
+        Horizontal bands of rows; each gets the MAD sigma of its usable heights in every
+        other column (0 with fewer than 50), interpolated linearly between band centres.
 
     Returns
     -------
@@ -382,8 +382,9 @@ def _row_band_sigma(
     centres = (edges[:-1] + edges[1:] - 1) / 2.0
     values = np.zeros(bands)
     for band, (start, stop) in enumerate(zip(edges[:-1], edges[1:], strict=True)):
-        heights = relative[start:stop][usable[start:stop]]
-        if heights.size >= 100:
+        # every other column: plenty of heights for a MAD, half the cost
+        heights = relative[start:stop, ::2][usable[start:stop, ::2]]
+        if heights.size >= 50:
             values[band] = _robust_sigma(heights)
     return np.interp(np.arange(rows), centres, values)
 
@@ -541,13 +542,20 @@ def gray_contrast(
             f"image {image.shape}, background {background.shape}, low {low.shape} and high "
             f"{high.shape} must have one shape"
         )
-    gray = image.astype(np.float32)
-    band = np.where(gray < background, background - low, high - background)
-    if min_band_fraction > 0:
-        frame_low, frame_high = _frame_bands(background, low, high)
-        floor = np.where(gray < background, frame_low, frame_high)
-        band = np.maximum(band, np.float32(min_band_fraction) * floor)
-    return ((gray - background) / np.maximum(band, np.float32(1.0))).astype(np.float32)
+    background = background.astype(np.float32, copy=False)
+    low = low.astype(np.float32, copy=False)
+    high = high.astype(np.float32, copy=False)
+    contrast = image.astype(np.float32)
+    contrast -= background
+    darker = contrast < 0
+    band = np.where(darker, background - low, high - background)
+    frame_low, frame_high = _frame_bands(background, low, high) if min_band_fraction > 0 else (0, 0)
+    # float32 scalars keep the arrays float32 (half the memory traffic of float64)
+    floor_low = np.float32(max(1.0, min_band_fraction * frame_low))
+    floor_high = np.float32(max(1.0, min_band_fraction * frame_high))
+    np.maximum(band, np.where(darker, floor_low, floor_high), out=band)
+    contrast /= band
+    return contrast
 
 
 def drop_faint_depthless(

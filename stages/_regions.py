@@ -307,8 +307,12 @@ def drop_streaks(
             raise ValueError(
                 f"contrast {contrast.shape} and labels {labels.shape} must have one shape"
             )
-        for k in np.flatnonzero(streak & (ratio <= clear_elongation)):
-            if np.median(np.abs(contrast[labels == k])) >= clear_contrast:
+        candidates = np.flatnonzero(streak & (ratio <= clear_elongation))
+        boxes = _object_boxes(labels, int(labels.max())) if candidates.size else None
+        for k in candidates:
+            y0, y1, x0, x1 = boxes[k]
+            window = np.s_[y0 : y1 + 1, x0 : x1 + 1]
+            if np.median(np.abs(contrast[window][labels[window] == k])) >= clear_contrast:
                 streak[k] = False
     if not streak.any():
         return labels, 0
