@@ -114,19 +114,40 @@ def open_executor(*, scheduler: str | None, workers: int | None) -> Executor:
     from distributed import Client, LocalCluster
 
     if scheduler is None or scheduler == "threads":
+        import dask
+
         n = workers or os.cpu_count() or 1
         processes = scheduler is None and n > 1
-        cluster = LocalCluster(
-            n_workers=n if processes else 1,
-            threads_per_worker=1 if processes else n,
-            processes=processes,
-            dashboard_address=":0",  # a free port: never collide with another cluster
-            silence_logs=logging.ERROR,
-        )
+        # read by each nanny when it is created, and reused when it restarts its worker
+        with dask.config.set({"distributed.nanny.pre-spawn-environ": _worker_environ()}):
+            cluster = LocalCluster(
+                n_workers=n if processes else 1,
+                threads_per_worker=1 if processes else n,
+                processes=processes,
+                dashboard_address=":0",  # a free port: never collide with another cluster
+                silence_logs=logging.ERROR,
+            )
         kind = "processes" if processes else "threads"
         return _DistributedExecutor(Client(cluster), cluster, f"local dask cluster, {n} {kind}")
     client = Client(scheduler, timeout="20s")
     return _DistributedExecutor(client, None, f"dask.distributed at {scheduler}")
+
+
+def _worker_environ() -> dict[str, Any]:
+    """Environment of local worker processes: dask's, without ``MALLOC_TRIM_THRESHOLD_``.
+
+    dask sets that variable to 64 KiB so that idle workers hand memory back to the OS; it
+    also switches off glibc's adaptive mmap threshold, so every temporary array above
+    128 KiB (a frame's stages make hundreds of 1 MB ones) is a fresh mmap whose pages fault
+    in and are zeroed by the kernel. Measured on 60 mojave frames, one worker process:
+    system CPU 7.8-8.1 -> 2.1-3.0 s, worker CPU 0.49-0.51 -> 0.43 s per frame. A value the
+    user exported is inherited by the workers unchanged.
+    """
+    import dask
+
+    environ = dict(dask.config.get("distributed.nanny.pre-spawn-environ", {}) or {})
+    environ.pop("MALLOC_TRIM_THRESHOLD_", None)
+    return environ
 
 
 def describe_scheduler(scheduler: str | None, workers: int | None) -> str:
