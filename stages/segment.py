@@ -420,7 +420,7 @@ def _sector_product(name: str, dtype: str, long_name: str, units: str = "") -> P
 
 STAGE = Stage(
     name="segment",
-    version="13",
+    version="14",
     inputs=("left", "right", "disparity", "height"),
     outputs=(
         Product(
