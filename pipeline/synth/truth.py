@@ -103,23 +103,30 @@ def rock_table(
 ) -> list[dict]:
     """One row per rock visible in the reference image (see docs/synth.md for columns)."""
     rows = []
-    h, w = labels.shape
+    n = len(rock_index)
+    flat = labels.ravel()
+    # per-label pixel lists in one pass (a mask per rock costs a full-frame scan each)
+    order = np.argsort(flat, kind="stable")
+    bounds = np.searchsorted(flat[order], np.arange(1, n + 2))
+    zflat = zcam.ravel()
     border = np.zeros_like(labels, dtype=bool)
     border[0, :] = border[-1, :] = border[:, 0] = border[:, -1] = True
+    on_border = np.zeros(n + 1, dtype=bool)
+    on_border[labels[border]] = True
     for i, k in enumerate(rock_index):
-        mask = labels == i + 1
+        pixels = order[bounds[i] : bounds[i + 1]]  # row-major order, as a boolean mask takes them
         rock = rocks[k]
         row: dict[str, Any] = {"rock_id": i + 1}
         row.update(measure_rock(rock, perm, ground))
         albedo = float(rock[_IDX["albedo"]])
         width, height = row["width_m"], row["height_m"]
         row.update(
-            range_m=float(zcam[mask].mean()),
+            range_m=float(zflat[pixels].mean()),
             albedo=albedo,
             polarity="lighter" if albedo > ground_albedo else "darker",
-            visible_px=int(mask.sum()),
+            visible_px=len(pixels),
             size_class="sample" if width <= SAMPLE_MAX_M and height <= SAMPLE_MAX_M else "obstacle",
-            touches_border=bool((mask & border).any()),
+            touches_border=bool(on_border[i + 1]),
         )
         rows.append(row)
     return rows
