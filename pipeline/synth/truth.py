@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from ._kernels import ROCK_FIELDS, rock_columns
+from ._kernels import ROCK_FIELDS, rock_columns, rock_extents
 
 __all__ = ["measure_rock", "dense_labels", "rock_table", "SAMPLE_MAX_M"]
 
@@ -42,19 +42,7 @@ def measure_rock(rock: np.ndarray, perm: np.ndarray, ground: np.ndarray) -> dict
     cx, cy, cz = (float(rock[_IDX[k]]) for k in ("cx", "cy", "cz"))
     radius = float(rock[_IDX["radius"]])
     xs, top, bottom, floor = rock_columns(rock, perm, ground, _COLUMNS, cx, cy, cz, radius)
-    cell = xs[1] - xs[0]
-    solid = np.isfinite(top)
-    above = solid & (top > floor)
-    volume = np.nansum(np.where(solid, top - bottom, 0.0))
-    below = np.nansum(np.where(solid, np.clip(np.minimum(top, floor) - bottom, 0.0, None), 0.0))
-    gx, gy = np.meshgrid(xs, xs)
-    px, py = gx[above], gy[above]
-    if len(px):
-        # projections of the columns above the ground on 60 directions at once
-        proj = np.multiply.outer(px, _COS) + np.multiply.outer(py, _SIN)
-        extents_arr = proj.max(axis=0) - proj.min(axis=0) + cell
-    else:
-        extents_arr = np.zeros(len(_COS))
+    volume, below, top_max, extents_arr = rock_extents(xs, top, bottom, floor, _COS, _SIN)
     k = int(np.argmax(extents_arr))
     return {
         "x_m": cx,
@@ -64,7 +52,7 @@ def measure_rock(rock: np.ndarray, perm: np.ndarray, ground: np.ndarray) -> dict
         "length_m": float(extents_arr[(k + 30) % 60]),
         "extent_x_m": float(extents_arr[0]),
         "extent_y_m": float(extents_arr[30]),
-        "height_m": float(np.nanmax(top[above])) if above.any() else 0.0,
+        "height_m": 0.0 if np.isnan(top_max) else float(top_max),
         "buried_fraction": float(below / volume) if volume > 0 else 1.0,
     }
 
