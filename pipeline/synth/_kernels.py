@@ -555,7 +555,8 @@ def _refine_ground(ground, perm, ox, oy, oz, dx, dy, dz, lo, f_lo, hi, f_hi):
             if side == 1:
                 f_lo *= 0.5
             side = 1
-        if abs(f) < 1e-7:
+        # 1 um of height gap: under 1e-5 m along the shallowest ray, 1e-6 of its range
+        if abs(f) < 1e-6:
             return t
         if hi - lo < 1e-6:
             break
