@@ -907,32 +907,18 @@ def _source_grids(sources, rocks, zfloor):
     """The grids of several sources ``(m, 4)``: kind, x, y, z, packed into three arrays."""
     m = sources.shape[0]
     params = np.zeros((m, 12))
-    starts = [np.zeros(0, dtype=np.int64)]
-    items = [np.zeros(0, dtype=np.int64)]
-    n_start = 0
-    n_items = 0
+    all_starts = np.zeros(0, dtype=np.int64)
+    all_items = np.zeros(0, dtype=np.int64)
     for i in range(m):
-        p, s, it = _source_grid(
+        p, start, items = _source_grid(
             int(sources[i, 0]), sources[i, 1], sources[i, 2], sources[i, 3], rocks, zfloor
         )
         params[i] = p
-        params[i, _SRC_START_OFF] = n_start
-        params[i, _SRC_ITEM_OFF] = n_items
-        starts.append(s)
-        items.append(it)
-        n_start += s.shape[0]
-        n_items += it.shape[0]
-    all_starts = np.empty(n_start, dtype=np.int64)
-    all_items = np.empty(n_items, dtype=np.int64)
-    a = 0
-    b = 0
-    for i in range(m):
-        s = starts[i + 1]
-        it = items[i + 1]
-        all_starts[a : a + s.shape[0]] = s
-        all_items[b : b + it.shape[0]] = it
-        a += s.shape[0]
-        b += it.shape[0]
+        params[i, _SRC_START_OFF] = all_starts.shape[0]
+        params[i, _SRC_ITEM_OFF] = all_items.shape[0]
+        # (concatenation, not a list of arrays: numba compiles lists of arrays slowly)
+        all_starts = np.concatenate((all_starts, start))
+        all_items = np.concatenate((all_items, items))
     return params, all_starts, all_items
 
 
