@@ -54,8 +54,7 @@ def _render(scene: Scene, camera: Camera, shape: tuple[int, int], origin, other,
     lod_origin = 0.5 * (origin + other)
     return render_view(
         origin, axes, camera.focal_px, cx, cy, shape[0], shape[1], lod_origin,
-        scene.lights, scene.ambient, scene.ground, scene.perm, scene.rocks,
-        scene.cell_start, scene.cell_items, scene.cell_zmax, scene.grid, other, truth,
+        scene.lights, scene.ambient, scene.ground, scene.perm, scene.rocks, other, truth,
     )  # fmt: skip
 
 

@@ -27,7 +27,6 @@ from .render import camera_axes
 
 __all__ = ["Scene", "make_scene", "ground_footprint"]
 
-_GRID_CELL_M = 0.25
 _ROCK_GAP_M = 0.004
 # rocks may also lie where only a left camera up to this far to the left sees them
 _LEFT_REACH_M = 1.0
@@ -41,10 +40,6 @@ class Scene:
     ground: np.ndarray  # (len(GROUND_FIELDS),) float64
     perm: np.ndarray  # (512,) int64
     rocks: np.ndarray  # (n, len(ROCK_FIELDS)) float64
-    cell_start: np.ndarray  # (nx * ny + 1,) int64
-    cell_items: np.ndarray  # (m,) int64
-    cell_zmax: np.ndarray  # (nx * ny,) float64: highest point of the rocks listed in a cell
-    grid: np.ndarray  # (7,) float64: x0, y0, cell, nx, ny, zmin, zmax
     lights: np.ndarray  # (L, 5) float64
     ambient: float
     exposure_gain: float  # gray levels per unit radiance
@@ -147,6 +142,10 @@ def _make_ground(spec: ArchetypeSpec, rng: np.random.Generator) -> np.ndarray:
         dphase = 1.0 / lam + spec.ripple_warp * spec.ripple_warp_freq * lip
         slope += spec.ripple_amp * (0.35 * 1.3 * lip * 1.02 + 1.12 * 2 * math.pi * dphase * 1.2)
     g["lipschitz"] = 1.1 * slope + 1e-3
+    # the part of that bound due to the phase running across the crests: only a path
+    # across the crests meets it in full (rays along them see the ripples barely change)
+    if spec.ripple_amp > 0:
+        g["ripple_lipschitz"] = 1.1 * spec.ripple_amp * 1.12 * 2 * math.pi * 1.2 / lam
     # slow part: undulation and the first relief octave; the rest stays within fast_bound
     slow_slope = spec.relief_amp * spec.relief_freq * lip
     slow_slope += spec.undulation_amp * spec.undulation_freq * lip
@@ -213,6 +212,9 @@ def _make_rocks(
             "off_x": offsets[0], "off_y": offsets[1], "off_z": offsets[2],
             "albedo": albedo, "tex_amp": spec.rock_tex_amp, "tex_freq": spec.rock_tex_freq,
             "radius": radius, "lipschitz": rock_lipschitz(a, b, c, relief, relief_freq),
+            # |x|_2 <= 3^(1/2 - 1/e) |x|_e: a ball (in the rock's normalised coordinates)
+            # around the solid, however blocky
+            "norm_radius": (1.0 + ROCK_RELIEF_BOUND * relief) * 3.0 ** (0.5 - 1.0 / e) * 1.001,
         }  # fmt: skip
         for i, name in enumerate(("r00", "r01", "r02", "r10", "r11", "r12", "r20", "r21", "r22")):
             values[name] = rot.flat[i]
@@ -238,56 +240,6 @@ def _facets(rng: np.random.Generator, spec: ArchetypeSpec) -> dict[str, float]:
         values[f"p{i}_nz"] = math.sin(el)
         values[f"p{i}_d"] = _uniform(rng, spec.facet_depth)
     return values
-
-
-def _rock_z_extent(rocks: np.ndarray) -> np.ndarray:
-    """Half the vertical extent of each rock's bounding box (rotated), capped by its sphere."""
-    idx = {n: i for i, n in enumerate(ROCK_FIELDS)}
-    k = 1.0 + ROCK_RELIEF_BOUND * rocks[:, idx["relief_amp"]]
-    box = k * (
-        np.abs(rocks[:, idx["r20"]]) * rocks[:, idx["a"]]
-        + np.abs(rocks[:, idx["r21"]]) * rocks[:, idx["b"]]
-        + np.abs(rocks[:, idx["r22"]]) * rocks[:, idx["c"]]
-    )
-    return np.minimum(box, rocks[:, idx["radius"]])
-
-
-def _make_grid(
-    rocks: np.ndarray, ground_min: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    idx = {n: i for i, n in enumerate(ROCK_FIELDS)}
-    if len(rocks) == 0:
-        return (
-            np.zeros(2, dtype=np.int64),
-            np.zeros(0, dtype=np.int64),
-            np.full(1, -np.inf),
-            np.array([0.0, 0.0, 1.0, 1.0, 1.0, 0.0, 0.0]),
-        )
-    cx, cy, cz = rocks[:, idx["cx"]], rocks[:, idx["cy"]], rocks[:, idx["cz"]]
-    r = rocks[:, idx["radius"]]
-    top = cz + _rock_z_extent(rocks)
-    x0, y0 = float((cx - r).min()), float((cy - r).min())
-    nx = int(math.ceil((float((cx + r).max()) - x0) / _GRID_CELL_M)) + 1
-    ny = int(math.ceil((float((cy + r).max()) - y0) / _GRID_CELL_M)) + 1
-    buckets: list[list[int]] = [[] for _ in range(nx * ny)]
-    cell_zmax = np.full(nx * ny, -np.inf)
-    for k in range(len(rocks)):
-        ix0 = int((cx[k] - r[k] - x0) // _GRID_CELL_M)
-        ix1 = int((cx[k] + r[k] - x0) // _GRID_CELL_M)
-        iy0 = int((cy[k] - r[k] - y0) // _GRID_CELL_M)
-        iy1 = int((cy[k] + r[k] - y0) // _GRID_CELL_M)
-        for iy in range(iy0, iy1 + 1):
-            for ix in range(ix0, ix1 + 1):
-                buckets[iy * nx + ix].append(k)
-                cell_zmax[iy * nx + ix] = max(cell_zmax[iy * nx + ix], top[k])
-    start = np.zeros(nx * ny + 1, dtype=np.int64)
-    start[1:] = np.cumsum([len(b) for b in buckets])
-    items = np.array([k for b in buckets for k in b], dtype=np.int64)
-    # rays reaching a rock are above the ground, so nothing below its lowest point matters
-    zmin = max(float((cz - r).min()), ground_min)
-    zmax = max(float(top.max()), zmin)
-    grid = np.array([x0, y0, _GRID_CELL_M, nx, ny, zmin, zmax], dtype=np.float64)
-    return start, items, cell_zmax, grid
 
 
 def _make_lights(spec: ArchetypeSpec, rng: np.random.Generator, centre: np.ndarray) -> np.ndarray:
@@ -342,9 +294,6 @@ def make_scene(
     region = _convex_hull(np.vstack([right, right - [_LEFT_REACH_M, 0.0]]))
     region = _expand(region, _PLACEMENT_MARGIN_M)
     rocks = _make_rocks(spec, rng, region, float(ground[GROUND_FIELDS.index("albedo")]))
-    cell_start, cell_items, cell_zmax, grid = _make_grid(
-        rocks, float(ground[GROUND_FIELDS.index("gmin")])
-    )
     assert camera.height_m is not None and camera.pitch_deg is not None  # synth cameras have a pose
     ref = np.array([0.0, camera.height_m / math.tan(math.radians(camera.pitch_deg)), 0.0])
     lights = _make_lights(spec, rng, ref[:2])
@@ -354,10 +303,6 @@ def make_scene(
         ground=ground,
         perm=perm,
         rocks=rocks,
-        cell_start=cell_start,
-        cell_items=cell_items,
-        cell_zmax=cell_zmax,
-        grid=grid,
         lights=lights,
         ambient=spec.ambient,
         exposure_gain=gain,

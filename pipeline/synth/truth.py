@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from ._kernels import ROCK_FIELDS, rock_columns
+from ._kernels import ROCK_FIELDS, rock_columns, rock_extents
 
 __all__ = ["measure_rock", "dense_labels", "rock_table", "SAMPLE_MAX_M"]
 
@@ -42,19 +42,7 @@ def measure_rock(rock: np.ndarray, perm: np.ndarray, ground: np.ndarray) -> dict
     cx, cy, cz = (float(rock[_IDX[k]]) for k in ("cx", "cy", "cz"))
     radius = float(rock[_IDX["radius"]])
     xs, top, bottom, floor = rock_columns(rock, perm, ground, _COLUMNS, cx, cy, cz, radius)
-    cell = xs[1] - xs[0]
-    solid = np.isfinite(top)
-    above = solid & (top > floor)
-    volume = np.nansum(np.where(solid, top - bottom, 0.0))
-    below = np.nansum(np.where(solid, np.clip(np.minimum(top, floor) - bottom, 0.0, None), 0.0))
-    gx, gy = np.meshgrid(xs, xs)
-    px, py = gx[above], gy[above]
-    if len(px):
-        # projections of the columns above the ground on 60 directions at once
-        proj = np.multiply.outer(px, _COS) + np.multiply.outer(py, _SIN)
-        extents_arr = proj.max(axis=0) - proj.min(axis=0) + cell
-    else:
-        extents_arr = np.zeros(len(_COS))
+    volume, below, top_max, extents_arr = rock_extents(xs, top, bottom, floor, _COS, _SIN)
     k = int(np.argmax(extents_arr))
     return {
         "x_m": cx,
@@ -64,7 +52,7 @@ def measure_rock(rock: np.ndarray, perm: np.ndarray, ground: np.ndarray) -> dict
         "length_m": float(extents_arr[(k + 30) % 60]),
         "extent_x_m": float(extents_arr[0]),
         "extent_y_m": float(extents_arr[30]),
-        "height_m": float(np.nanmax(top[above])) if above.any() else 0.0,
+        "height_m": 0.0 if np.isnan(top_max) else float(top_max),
         "buried_fraction": float(below / volume) if volume > 0 else 1.0,
     }
 
@@ -103,23 +91,30 @@ def rock_table(
 ) -> list[dict]:
     """One row per rock visible in the reference image (see docs/synth.md for columns)."""
     rows = []
-    h, w = labels.shape
+    n = len(rock_index)
+    flat = labels.ravel()
+    # per-label pixel lists in one pass (a mask per rock costs a full-frame scan each)
+    order = np.argsort(flat, kind="stable")
+    bounds = np.searchsorted(flat[order], np.arange(1, n + 2))
+    zflat = zcam.ravel()
     border = np.zeros_like(labels, dtype=bool)
     border[0, :] = border[-1, :] = border[:, 0] = border[:, -1] = True
+    on_border = np.zeros(n + 1, dtype=bool)
+    on_border[labels[border]] = True
     for i, k in enumerate(rock_index):
-        mask = labels == i + 1
+        pixels = order[bounds[i] : bounds[i + 1]]  # row-major order, as a boolean mask takes them
         rock = rocks[k]
         row: dict[str, Any] = {"rock_id": i + 1}
         row.update(measure_rock(rock, perm, ground))
         albedo = float(rock[_IDX["albedo"]])
         width, height = row["width_m"], row["height_m"]
         row.update(
-            range_m=float(zcam[mask].mean()),
+            range_m=float(zflat[pixels].mean()),
             albedo=albedo,
             polarity="lighter" if albedo > ground_albedo else "darker",
-            visible_px=int(mask.sum()),
+            visible_px=len(pixels),
             size_class="sample" if width <= SAMPLE_MAX_M and height <= SAMPLE_MAX_M else "obstacle",
-            touches_border=bool((mask & border).any()),
+            touches_border=bool(on_border[i + 1]),
         )
         rows.append(row)
     return rows
