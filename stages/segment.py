@@ -11,13 +11,15 @@ rule by rule.
 
 ``method = 'sector-histogram+depth'`` (default) adds the depth stage's ``height`` (metres
 above the fitted ground plane) and ``disparity`` (rules R0-R3 in :mod:`stages._depth_rules`,
-R4-R5 in :mod:`stages._regions`):
+R4-R6 in :mod:`stages._regions`):
 raised pixels are object even when their gray equals the ground's, flat intensity objects
 (shadows, stains, texture blotches) are background, touching objects split at disparity
-jumps, streaks (ripple troughs) are dropped, and the intensity decision stands where depth is
-invalid -- for the whole frame when fewer than ``min_depth_valid_fraction`` of its heights
-are valid. How much the height rules trust single pixels depends on the measured height
-noise of the ground (precise, noisy and unusable regimes).
+jumps, streaks (ripple troughs) are dropped and so are, in a field of parallel streaks,
+objects that do not stand out of the ripple texture around them, and the intensity decision
+stands where depth is invalid -- for the whole frame when fewer than
+``min_depth_valid_fraction`` of its heights are valid. How much the height rules trust
+single pixels depends on the measured height noise of the ground (precise, noisy and
+unusable regimes).
 
 The reference image is the product ``right``, or ``left`` when the catalog's camera says
 ``reference = "left"`` (the depth products are then in left-image geometry too).
@@ -51,6 +53,7 @@ from ._depth_rules import (
 )
 from ._regions import (
     depth_edges,
+    drop_ripple_pieces,
     drop_streaks,
     label_objects,
     threshold_mask,
@@ -141,6 +144,7 @@ def segment_image(
     height_smoothing_px: int = 5,
     split_disparity_px: float = 3.0,
     max_elongation: float = 3.0,
+    ripple_texture_ratio: float = 1.5,
     min_depth_valid_fraction: float = 0.5,
 ) -> Segmentation:
     """Segment one reference image into background and numbered objects.
@@ -176,6 +180,10 @@ def segment_image(
     max_elongation : float
         Depth method only: objects longer than this times their width are streaks (rule R5
         of :mod:`stages._regions`); 0 disables.
+    ripple_texture_ratio : float
+        Depth method only, ``>= 0``: in a field of ripples an object must stand this many
+        times beyond the gray-level texture around it (rule R5c of :mod:`stages._regions`);
+        0 disables.
 
     Returns
     -------
@@ -198,6 +206,10 @@ def segment_image(
         )
     if max_elongation != 0 and not max_elongation > 1:
         raise ValueError(f"max_elongation must be 0 (off) or > 1, got {max_elongation}")
+    if not ripple_texture_ratio >= 0:
+        raise ValueError(
+            f"ripple_texture_ratio must be >= 0 (0 disables), got {ripple_texture_ratio}"
+        )
     if split_disparity_px < 0:
         raise ValueError(f"split_disparity_px must be >= 0 (0 disables), got {split_disparity_px}")
     shape = image.shape
@@ -225,7 +237,11 @@ def segment_image(
     depth_stats = None
     edges = None
     contrast = None
+    texture = None
     if method == "sector-histogram+depth":
+        if ripple_texture_ratio > 0 and max_elongation > 0:
+            # R5c's evidence: the ground texture's objects, before the depth rules thin them
+            texture = label_objects(mask, min_area_px=min_area_px, fill=False)
         background = interpolate_sector_grid(analysis.background, shape)
         contrast = gray_contrast(image, background=background, low=low, high=high)
         height = _coerce_depth(height, shape, "height")
@@ -276,6 +292,17 @@ def segment_image(
         labels, streaks = drop_streaks(labels, max_elongation=max_elongation, contrast=contrast)
         if streaks:
             notes.append(f"{streaks} streak(s) longer than {max_elongation:g}x their width dropped")
+    if texture is not None:
+        # after R5: the streaks themselves are gone, only compact objects are judged
+        labels, ripples = drop_ripple_pieces(
+            labels,
+            texture=texture,
+            image=image,
+            max_elongation=max_elongation,
+            min_texture_ratio=ripple_texture_ratio,
+        )
+        if ripples:
+            notes.append(f"{ripples} object(s) not standing out of the ripples around dropped")
     return Segmentation(
         labels=labels, sectors=analysis, depth=depth_stats, streaks_dropped=streaks, notes=notes
     )
@@ -420,7 +447,7 @@ def _sector_product(name: str, dtype: str, long_name: str, units: str = "") -> P
 
 STAGE = Stage(
     name="segment",
-    version="14",
+    version="15",
     inputs=("left", "right", "disparity", "height"),
     outputs=(
         Product(
@@ -491,6 +518,14 @@ STAGE = Stage(
             float,
             3.0,
             "depth: longer/width above this is a streak; 0 = off",
+            None,
+            0,
+        ),
+        Param(
+            "ripple_texture_ratio",
+            float,
+            1.5,
+            "depth: in a ripple field objects stand out of its texture this much; 0 = off",
             None,
             0,
         ),

@@ -141,3 +141,82 @@ def test_trim_attached_shadows_removes_the_lighter_class_of_a_dark_rock_only():
     np.testing.assert_array_equal(trimmed == 2, light_rock | light_shadow)
     with pytest.raises(ValueError, match="one shape"):
         trim_attached_shadows(labels, image[:10])
+
+
+
+def _ripples(shape, angle_deg, *, period=20.0, length=60):
+    """A rippled sand image and its ground-texture objects (troughs cut into streaks).
+
+    Gray ``128 + 30 sin`` across ripples running at ``angle_deg`` (0 along the rows); the
+    troughs (sin < -0.7) are cut every ``length`` pixels along the ripples and labelled.
+    """
+    yy, xx = np.mgrid[: shape[0], : shape[1]].astype(np.float64)
+    yy, xx = yy - shape[0] / 2, xx - shape[1] / 2
+    theta = np.radians(angle_deg)
+    along = xx * np.cos(theta) + yy * np.sin(theta)
+    across = -xx * np.sin(theta) + yy * np.cos(theta)
+    wave = np.sin(2 * np.pi * across / period)
+    image = np.clip(128 + 30 * wave, 0, 255).astype(np.uint8)
+    troughs = (wave < -0.7) & (np.floor(along / length) % 2 == 0)
+    texture = label_objects(troughs, min_area_px=20, fill=False)
+    return image, texture, wave, along
+
+
+@pytest.mark.parametrize("angle_deg", [0.0, 35.0, -70.0])
+def test_drop_ripple_pieces_drops_a_piece_of_trough_but_keeps_a_rock(angle_deg):
+    # rule R5c: on dunes frames fragments of ripple shading (30-300 px, 1-2.7 threshold
+    # bands from the ground level) passed the depth and streak rules as rocks
+    from stages._regions import drop_ripple_pieces
+
+    shape = (200, 200)
+    image, texture, wave, along = _ripples(shape, angle_deg)
+    labels = np.zeros(shape, np.int32)
+    piece = (wave < -0.7) & (np.abs(along - 20) < 6) & disk(shape, 100, 100, 30)
+    labels[piece] = 1  # a piece of a trough, as dark as the troughs around it
+    rock = disk(shape, 60, 150, 5)
+    image[rock] = 40  # a dark rock among the ripples
+    labels[rock] = 2
+    kept, dropped = drop_ripple_pieces(labels, texture=texture, image=image)
+    assert dropped == 1
+    assert not kept[piece].any() and kept[rock].all()
+
+
+def test_drop_ripple_pieces_needs_a_field_of_parallel_streaks_around_the_object():
+    from stages._regions import drop_ripple_pieces
+
+    shape = (200, 200)
+    image, texture, wave, along = _ripples(shape, 0.0)
+    labels = np.zeros(shape, np.int32)
+    labels[(wave < -0.7) & (np.abs(along - 20) < 6) & disk(shape, 100, 100, 30)] = 1
+    _, dropped = drop_ripple_pieces(labels, texture=texture, image=image)
+    assert dropped == 1
+    # streaks in every direction: no common direction (coherence < 0.8)
+    crossed = np.zeros(shape, np.int32)
+    for k, (cy, cx, angle) in enumerate(
+        [(30, 30, 0), (30, 170, 45), (170, 30, 90), (170, 170, -45), (100, 30, 60)], start=1
+    ):
+        crossed[_bar(shape, cy, cx, 60, 3, angle)] = k
+    _, dropped = drop_ripple_pieces(labels, texture=crossed, image=image)
+    assert dropped == 0
+    # parallel streaks, but too far away
+    _, dropped = drop_ripple_pieces(labels, texture=texture, image=image, radius_px=2)
+    assert dropped == 0
+    # streaks smaller together than the object: specks of texture around a rock
+    specks = np.where(np.isin(texture, [1, 2, 3]), texture, 0)
+    big = np.zeros(shape, np.int32)
+    big[disk(shape, 100, 100, 40) & (wave < -0.7)] = 1
+    assert (specks > 0).sum() < (big > 0).sum()
+    _, dropped = drop_ripple_pieces(big, texture=specks, image=image, radius_px=300)
+    assert dropped == 0
+    with pytest.raises(ValueError, match="one shape"):
+        drop_ripple_pieces(labels, texture=texture[:10], image=image)
+    with pytest.raises(ValueError, match="min_coherence"):
+        drop_ripple_pieces(labels, texture=texture, image=image, min_coherence=0)
+
+
+def _bar(shape, cy, cx, length, width, angle_deg):
+    yy, xx = np.mgrid[: shape[0], : shape[1]]
+    theta = np.radians(angle_deg)
+    along = (xx - cx) * np.cos(theta) + (yy - cy) * np.sin(theta)
+    across = -(xx - cx) * np.sin(theta) + (yy - cy) * np.cos(theta)
+    return (np.abs(along) <= length / 2) & (np.abs(across) <= width / 2)
