@@ -156,6 +156,8 @@ def test_bad_parameters_raise_clear_errors():
         segment_image(image.astype(np.float32), sectors=4)
     with pytest.raises(ValueError, match="reference image has"):
         segment_image(image, sectors=4, height=np.zeros((10, 10), np.float32))
+    with pytest.raises(ValueError, match="ripple_texture_ratio"):
+        segment_image(image, sectors=4, ripple_texture_ratio=-1.0)
 
 
 def test_segment_image_defaults_match_the_stage_defaults():
