@@ -33,7 +33,11 @@ Depth rules R0-R3 (height above ground: local ground, raised, flat, no depth) ar
   lie within 100 px of its centroid (their boxes; one it is part of counts), together at
   least as large as the object itself (three 50 px specks of texture are no evidence about
   a 1200 px mojave rock), and their area-weighted mean of doubled axis angles has length
-  >= 0.8 (1: all parallel). There a rock must stand out of the ripple texture: its median
+  >= 0.8 (1: all parallel) -- or, where the ripples are too faint to leave streaks, when
+  the gray-level gradients in a 100 px window around it share one direction (structure
+  tensor coherence >= 0.8, at half resolution; ripples 0.95, the highest at a true rock of
+  lab, mojave or lava whose ratio below is under 1.5 was 0.62). There a rock must stand out
+  of the ripple texture: its median
   gray level must lie at least 1.5 times further from the median of its ring of ground (3 to
   8 px out) than that ring's 5th percentile (darker objects) or 95th (lighter ones) does
   (:func:`drop_ripple_pieces`). A piece of a trough is as dark as the trough continuing
@@ -42,9 +46,10 @@ Depth rules R0-R3 (height above ground: local ground, raised, flat, no depth) ar
   ``--set ripple_texture_ratio=0`` for the old rules) the invented rocks went 2 -> 0 on the
   dunes catalog frames, 31 -> 0 on seed 2, 6 -> 1 on seed 7 (a true rock matched at IoU
   0.45), 5 -> 2 on seed 3 (two ripple pieces cut by the bottom corners, whose ring lies
-  on one side only), keeping every true rock; lab and mojave (catalog and seed 2) are
-  unchanged, lava lost 1 and 2 false positives. Any ratio from 1.25 to 2 gives the same
-  counts.
+  on one side only), 5 -> 1 on seed 11 (the gradient evidence: 3 with the streaks alone),
+  keeping every true rock; lab and mojave (catalog and seed 2) are unchanged, lava lost 1
+  and 2 false positives. Any ratio from 1.25 to 2, any gradient coherence from 0.7 to 0.9,
+  gives the same counts (0.7: lab one false positive fewer).
 * **R6 attached shadows** -- a cast shadow touching a dark rock is dark too, so intensity
   keeps it as rock; where depth cannot tell (a shadow lies on the ground, but noisy heights
   are smoothed across it), gray levels can: an object darker than its background ring whose
@@ -76,6 +81,9 @@ _RIPPLE_COHERENCE = 0.8
 # ... where an object must stand this many times beyond the texture of its ring of ground
 # (3 to _TEXTURE_RING_PX pixels out).
 _RIPPLE_TEXTURE_RATIO = 1.5
+# ... or where the gray-level gradients around it share one direction this much (structure
+# tensor coherence): ripples too faint to cross the thresholds leave few streaks.
+_RIPPLE_GRADIENT_COHERENCE = 0.8
 _TEXTURE_RING_PX = 8
 
 __all__ = [
@@ -375,6 +383,7 @@ def drop_ripple_pieces(
     min_streaks: int = _RIPPLE_MIN_STREAKS,
     min_coherence: float = _RIPPLE_COHERENCE,
     min_texture_ratio: float = _RIPPLE_TEXTURE_RATIO,
+    min_gradient_coherence: float = _RIPPLE_GRADIENT_COHERENCE,
 ) -> tuple[np.ndarray, int]:
     """Rule R5c: in a field of ripples, drop objects that do not stand out of its texture.
 
@@ -402,6 +411,10 @@ def drop_ripple_pieces(
         ``> 0``; an object in a field of ripples is kept when its median gray level lies at
         least this many times further from the median of its ring of ground (3 to 8 pixels
         out) than the ring's own 5th (darker objects) or 95th (lighter objects) percentile.
+    min_gradient_coherence : float
+        In ``(0, 1]``; an object also lies in a field of ripples where the structure-tensor
+        coherence of the gray-level gradients in a window of side ``radius_px`` around its
+        centroid reaches this; 1 disables this evidence.
 
     Returns
     -------
@@ -420,47 +433,36 @@ def drop_ripple_pieces(
         and min_streaks >= 1
         and 0 < min_coherence <= 1
         and min_texture_ratio > 0
+        and 0 < min_gradient_coherence <= 1
     ):
         raise ValueError(
-            "need max_elongation > 1, radius_px > 0, min_streaks >= 1, 0 < min_coherence <= 1 "
-            f"and min_texture_ratio > 0; got {max_elongation}, {radius_px}, {min_streaks}, "
-            f"{min_coherence} and {min_texture_ratio}"
+            "need max_elongation > 1, radius_px > 0, min_streaks >= 1, 0 < min_coherence <= 1, "
+            "min_texture_ratio > 0 and 0 < min_gradient_coherence <= 1; got "
+            f"{max_elongation}, {radius_px}, {min_streaks}, {min_coherence}, "
+            f"{min_texture_ratio} and {min_gradient_coherence}"
         )
     count = int(labels.max())
-    if count == 0 or not texture.any():
+    if count == 0:
         return labels, 0
-    t_area, _, _, t_ratio, t_angle = _moments(texture)
-    streaks = np.flatnonzero(t_ratio > max_elongation)
-    if streaks.size < min_streaks:
-        return labels, 0
-    # inclusive (y0, y1, x0, x1) of each streak; find_objects is C, _object_boxes is not
-    spans = find_objects(texture)
-    t_boxes = np.array(
-        [
-            (sy.start, sy.stop - 1, sx.start, sx.stop - 1)
-            for sy, sx in (spans[k - 1] for k in streaks)
-        ],
-        dtype=np.float64,
-    )
-    # doubled angles: an axis at 89 degrees and one at -89 degrees are parallel
-    t_weights = t_area[streaks]
-    t_vectors = t_weights * np.exp(2j * t_angle[streaks])
     ys, xs = np.nonzero(labels)
     ids = labels[ys, xs]
-    area = np.maximum(np.bincount(ids, minlength=count + 1), 1).astype(np.float64)
-    cy = np.bincount(ids, ys, minlength=count + 1) / area
-    cx = np.bincount(ids, xs, minlength=count + 1) / area
-    # distance from each object's centroid to each streak's box (0 inside it)
-    gap_y = np.maximum(t_boxes[None, :, 0] - cy[1:, None], cy[1:, None] - t_boxes[None, :, 1])
-    gap_x = np.maximum(t_boxes[None, :, 2] - cx[1:, None], cx[1:, None] - t_boxes[None, :, 3])
-    near = np.hypot(np.maximum(gap_y, 0.0), np.maximum(gap_x, 0.0)) <= radius_px
-    n_near = np.count_nonzero(near, axis=1)
-    streak_area = near @ t_weights
-    with np.errstate(invalid="ignore", divide="ignore"):
-        coherence = np.abs(near @ t_vectors) / streak_area
-    # specks of texture smaller together than the object say nothing of it: a rock is not a
-    # piece of them (a mojave rock of 1179 px had three 50 px streaks around it)
-    in_field = (n_near >= min_streaks) & (coherence >= min_coherence) & (streak_area >= area[1:])
+    area = np.maximum(np.bincount(ids, minlength=count + 1), 1).astype(np.float64)[1:]
+    cy = (np.bincount(ids, ys, minlength=count + 1)[1:]) / area
+    cx = (np.bincount(ids, xs, minlength=count + 1)[1:]) / area
+    in_field = _streak_field(
+        texture,
+        area,
+        cy,
+        cx,
+        max_elongation=max_elongation,
+        radius_px=radius_px,
+        min_streaks=min_streaks,
+        min_coherence=min_coherence,
+    )
+    if min_gradient_coherence < 1:
+        in_field |= _gradient_coherence(image, cy, cx, radius_px=radius_px) >= (
+            min_gradient_coherence
+        )
     in_field = np.flatnonzero(in_field) + 1
     if in_field.size == 0:
         return labels, 0
@@ -480,6 +482,77 @@ def drop_ripple_pieces(
     remap = np.zeros(count + 1, dtype=np.int32)
     remap[1:][~ripple[1:]] = np.arange(1, count + 1 - int(ripple.sum()), dtype=np.int32)
     return remap[labels], int(ripple.sum())
+
+
+def _streak_field(
+    texture: np.ndarray,
+    area: np.ndarray,
+    cy: np.ndarray,
+    cx: np.ndarray,
+    *,
+    max_elongation: float,
+    radius_px: float,
+    min_streaks: int,
+    min_coherence: float,
+) -> np.ndarray:
+    """R5c: which objects (area and centroid of each) have a field of parallel streaks around."""
+    in_field = np.zeros(area.size, dtype=bool)
+    if not texture.any():
+        return in_field
+    t_area, _, _, t_ratio, t_angle = _moments(texture)
+    streaks = np.flatnonzero(t_ratio > max_elongation)
+    if streaks.size < min_streaks:
+        return in_field
+    # inclusive (y0, y1, x0, x1) of each streak; find_objects is C, _object_boxes is not
+    spans = find_objects(texture)
+    t_boxes = np.array(
+        [
+            (sy.start, sy.stop - 1, sx.start, sx.stop - 1)
+            for sy, sx in (spans[k - 1] for k in streaks)
+        ],
+        dtype=np.float64,
+    )
+    # doubled angles: an axis at 89 degrees and one at -89 degrees are parallel
+    t_weights = t_area[streaks]
+    t_vectors = t_weights * np.exp(2j * t_angle[streaks])
+    # distance from each object's centroid to each streak's box (0 inside it)
+    gap_y = np.maximum(t_boxes[None, :, 0] - cy[:, None], cy[:, None] - t_boxes[None, :, 1])
+    gap_x = np.maximum(t_boxes[None, :, 2] - cx[:, None], cx[:, None] - t_boxes[None, :, 3])
+    near = np.hypot(np.maximum(gap_y, 0.0), np.maximum(gap_x, 0.0)) <= radius_px
+    n_near = np.count_nonzero(near, axis=1)
+    streak_area = near @ t_weights
+    with np.errstate(invalid="ignore", divide="ignore"):
+        coherence = np.abs(near @ t_vectors) / streak_area
+    # specks of texture smaller together than the object say nothing of it: a rock is not a
+    # piece of them (a mojave rock of 1179 px had three 50 px streaks around it)
+    return (n_near >= min_streaks) & (coherence >= min_coherence) & (streak_area >= area)
+
+
+def _gradient_coherence(
+    image: np.ndarray, cy: np.ndarray, cx: np.ndarray, *, radius_px: float
+) -> np.ndarray:
+    """R5c: coherence of the gray-level gradients in a window around each centroid.
+
+    The structure tensor (products of Sobel gradients) summed over a square window of side
+    ``radius_px``; coherence ``sqrt((Jxx - Jyy)^2 + 4 Jxy^2) / (Jxx + Jyy)`` is 1 where
+    every gradient has one direction (ripples), near 0 for isotropic texture. Computed at
+    half resolution (the average of 2x2 pixels also tempers the sensor noise).
+    """
+    small = cv2.resize(
+        image.astype(np.float32),
+        (max(1, image.shape[1] // 2), max(1, image.shape[0] // 2)),
+        interpolation=cv2.INTER_AREA,
+    )
+    gx = cv2.Sobel(small, cv2.CV_32F, 1, 0)
+    gy = cv2.Sobel(small, cv2.CV_32F, 0, 1)
+    size = max(3, int(radius_px) // 2 | 1)
+    jxx = cv2.boxFilter(gx * gx, -1, (size, size))
+    jyy = cv2.boxFilter(gy * gy, -1, (size, size))
+    jxy = cv2.boxFilter(gx * gy, -1, (size, size))
+    rows = np.clip((cy / 2).astype(np.int64), 0, small.shape[0] - 1)
+    cols = np.clip((cx / 2).astype(np.int64), 0, small.shape[1] - 1)
+    xx, yy, xy = jxx[rows, cols], jyy[rows, cols], jxy[rows, cols]
+    return np.sqrt((xx - yy) ** 2 + 4.0 * xy**2) / np.maximum(xx + yy, 1e-6)
 
 
 def _texture_ratio(image: np.ndarray, labels: np.ndarray, inside: np.ndarray) -> float:
