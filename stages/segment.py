@@ -447,7 +447,7 @@ def _sector_product(name: str, dtype: str, long_name: str, units: str = "") -> P
 
 STAGE = Stage(
     name="segment",
-    version="15",
+    version="16",
     inputs=("left", "right", "disparity", "height"),
     outputs=(
         Product(
