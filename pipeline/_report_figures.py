@@ -7,7 +7,6 @@ from __future__ import annotations
 import io
 import math
 from collections.abc import Mapping
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -16,6 +15,8 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import FuncFormatter, NullFormatter
 
 from stages._sizefreq import SizeFrequencyFit, cumulative_fractional_area, model_cfa
+
+from .store import read_product_file
 
 __all__ = [
     "QUICKLOOKS",
@@ -238,16 +239,16 @@ def compact_png(data: bytes, *, max_bytes: int = _COMPACT_ABOVE) -> bytes:
 
 
 def frame_quicklooks(
-    rundir: Path,
+    root: str,
     frame_id: str,
     index: int,
     *,
     products: Any,
     range_step_m: float,
 ) -> dict[str, bytes]:
-    """The frame's three quicklook PNGs: the stage's files when present, else drawn from
-    the products (``products``: the run's ``zarr.Group`` or None); missing inputs skip a
-    figure.
+    """The frame's three quicklook PNGs: the stage's files under the products ``root`` (a
+    directory or URL) when present, else drawn from the products (``products``: the run's
+    ``zarr.Group`` or None); missing inputs skip a figure.
 
     Returns
     -------
@@ -261,7 +262,6 @@ def frame_quicklooks(
         residual_image,
     )
 
-    folder = Path(rundir) / "quicklooks" / frame_id
     out: dict[str, bytes] = {}
     cache: dict[str, np.ndarray | None] = {}
 
@@ -284,9 +284,9 @@ def frame_quicklooks(
         ),
     }
     for name, (inputs, render) in draw.items():
-        path = folder / f"{name}.png"
-        if path.is_file():
-            out[name] = compact_png(path.read_bytes())
+        stored = read_product_file(root, f"quicklooks/{frame_id}/{name}.png")
+        if stored is not None:
+            out[name] = compact_png(stored)
             continue
         arrays: Mapping[str, np.ndarray | None] = {n: array(n) for n in inputs}
         if any(v is None for v in arrays.values()):

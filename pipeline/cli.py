@@ -35,6 +35,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
             frames=args.frames,
             dry_run=args.dry_run,
             progress=callback,
+            products=args.products,
         )
     finally:
         close()
@@ -129,6 +130,13 @@ def build_parser() -> argparse.ArgumentParser:
         "--scheduler",
         help="'threads', 'synchronous', or a dask.distributed "
         "scheduler address such as tcp://host:8786",
+    )
+    p.add_argument(
+        "--products",
+        metavar="DIR_OR_URL",
+        help="write array products and quicklooks here instead of the run directory: a "
+        "shared directory or an fsspec URL such as s3://bucket/prefix (recorded; a resumed "
+        "run finds it)",
     )
     p.add_argument("--frames", metavar="PATTERN", help="only frames whose id matches (glob)")
     p.add_argument("--dry-run", action="store_true", help="print what would run and why")

@@ -43,6 +43,7 @@ from . import metrics
 from ._baselines import otsu_labels, sgbm_disparity
 from ._evaluation_display import evaluation_tables, format_evaluation
 from .errors import RunDirError
+from .store import open_products_group, products_root, zarr_location
 
 __all__ = [
     "EVALUATION_SCHEMA",
@@ -139,23 +140,18 @@ def _stage_done(row: Mapping[str, Any], stage: str) -> bool:
     return row.get("status") == "done"
 
 
-def _open_products(rundir: Path):
+def _open_products(rundir: Path, run: Mapping[str, Any]):
     import xarray as xr
 
-    path = rundir / "products.zarr"
-    if not path.exists():
+    root = products_root(rundir, run)
+    group = open_products_group(root)
+    if group is None:
         return None
-    consolidated = False
-    meta = path / "zarr.json"
-    if meta.is_file():
-        try:
-            consolidated = bool(json.loads(meta.read_text()).get("consolidated_metadata"))
-        except ValueError:
-            consolidated = False
+    consolidated = group.metadata.consolidated_metadata is not None
     with warnings.catch_warnings():
         # zarr 3 flags consolidated metadata as outside the v3 spec; reading it is fine
         warnings.filterwarnings("ignore", message=".*[Cc]onsolidated metadata.*")
-        return xr.open_zarr(path, consolidated=consolidated)
+        return xr.open_zarr(zarr_location(root), consolidated=consolidated)
 
 
 def _read_table(path: Path) -> pa.Table | None:
@@ -303,7 +299,7 @@ def evaluate_run(rundir: str | os.PathLike[str]) -> pa.Table:
     run = _load_run_json(path)
     truth_dir = _truth_dir(run, path)
     frames = _read_frames(path)
-    products = _open_products(path)
+    products = _open_products(path, run)
     rocks_path = truth_dir / "rocks.parquet"
     ctx = _RunData(
         run=run,

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import time
 from collections.abc import Mapping
+from pathlib import Path
 from typing import Any
 
 import pyarrow as pa
@@ -14,6 +15,7 @@ from .plan import RunPlan
 from .state import PartRecord, RunState, StageRecord
 from .store import (
     FRAMES_NAME,
+    is_url,
     publish_table,
     sync_filesystem,
     write_parquet_atomic,
@@ -49,7 +51,11 @@ class Journal:
     def flush(self) -> None:
         if not self.outcomes:
             return
-        sync_filesystem(self.plan.rundir)  # workers' chunks on disk before they are recorded
+        # workers' chunks on disk before they are recorded; an object store's PUTs are
+        # durable once they return
+        sync_filesystem(self.plan.rundir)
+        if self.plan.products and not is_url(self.plan.products):
+            sync_filesystem(Path(self.plan.products))
         rows: dict[str, list[pa.Table]] = {name: [] for name in self.schemas}
         for outcome in self.outcomes:
             for stage_out in outcome.completed:

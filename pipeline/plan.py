@@ -48,6 +48,12 @@ class RunPlan:
     image_shape: tuple[int, int] | None
     input_hashes: dict[str, tuple[str, str]]
     stage_package: str = "stages"
+    products: str = ""  # products root (directory or fsspec URL); empty: the run directory
+
+    @property
+    def products_root(self) -> str:
+        """Where workers write array products and files."""
+        return self.products or str(self.rundir)
 
     def counts(self) -> dict[str, dict[str, int]]:
         out: dict[str, dict[str, int]] = {}
@@ -165,11 +171,13 @@ def plan_run(
     frames: str | None = None,
     stage_package: str | None = None,
     state: RunState | None = None,
+    products: str = "",
 ) -> RunPlan:
     """Validate everything and work out what must run.
 
     With ``state`` (the run's writable journal) newly computed input hashes are remembered;
-    without it the run directory is only read.
+    without it the run directory is only read. ``products`` is the canonical products root
+    when it is not the run directory (see :func:`pipeline.store.coerce_products_root`).
     """
     catalog, graph, params, selected = validate_request(
         catalog_path, overrides, frames, stage_package
@@ -215,6 +223,7 @@ def plan_run(
         image_shape=image_shape,
         input_hashes=hashes,
         stage_package=stage_package_name(stage_package),
+        products=products,
     )
 
 
@@ -222,7 +231,8 @@ def format_plan(plan: RunPlan) -> str:
     """The dry-run table: per stage, how many frames are new, changed, failed or done."""
     lines = [
         f"catalog {plan.catalog.source} ({plan.catalog.name}), {len(plan.frames)} frames "
-        f"selected, run directory {plan.rundir}",
+        f"selected, run directory {plan.rundir}"
+        + (f", products at {plan.products}" if plan.products else ""),
         f"{'stage':<12}{'new':>8}{'changed':>9}{'failed':>8}{'done':>8}",
     ]
     for stage, row in plan.counts().items():

@@ -59,7 +59,14 @@ import pyarrow.parquet as pq
 
 from .errors import ParamError, RunDirError
 from .lock import lock_holder
-from .store import FRAMES_NAME, ZARR_NAME, atomic_write_bytes, published_path
+from .store import (
+    FRAMES_NAME,
+    atomic_write_bytes,
+    open_products_group,
+    products_root,
+    published_path,
+    zarr_location,
+)
 
 __all__ = [
     "VIEWS",
@@ -445,9 +452,9 @@ def frame_dataset(rundir: str | os.PathLike[str], frame_id: str) -> Any:
     meta = _load_run_json(path)
     if not isinstance(frame_id, str):
         raise TypeError(f"frame_id must be a str, got {type(frame_id).__name__}")
-    store = path / ZARR_NAME
-    if not store.exists():
-        raise RunDirError(f"{path} has no {ZARR_NAME}; the run wrote no array products yet")
+    store = zarr_location(products_root(path, meta))
+    if open_products_group(products_root(path, meta)) is None:
+        raise RunDirError(f"{store} does not exist; the run wrote no array products yet")
     data = xr.open_zarr(store)
     frames = [str(f) for f in data["frame"].values]
     if frame_id not in frames:

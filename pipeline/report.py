@@ -27,7 +27,6 @@ import json
 import math
 import os
 import statistics
-import warnings
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -39,7 +38,7 @@ from . import _report_figures as figs
 from ._report_html import Raw, esc, fmt, html_table, key_values, page, png_img, stat_cards
 from .errors import ParamError
 from .query import RunInfo, load_runs, open_runs
-from .store import ZARR_NAME
+from .store import open_products_group, products_root
 
 __all__ = ["REPORT_NAME", "build_report", "render_report"]
 
@@ -340,14 +339,7 @@ def _rocks(run: RunInfo, frames: pa.Table, desc: pa.Table) -> str:
 
 
 def _open_products(run: RunInfo) -> Any:
-    store = run.path / ZARR_NAME
-    if not store.exists():
-        return None
-    import zarr
-
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        return zarr.open_group(store, mode="r")
+    return open_products_group(products_root(run.path, run.meta))
 
 
 def _rock_table(rows: Sequence[Mapping[str, Any]]) -> str:
@@ -410,15 +402,13 @@ def _frames(run: RunInfo, frames: pa.Table, desc: pa.Table, max_frames: int) -> 
             )
         if row.get("notes"):
             body.append(f'<p class="note">notes: {esc(row["notes"])}</p>')
-        images = {}
-        if fid in frame_index or (run.path / "quicklooks" / fid).is_dir():
-            images = figs.frame_quicklooks(
-                run.path,
-                fid,
-                frame_index.get(fid, -1),
-                products=products if fid in frame_index else None,
-                range_step_m=step,
-            )
+        images = figs.frame_quicklooks(
+            products_root(run.path, run.meta),
+            fid,
+            frame_index.get(fid, -1),
+            products=products if fid in frame_index else None,
+            range_step_m=step,
+        )
         if images:
             body.append('<div class="quicklooks">')
             for name, caption in figs.QUICKLOOKS.items():

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from .errors import RunDirError, StoreError
+from .errors import ParamError, RunDirError, StoreError
 from .executor import open_executor
 from .journal import Journal, publish, stage_attrs, write_frames_table
 from .lock import RunLock
@@ -19,7 +19,13 @@ from .plan import RunPlan, default_rundir, plan_run, validate_request
 from .provenance import environment, new_run_id, now_iso
 from .stage import FrameContext
 from .state import RunState
-from .store import atomic_write_bytes, ensure_zarr, remove_orphan_temp_files
+from .store import (
+    atomic_write_bytes,
+    coerce_products_root,
+    ensure_zarr,
+    is_url,
+    remove_orphan_temp_files,
+)
 from .worker import FrameJob, FrameOutcome, process_frame
 
 __all__ = ["RunSummary", "run", "load_run_json", "RUN_JSON"]
@@ -54,24 +60,38 @@ def run(
     dry_run: bool = False,
     progress: Callable[[int, int, str], None] | None = None,
     stage_package: str | None = None,
+    products: str | os.PathLike[str] | None = None,
 ) -> RunSummary | RunPlan:
     """Run (or with ``dry_run`` only plan) a catalog into a run directory.
 
-    Returns the RunPlan for a dry run, else a RunSummary whose ``exit_code`` is 1 when some
-    frames failed. Raises CatalogError / ParamError before any work, RunLockedError when
-    another run holds the directory, StoreError when products cannot be written.
+    ``products`` puts the array products and quicklooks under another directory (a shared
+    filesystem) or an fsspec URL (``s3://bucket/prefix``) that every worker can reach; the
+    journal and tables stay in the run directory. It is recorded in ``run.json``, so a
+    resumed run finds it without the option. Returns the RunPlan for a dry run, else a
+    RunSummary whose ``exit_code`` is 1 when some frames failed. Raises CatalogError /
+    ParamError before any work, RunDirError when ``products`` differs from the root the run
+    directory already uses, RunLockedError when another run holds the directory, StoreError
+    when products cannot be written.
     """
-    if dry_run:
-        return plan_run(
-            catalog_path, out, overrides=overrides, frames=frames, stage_package=stage_package
-        )
     catalog, *_ = validate_request(
         catalog_path, overrides, frames, stage_package
     )  # before touching disk
     rundir = Path(out) if out is not None else default_rundir(catalog)
+    root = _resolve_products(rundir, products)
+    if dry_run:
+        return plan_run(
+            catalog_path,
+            rundir,
+            overrides=overrides,
+            frames=frames,
+            stage_package=stage_package,
+            products=root,
+        )
     rundir.mkdir(parents=True, exist_ok=True)
     with RunLock(rundir):
         remove_orphan_temp_files(rundir)
+        if root and not is_url(root):
+            remove_orphan_temp_files(Path(root))
         state = RunState(rundir)
         try:
             plan = plan_run(
@@ -81,10 +101,35 @@ def run(
                 frames=frames,
                 stage_package=stage_package,
                 state=state,
+                products=root,
             )
             return _execute(plan, state, workers=workers, scheduler=scheduler, progress=progress)
         finally:
             state.close()
+
+
+def _resolve_products(rundir: Path, requested: str | os.PathLike[str] | None) -> str:
+    """The products root of this run: '' for the run directory itself, else the canonical
+    directory or URL. A run directory keeps the root it started with, since its journal
+    records frames whose products are there."""
+    recorded = ""
+    if (rundir / RUN_JSON).is_file():
+        recorded = load_run_json(rundir).get("products") or ""
+    if requested is None:
+        return recorded
+    try:
+        wanted = coerce_products_root(requested)
+    except ValueError as exc:
+        raise ParamError(f"--products: {exc}") from None
+    if not is_url(wanted) and Path(wanted) == rundir.resolve():
+        wanted = ""
+    if (rundir / RUN_JSON).is_file() and wanted != recorded:
+        raise RunDirError(
+            f"{rundir} keeps its products in {recorded or 'the run directory'}, not "
+            f"{wanted or 'the run directory'}; rerun without --products to resume there, or "
+            "give a new --out for products elsewhere"
+        )
+    return wanted
 
 
 def _prepare_store(plan: RunPlan, state: RunState) -> dict[str, tuple[tuple[int, ...], str]]:
@@ -101,7 +146,7 @@ def _prepare_store(plan: RunPlan, state: RunState) -> dict[str, tuple[tuple[int,
                     stage_attrs(plan, stage.name, product.attrs),
                 )
     frame_ids = [f.frame_id for f in plan.catalog.frames]
-    recreated = ensure_zarr(plan.rundir, frame_ids, arrays)
+    recreated = ensure_zarr(plan.products_root, frame_ids, arrays)
     if recreated:
         stages = {plan.graph.producer[name] for name in recreated}
         redo = plan.graph.downstream(stages)
@@ -126,6 +171,7 @@ def _run_json(plan: RunPlan, run_id: str, scheduler: str, started: str) -> dict[
         "started": started,
         "finished": None,
         "scheduler": scheduler,
+        "products": plan.products or None,
         "catalog": {
             "source": str(Path(catalog.source).resolve()),
             "path": str(Path(catalog.path).resolve()),
@@ -184,6 +230,8 @@ def _execute(
             ),
             expected=expected,
             stage_package=plan.stage_package,
+            products=plan.products,
+            run_id=run_id,
         )
         for f in pending
     )

@@ -10,7 +10,7 @@ import pyarrow.parquet as pq
 
 from .errors import RunDirError
 from .state import STATE_NAME, RunState
-from .store import file_sha256, frame_checksum, read_frame_array
+from .store import file_sha256, frame_checksum, products_root, read_frame_array
 
 __all__ = ["RunStatus", "status", "format_status"]
 
@@ -45,7 +45,7 @@ def status(rundir: str | os.PathLike[str], *, verify: bool = False) -> RunStatus
     try:
         damaged: list[str] = []
         if verify:
-            damaged = _verify(rundir, state, index, stages)
+            damaged = _verify(rundir, products_root(rundir, meta), state, index, stages)
         done = state.done()
         failed = state.failed()
     finally:
@@ -77,7 +77,9 @@ def status(rundir: str | os.PathLike[str], *, verify: bool = False) -> RunStatus
     )
 
 
-def _verify(rundir: Path, state: RunState, index: dict[str, int], stages: list[str]) -> list[str]:
+def _verify(
+    rundir: Path, root: str, state: RunState, index: dict[str, int], stages: list[str]
+) -> list[str]:
     """Recompute checksums of recorded arrays and Parquet parts; forget damaged results."""
     damaged: list[str] = []
     forget: set[tuple[str, str]] = set()
@@ -92,7 +94,7 @@ def _verify(rundir: Path, state: RunState, index: dict[str, int], stages: list[s
             continue
         for name, expected in record.checksums.items():
             try:
-                actual = frame_checksum(read_frame_array(rundir, name, index[fid]))
+                actual = frame_checksum(read_frame_array(root, name, index[fid]))
             except Exception as exc:  # noqa: BLE001 - any read failure is damage
                 actual = f"unreadable: {exc}"
             if actual != expected:

@@ -4,6 +4,7 @@ Layout under RUNDIR::
 
     products.zarr/                 zarr v3 group; one array per array product, dims
                                    (frame, ...); chunks: one frame x tiles; coordinate `frame`
+    quicklooks/<frame_id>/*.png    loose files of ``files`` products
     .staging/<product>/<part>.parquet   table rows as frames finish (internal)
     <product>.parquet -> .published/<product>-<generation>/   published, hive-partitioned by
                                    archive; swapped atomically (symlink) at the end of a run
@@ -12,6 +13,13 @@ Layout under RUNDIR::
 Every file is written to a temporary name in its final directory, fsynced, then renamed, so
 a reader never sees half a file. Zarr arrays are created once by the driver; workers only
 write whole chunk-aligned frame slabs of existing arrays.
+
+The array products and loose files (what workers write) may live elsewhere than the run
+directory: a *products root* is either a local directory (a shared filesystem) or an fsspec
+URL such as ``s3://bucket/prefix``; the run records it in ``run.json`` (``products``) and every
+reader goes through :func:`products_root`. On an object store each chunk or file is one PUT,
+which is atomic, so no temporaries are involved. The journal, staged parts and published
+tables stay in the run directory, which only the driver writes.
 """
 
 from __future__ import annotations
@@ -45,6 +53,13 @@ from .stage import Product
 
 __all__ = [
     "ZARR_NAME",
+    "is_url",
+    "coerce_products_root",
+    "products_root",
+    "zarr_location",
+    "open_products_group",
+    "write_product_file",
+    "read_product_file",
     "FRAMES_NAME",
     "tile_chunks",
     "compressor_for",
@@ -152,13 +167,112 @@ def remove_orphan_temp_files(rundir: Path) -> int:
     return removed
 
 
+# -- where products live ------------------------------------------------------------------
+def is_url(root: str | os.PathLike[str]) -> bool:
+    """Whether a products root is an fsspec URL (``s3://...``) rather than a local path."""
+    return "://" in str(root)
+
+
+def coerce_products_root(root: str | os.PathLike[str]) -> str:
+    """Validate a products root given by a user; return its canonical form.
+
+    A local path is made absolute (workers may run elsewhere in the tree); a URL must name
+    a protocol fsspec knows and whose implementation is installed (``s3://`` needs
+    ``s3fs``). Raises ValueError otherwise.
+    """
+    if not isinstance(root, str | os.PathLike):
+        raise TypeError(
+            f"the products root must be a path or URL string, got {type(root).__name__}"
+        )
+    text = str(root)
+    if not text.strip():
+        raise ValueError("the products root is empty; give a directory or a URL like s3://b/p")
+    if not is_url(text):
+        return str(Path(text).expanduser().resolve())
+    import fsspec
+
+    protocol = text.split("://", 1)[0]
+    try:
+        fsspec.get_filesystem_class(protocol)
+    except ValueError:
+        raise ValueError(
+            f"unknown storage protocol {protocol!r} in products URL {text!r}; expected one "
+            f"fsspec knows (s3, gcs, abfs, file...), see fsspec.available_protocols()"
+        ) from None
+    except ImportError as exc:
+        raise ValueError(
+            f"products URL {text!r} needs the {protocol!r} filesystem, which is not "
+            f"installed ({exc}); install it (for s3: pip install s3fs) and rerun"
+        ) from None
+    return text.rstrip("/")
+
+
+def products_root(rundir: str | os.PathLike[str], meta: Mapping[str, Any] | None = None) -> str:
+    """Where a run's array products and files live: ``run.json``'s ``products`` (``meta``),
+    else the run directory itself."""
+    recorded = (meta or {}).get("products")
+    return str(recorded) if recorded else str(rundir)
+
+
+def zarr_location(root: str | os.PathLike[str]) -> str:
+    """``products.zarr`` under a products root, as zarr and xarray accept it."""
+    text = str(root)
+    return f"{text.rstrip('/')}/{ZARR_NAME}" if is_url(text) else str(Path(text) / ZARR_NAME)
+
+
+def _remote(url: str) -> tuple[Any, str]:
+    import fsspec.core
+
+    fs, path = fsspec.core.url_to_fs(url)
+    return fs, path
+
+
+def open_products_group(root: str | os.PathLike[str]) -> zarr.Group | None:
+    """The run's product group, read-only; None when the run wrote no array yet."""
+    location = zarr_location(root)
+    if is_url(location):
+        fs, path = _remote(location)
+        if not fs.exists(f"{path}/zarr.json"):
+            return None
+    elif not Path(location, "zarr.json").is_file():
+        return None
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", zarr.errors.ZarrUserWarning)
+        return zarr.open_group(location, mode="r")
+
+
+def write_product_file(root: str | os.PathLike[str], rel: str, content: bytes) -> None:
+    """Write a loose product file (a quicklook) under a products root.
+
+    Locally through a temporary and a rename, flushed later by the driver's
+    :func:`sync_filesystem`; on an object store as one PUT, atomic by itself.
+    """
+    if is_url(root):
+        fs, path = _remote(f"{str(root).rstrip('/')}/{rel}")
+        fs.pipe_file(path, content)
+    else:
+        atomic_write_bytes(Path(root) / rel, content, durable=False)
+
+
+def read_product_file(root: str | os.PathLike[str], rel: str) -> bytes | None:
+    """A loose product file's bytes, or None when it does not exist."""
+    if is_url(root):
+        fs, path = _remote(f"{str(root).rstrip('/')}/{rel}")
+        try:
+            return bytes(fs.cat_file(path))
+        except FileNotFoundError:
+            return None
+    local = Path(root) / rel
+    return local.read_bytes() if local.is_file() else None
+
+
 # -- zarr ---------------------------------------------------------------------------------
-def _zarr_path(rundir: Path) -> Path:
+def _zarr_path(rundir: str | os.PathLike[str]) -> Path:
     return Path(rundir) / ZARR_NAME
 
 
 def ensure_zarr(
-    rundir: Path,
+    root: str | os.PathLike[str],
     frame_ids: Sequence[str],
     arrays: Mapping[str, tuple[Product, tuple[int, ...], Mapping[str, Any]]],
 ) -> set[str]:
@@ -166,6 +280,8 @@ def ensure_zarr(
 
     Parameters
     ----------
+    root : path or str
+        The products root: the run directory, another directory, or an fsspec URL.
     frame_ids : sequence of str
         All frames of the catalog, in order (the ``frame`` coordinate).
     arrays : mapping
@@ -177,7 +293,7 @@ def ensure_zarr(
         Arrays that existed with another per-frame shape (a parameter changed it) and were
         recreated empty; their stage must be redone for every frame.
     """
-    path = _zarr_path(rundir)
+    path = zarr_location(root)
     group = zarr.open_group(path, mode="a")
     n = len(frame_ids)
     ids = np.array(list(frame_ids), dtype=str)
@@ -225,7 +341,7 @@ def ensure_zarr(
         # Consolidated metadata is what lets `xarray.open_zarr(path)` open the store without
         # arguments; zarr warns that v3 has not standardised it yet.
         warnings.simplefilter("ignore", zarr.errors.ZarrUserWarning)
-        zarr.consolidate_metadata(str(path))
+        zarr.consolidate_metadata(path)
     return recreated
 
 
@@ -368,14 +484,21 @@ def _replace_file(path: Path, data: bytes) -> None:
         raise
 
 
-def write_frame_array(rundir: Path, name: str, index: int, data: np.ndarray) -> str:
+def write_frame_array(
+    root: str | os.PathLike[str], name: str, index: int, data: np.ndarray, *, token: str = ""
+) -> str:
     """Write one frame's slab of an array product; return its checksum.
 
-    The chunk files reach the disk when the driver calls :func:`sync_filesystem` before it
-    records the frame as complete (one flush per batch instead of one per chunk file).
+    Local chunk files reach the disk when the driver calls :func:`sync_filesystem` before it
+    records the frame as complete (one flush per batch instead of one per chunk file); on an
+    object store zarr PUTs each chunk. ``token`` (the run id) keys the cached handles of
+    remote arrays, whose metadata cannot be checked for changes as cheaply as a local file's.
     """
-    path = _zarr_path(rundir) / name
-    array = _open_array(path, "r+")
+    if is_url(root):
+        array = _remote_array(f"{zarr_location(root)}/{name}", token)
+    else:
+        path = _zarr_path(root) / name
+        array = _open_array(path, "r+")
     if tuple(array.shape[1:]) != data.shape or array.dtype != data.dtype:
         raise ValueError(
             f"product {name!r} expects per-frame shape {tuple(array.shape[1:])} and dtype "
@@ -383,7 +506,7 @@ def write_frame_array(rundir: Path, name: str, index: int, data: np.ndarray) -> 
         )
     if not 0 <= index < array.shape[0]:
         raise IndexError(f"frame index {index} outside product {name!r} of {array.shape[0]}")
-    writer = _slab_writer(path)
+    writer = None if is_url(root) else _slab_writer(path)
     if writer is not None:
         writer.write(index, data)
     else:
@@ -391,9 +514,19 @@ def write_frame_array(rundir: Path, name: str, index: int, data: np.ndarray) -> 
     return frame_checksum(data)
 
 
-def read_frame_array(rundir: Path, name: str, index: int) -> np.ndarray:
-    array = _open_array(_zarr_path(rundir) / name, "r")
+def read_frame_array(
+    root: str | os.PathLike[str], name: str, index: int, *, token: str = ""
+) -> np.ndarray:
+    if is_url(root):
+        array = _remote_array(f"{zarr_location(root)}/{name}", token)
+    else:
+        array = _open_array(_zarr_path(root) / name, "r")
     return np.asarray(array[index])
+
+
+@functools.lru_cache(maxsize=64)
+def _remote_array(url: str, _token: str) -> zarr.Array:
+    return zarr.open_array(url, mode="r+")
 
 
 def sync_filesystem(path: Path) -> None:

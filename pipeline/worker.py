@@ -18,7 +18,7 @@ import numpy as np
 
 from .errors import FrameError
 from .stage import FrameContext, Stage, StageResult
-from .store import atomic_write_bytes, is_disk_full, read_frame_array, write_frame_array
+from .store import is_disk_full, read_frame_array, write_frame_array, write_product_file
 
 __all__ = ["FrameJob", "StageOutcome", "FrameOutcome", "process_frame", "process_batch"]
 
@@ -33,6 +33,8 @@ class FrameJob:
     stages: tuple[tuple[str, dict[str, Any], str], ...]  # (stage, params, key) in order
     expected: dict[str, tuple[tuple[int, ...], str]]  # array product -> (shape, dtype)
     stage_package: str = "stages"
+    products: str = ""  # products root (directory or fsspec URL); empty: the run directory
+    run_id: str = ""
 
 
 @dataclass
@@ -105,7 +107,7 @@ def process_frame(job: FrameJob) -> FrameOutcome:
     """Run the job's stages on one frame, writing arrays and files as each stage finishes."""
     _limit_threads()
     stages = _stages(job.stage_package)
-    rundir = Path(job.rundir)
+    root = job.products or job.rundir
     ctx = job.context
     outcome = FrameOutcome(frame_id=ctx.frame_id, index=job.index)
     produced: dict[str, np.ndarray] = {}
@@ -117,7 +119,7 @@ def process_frame(job: FrameJob) -> FrameOutcome:
                 if name in produced:
                     inputs[name] = produced[name]
                 elif name in job.expected:
-                    inputs[name] = read_frame_array(rundir, name, job.index)
+                    inputs[name] = read_frame_array(root, name, job.index, token=job.run_id)
             start = time.perf_counter()
             result = stage.run(inputs, frame=ctx, params=dict(params))
             seconds = time.perf_counter() - start
@@ -131,15 +133,15 @@ def process_frame(job: FrameJob) -> FrameOutcome:
                 if product.kind == "array":
                     data = result.arrays[product.name]
                     checksums[product.name] = write_frame_array(
-                        rundir, product.name, job.index, data
+                        root, product.name, job.index, data, token=job.run_id
                     )
                     produced[product.name] = data
             for rel, content in result.files.items():
-                atomic_write_bytes(rundir / rel, content, durable=False)
+                write_product_file(root, rel, content)
         except Exception as exc:
             if is_disk_full(exc):
                 outcome.fatal = (
-                    f"cannot write products of frame {ctx.frame_id!r} under {rundir}: "
+                    f"cannot write products of frame {ctx.frame_id!r} under {root}: "
                     f"{exc.strerror} (errno {exc.errno}); free space and rerun: finished "  # type: ignore[attr-defined]
                     "frames are kept"
                 )

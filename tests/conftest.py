@@ -1,8 +1,12 @@
-"""Shared fixtures: small on-disk archives of PNG stereo pairs with a catalog."""
+"""Shared fixtures: small on-disk archives of PNG stereo pairs with a catalog, and an S3
+object store on loopback for products at an fsspec URL."""
 
 from __future__ import annotations
 
+import logging
 import os
+import uuid
+from collections.abc import Iterator
 from pathlib import Path
 
 import cv2
@@ -50,3 +54,56 @@ def write_archive(
 @pytest.fixture
 def archive(tmp_path: Path) -> Path:
     return write_archive(tmp_path / "archive")
+
+
+def _forget_s3_clients() -> None:
+    """Close and drop the cached S3 filesystems.
+
+    fsspec caches filesystem instances, and with them an S3 client bound to the endpoint of
+    the moment (a later test's server listens on another port) and an aiohttp session that
+    warns when garbage-collected open. zarr's instances are asynchronous, on zarr's loop.
+    """
+    import fsspec.asyn
+    import s3fs
+    import zarr.core.sync
+
+    for fs in list(s3fs.S3FileSystem._cache.values()):
+        client = getattr(fs, "_s3", None)
+        if client is None:
+            continue
+        if fs.asynchronous:
+            zarr.core.sync.sync(client.close())
+        else:
+            fsspec.asyn.sync(fs.loop, client.close)
+    s3fs.S3FileSystem.clear_instance_cache()
+
+
+@pytest.fixture
+def s3_products(monkeypatch: pytest.MonkeyPatch) -> Iterator[str]:
+    """A new bucket on a moto S3 server on 127.0.0.1; yields ``s3://<bucket>/products``.
+
+    The AWS variables point every S3 client at the server, also those of processes started
+    afterwards (a test's dask workers inherit them), as a user's environment would.
+    """
+    import fsspec
+    from moto.server import ThreadedMotoServer
+
+    logging.getLogger("werkzeug").setLevel(logging.ERROR)  # no line per request
+    server = ThreadedMotoServer(ip_address="127.0.0.1", port=0, verbose=False)
+    server.start()
+    host, port = server.get_host_and_port()
+    for name, value in {
+        "AWS_ACCESS_KEY_ID": "testing",
+        "AWS_SECRET_ACCESS_KEY": "testing",
+        "AWS_DEFAULT_REGION": "us-east-1",
+        "AWS_ENDPOINT_URL": f"http://{host}:{port}",
+    }.items():
+        monkeypatch.setenv(name, value)
+    _forget_s3_clients()
+    bucket = f"arroyo-test-{uuid.uuid4().hex[:8]}"  # moto's buckets outlive its server
+    try:
+        fsspec.filesystem("s3").mkdir(bucket)
+        yield f"s3://{bucket}/products"
+    finally:
+        _forget_s3_clients()
+        server.stop()

@@ -72,3 +72,14 @@ def test_disk_full_exits_4_with_a_message(archive, tmp_path, capsys, monkeypatch
     out = tmp_path / "run"
     assert main(["run", str(archive), "--out", str(out), "--scheduler", "synchronous"]) == 4
     assert "No space left" in capsys.readouterr().err
+
+
+def test_products_option_places_products_and_a_bad_url_exits_2(archive, tmp_path, capsys):
+    out, shared = tmp_path / "run", tmp_path / "shared"
+    argv = ["run", str(archive), "--out", str(out), "--scheduler", "synchronous"]
+    assert main([*argv, "--products", str(shared)]) == 0
+    assert (shared / "products.zarr").is_dir()
+    assert main([*argv, "--dry-run"]) == 0
+    assert f"products at {shared}" in capsys.readouterr().out
+    assert main([*argv, "--products", "nosuch://bucket/x"]) == 2
+    assert "unknown storage protocol 'nosuch'" in capsys.readouterr().err

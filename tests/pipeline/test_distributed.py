@@ -92,6 +92,16 @@ def _stop(process: subprocess.Popen) -> None:
 @pytest.fixture
 def cluster(tmp_path: Path) -> Iterator[_Cluster]:
     """``dask scheduler`` on 127.0.0.1 (free port) and two single-thread ``dask worker``s."""
+    yield from _start_cluster(tmp_path)
+
+
+@pytest.fixture
+def s3_cluster(s3_products: str, tmp_path: Path) -> Iterator[_Cluster]:
+    """The same cluster, started after the S3 server so the workers inherit its address."""
+    yield from _start_cluster(tmp_path)
+
+
+def _start_cluster(tmp_path: Path) -> Iterator[_Cluster]:
     import json
 
     from distributed import Client
@@ -159,8 +169,10 @@ def _nan_as_text(value: object) -> object:
     return "NaN" if isinstance(value, float) and math.isnan(value) else value
 
 
-def _snapshot(out: Path, tables: tuple[str, ...]) -> tuple[dict[str, np.ndarray], dict]:
-    group = zarr.open_group(out / "products.zarr", mode="r")
+def _snapshot(
+    out: Path, tables: tuple[str, ...], products: str | None = None
+) -> tuple[dict[str, np.ndarray], dict]:
+    group = zarr.open_group(products or out / "products.zarr", mode="r")
     arrays = {name: np.asarray(arr[:]) for name, arr in group.arrays()}
     rows = {}
     for name in tables:
@@ -171,9 +183,11 @@ def _snapshot(out: Path, tables: tuple[str, ...]) -> tuple[dict[str, np.ndarray]
     return arrays, rows
 
 
-def _assert_same_products(a: Path, b: Path, tables: tuple[str, ...]) -> None:
+def _assert_same_products(
+    a: Path, b: Path, tables: tuple[str, ...], *, b_products: str | None = None
+) -> None:
     arrays_a, rows_a = _snapshot(a, tables)
-    arrays_b, rows_b = _snapshot(b, tables)
+    arrays_b, rows_b = _snapshot(b, tables, b_products)
     assert arrays_a.keys() == arrays_b.keys()
     for name in arrays_a:
         # bit for bit: NaN payloads and -0.0 included
@@ -199,6 +213,25 @@ def test_cluster_run_equals_local_synchronous_run(cluster, tmp_path):
     _assert_same_products(local, remote, ("tallies",))
     assert set(_statuses(remote).values()) == {"done"}
     assert cluster.address in (remote / "run.json").read_text()
+
+
+@pytest.mark.slow
+def test_cluster_run_with_products_on_s3_equals_a_local_run(s3_cluster, s3_products, tmp_path):
+    import fsspec
+
+    catalog = write_archive(tmp_path / "archive", frames=6, shape=(64, 72))
+    local, remote = tmp_path / "local", tmp_path / "remote"
+    run(catalog, local, scheduler="synchronous", stage_package=FAKE)
+    summary = run(
+        catalog, remote, scheduler=s3_cluster.address, stage_package=FAKE, products=s3_products
+    )
+    assert (summary.done, summary.failed, summary.pending) == (6, 0, 0)
+    assert not (remote / "products.zarr").exists()
+    _assert_same_products(
+        local, remote, ("tallies",), b_products=f"{s3_products}/products.zarr"
+    )
+    note = fsspec.filesystem("s3").cat_file(f"{s3_products}/quicklooks/f004/note.txt")
+    assert note == (local / "quicklooks" / "f004" / "note.txt").read_bytes()
 
 
 @pytest.mark.slow

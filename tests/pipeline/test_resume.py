@@ -112,11 +112,11 @@ def test_disk_full_stops_cleanly_and_rerun_completes(archive, tmp_path, monkeypa
     real = pipeline.worker.write_frame_array
     calls = {"n": 0}
 
-    def flaky(rundir, name, index, data):
+    def flaky(root, name, index, data, **kw):
         calls["n"] += 1
         if calls["n"] > 5:
             raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
-        return real(rundir, name, index, data)
+        return real(root, name, index, data, **kw)
 
     monkeypatch.setattr(pipeline.worker, "write_frame_array", flaky)
     with pytest.raises(StoreError, match="No space left"):

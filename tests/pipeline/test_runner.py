@@ -11,11 +11,14 @@ import pyarrow.dataset as ds
 import pyarrow.parquet as pq
 import pytest
 import xarray as xr
+import zarr
 
-from pipeline.errors import ParamError, RunLockedError
+from pipeline.errors import ParamError, RunDirError, RunLockedError
 from pipeline.lock import RunLock
 from pipeline.plan import RunPlan
+from pipeline.query import frame_dataset
 from pipeline.runner import run
+from pipeline.status import status
 
 FAKE = "arroyo_fake_stages"
 
@@ -127,3 +130,70 @@ def test_frames_pattern_restricts_the_run(archive, tmp_path):
     assert summary.done == 2
     statuses = pq.read_table(out / "frames.parquet")["status"].to_pylist()
     assert statuses == ["done", "done", "pending", "pending"]
+
+
+# -- products elsewhere: a shared directory or an fsspec URL ---------------------------------
+def _arrays(location: str) -> dict[str, bytes]:
+    group = zarr.open_group(location, mode="r")
+    return {name: np.asarray(array[:]).tobytes() for name, array in group.arrays()}
+
+
+def test_products_in_another_directory_are_found_on_resume(archive, tmp_path):
+    plain, out, shared = tmp_path / "plain", tmp_path / "run", tmp_path / "shared"
+    _run(archive, plain)
+    summary = _run(archive, out, products=shared)
+    assert (summary.done, summary.failed) == (4, 0)
+    assert not (out / "products.zarr").exists() and (shared / "products.zarr").is_dir()
+    assert (shared / "quicklooks" / "f001" / "note.txt").is_file()
+    assert _arrays(str(shared / "products.zarr")) == _arrays(str(plain / "products.zarr"))
+    meta = json.loads((out / "run.json").read_text())
+    assert meta["products"] == str(shared.resolve())
+    # resuming without the option uses the recorded root: nothing to redo
+    plan = run(archive, out, stage_package=FAKE, dry_run=True)
+    assert isinstance(plan, RunPlan) and plan.products == str(shared.resolve())
+    assert all(not todo for todo in plan.todo.values())
+    frame = frame_dataset(out, "f002")
+    np.testing.assert_array_equal(frame.left.values, xr.open_zarr(plain / "products.zarr").left[2])
+
+
+def test_resuming_with_another_products_root_is_refused(archive, tmp_path):
+    out = tmp_path / "run"
+    _run(archive, out)
+    with pytest.raises(RunDirError, match="keeps its products in the run directory"):
+        _run(archive, out, products=tmp_path / "elsewhere")
+    # naming the run directory itself is the same root
+    assert _run(archive, out, products=out).done == 4
+
+
+def test_products_url_with_an_unknown_protocol_is_a_param_error(archive, tmp_path):
+    with pytest.raises(ParamError, match="unknown storage protocol 'nosuch'"):
+        _run(archive, tmp_path / "run", products="nosuch://bucket/run")
+    assert not (tmp_path / "run").exists()  # refused before touching disk
+
+
+def test_products_on_s3_equal_a_local_run_and_every_reader_finds_them(
+    archive, tmp_path, s3_products
+):
+    import fsspec
+
+    local, out = tmp_path / "local", tmp_path / "run"
+    _run(archive, local)
+    summary = _run(archive, out, products=s3_products)
+    assert (summary.done, summary.failed) == (4, 0)
+    assert not (out / "products.zarr").exists()
+    assert _arrays(f"{s3_products}/products.zarr") == _arrays(str(local / "products.zarr"))
+    s3 = fsspec.filesystem("s3")
+    note = s3.cat_file(f"{s3_products}/quicklooks/f001/note.txt")
+    assert note == (local / "quicklooks" / "f001" / "note.txt").read_bytes()
+    # readers: one frame's maps, checksum verification, the tables stay local
+    frame = frame_dataset(out, "f003")
+    expected = xr.open_zarr(local / "products.zarr").blend[3]
+    np.testing.assert_array_equal(frame.blend.values, expected)
+    verified = status(out, verify=True)
+    assert verified.damaged == [] and verified.per_stage["tally"]["done"] == 4
+    assert pq.read_table(out / "tallies.parquet").num_rows == 12
+    # a resumed run with changed parameters rewrites the frames in the bucket
+    _run(archive, out, overrides=["blend.weight=0.25"])
+    data = xr.open_zarr(f"{s3_products}/products.zarr")
+    left, right = data.left.values[0].astype(np.float32), data.right.values[0].astype(np.float32)
+    np.testing.assert_allclose(data.blend.values[0], left * 0.25 + right * 0.75)

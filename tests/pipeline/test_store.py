@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import uuid
 import warnings
 from pathlib import Path
 
@@ -13,11 +14,16 @@ from zarr.codecs import BloscCodec, ZstdCodec
 import pipeline.store
 from pipeline.stage import Product
 from pipeline.store import (
+    coerce_products_root,
     compressor_for,
     ensure_zarr,
+    products_root,
     read_frame_array,
+    read_product_file,
     remove_orphan_temp_files,
     write_frame_array,
+    write_product_file,
+    zarr_location,
 )
 
 _FRAMES = 4
@@ -158,3 +164,37 @@ def test_orphan_partial_files_of_killed_writes_are_removed(tmp_path):
     orphan.write_bytes(b"half a chunk")
     assert remove_orphan_temp_files(tmp_path) == 1
     assert not orphan.exists()
+
+
+# -- products roots ---------------------------------------------------------------------------
+def test_coerce_products_root_makes_local_paths_absolute_and_keeps_urls(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert coerce_products_root("shared/run1") == str(tmp_path / "shared" / "run1")
+    assert coerce_products_root("memory://bucket/prefix/") == "memory://bucket/prefix"
+    assert zarr_location("memory://b/p") == "memory://b/p/products.zarr"
+    assert zarr_location(tmp_path) == str(tmp_path / "products.zarr")
+    assert products_root(tmp_path, {"products": None}) == str(tmp_path)
+    assert products_root(tmp_path, {"products": "s3://b/p"}) == "s3://b/p"
+
+
+@pytest.mark.parametrize(
+    ("root", "error", "message"),
+    [
+        ("nosuch://b/p", ValueError, "unknown storage protocol 'nosuch'"),
+        ("   ", ValueError, "products root is empty"),
+        (42, TypeError, "path or URL string, got int"),
+    ],
+)
+def test_coerce_products_root_names_what_is_wrong(root, error, message):
+    with pytest.raises(error, match=message):
+        coerce_products_root(root)
+
+
+@pytest.mark.parametrize("kind", ["local", "url"])
+def test_product_files_round_trip_under_a_directory_or_an_fsspec_url(tmp_path, kind):
+    root = str(tmp_path) if kind == "local" else f"memory://arroyo-{uuid.uuid4().hex}"
+    assert read_product_file(root, "quicklooks/f1/objects.png") is None
+    write_product_file(root, "quicklooks/f1/objects.png", b"\x89PNG data")
+    assert read_product_file(root, "quicklooks/f1/objects.png") == b"\x89PNG data"
+    write_product_file(root, "quicklooks/f1/objects.png", b"again")  # replaced whole
+    assert read_product_file(root, "quicklooks/f1/objects.png") == b"again"
