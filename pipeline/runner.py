@@ -146,7 +146,15 @@ def _prepare_store(plan: RunPlan, state: RunState) -> dict[str, tuple[tuple[int,
                     stage_attrs(plan, stage.name, product.attrs),
                 )
     frame_ids = [f.frame_id for f in plan.catalog.frames]
-    recreated = ensure_zarr(plan.products_root, frame_ids, arrays)
+    try:
+        recreated = ensure_zarr(plan.products_root, frame_ids, arrays)
+    except Exception as exc:
+        if not is_url(plan.products_root) or isinstance(exc, RunDirError):
+            raise
+        raise StoreError(
+            f"cannot open the product store at {plan.products_root}: {type(exc).__name__}: "
+            f"{exc}; check the URL, credentials and network, then rerun"
+        ) from exc
     if recreated:
         stages = {plan.graph.producer[name] for name in recreated}
         redo = plan.graph.downstream(stages)

@@ -7,9 +7,11 @@ driver stops instead of failing every remaining frame.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import time
 import traceback
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -18,7 +20,13 @@ import numpy as np
 
 from .errors import FrameError
 from .stage import FrameContext, Stage, StageResult
-from .store import is_disk_full, read_frame_array, write_frame_array, write_product_file
+from .store import (
+    is_disk_full,
+    is_url,
+    read_frame_array,
+    write_frame_array,
+    write_product_file,
+)
 
 __all__ = ["FrameJob", "StageOutcome", "FrameOutcome", "process_frame", "process_batch"]
 
@@ -103,6 +111,21 @@ def _check_arrays(job: FrameJob, stage: Stage, result: StageResult) -> None:
             )
 
 
+class _StoreUnreachable(Exception):
+    """Reading or writing a remote products root failed: every other frame would fail alike,
+    so the run stops (as for a full disk) instead of recording each frame as failed."""
+
+
+@contextlib.contextmanager
+def _store_io(root: str, doing: str) -> Iterator[None]:
+    try:
+        yield
+    except Exception as exc:
+        if is_url(root):
+            raise _StoreUnreachable(f"{doing} {root} failed: {type(exc).__name__}: {exc}") from exc
+        raise
+
+
 def process_frame(job: FrameJob) -> FrameOutcome:
     """Run the job's stages on one frame, writing arrays and files as each stage finishes."""
     _limit_threads()
@@ -119,7 +142,8 @@ def process_frame(job: FrameJob) -> FrameOutcome:
                 if name in produced:
                     inputs[name] = produced[name]
                 elif name in job.expected:
-                    inputs[name] = read_frame_array(root, name, job.index, token=job.run_id)
+                    with _store_io(root, "reading"):
+                        inputs[name] = read_frame_array(root, name, job.index, token=job.run_id)
             start = time.perf_counter()
             result = stage.run(inputs, frame=ctx, params=dict(params))
             seconds = time.perf_counter() - start
@@ -129,16 +153,23 @@ def process_frame(job: FrameJob) -> FrameOutcome:
                 )
             _check_arrays(job, stage, result)
             checksums = {}
-            for product in stage.outputs:
-                if product.kind == "array":
-                    data = result.arrays[product.name]
-                    checksums[product.name] = write_frame_array(
-                        root, product.name, job.index, data, token=job.run_id
-                    )
-                    produced[product.name] = data
-            for rel, content in result.files.items():
-                write_product_file(root, rel, content)
+            with _store_io(root, "writing"):
+                for product in stage.outputs:
+                    if product.kind == "array":
+                        data = result.arrays[product.name]
+                        checksums[product.name] = write_frame_array(
+                            root, product.name, job.index, data, token=job.run_id
+                        )
+                        produced[product.name] = data
+                for rel, content in result.files.items():
+                    write_product_file(root, rel, content)
         except Exception as exc:
+            if isinstance(exc, _StoreUnreachable):
+                outcome.fatal = (
+                    f"products of frame {ctx.frame_id!r}: {exc}; check the URL, credentials "
+                    "and network, then rerun: finished frames are kept"
+                )
+                return outcome
             if is_disk_full(exc):
                 outcome.fatal = (
                     f"cannot write products of frame {ctx.frame_id!r} under {root}: "

@@ -9,6 +9,7 @@ import signal
 import subprocess
 import sys
 import time
+import uuid
 from pathlib import Path
 
 import numpy as np
@@ -16,6 +17,7 @@ import pyarrow.dataset as ds
 import pytest
 import zarr
 
+import pipeline.runner
 import pipeline.worker
 from conftest import write_archive
 from pipeline.errors import StoreError
@@ -127,6 +129,37 @@ def test_disk_full_stops_cleanly_and_rerun_completes(archive, tmp_path, monkeypa
     clean = tmp_path / "clean"
     _run(archive, clean)
     _assert_same_products(clean, out)
+
+
+def test_unreachable_product_store_stops_the_run_and_keeps_finished_frames(
+    archive, tmp_path, monkeypatch
+):
+    root = f"memory://arroyo-{uuid.uuid4().hex}"
+    out = tmp_path / "run"
+    real = pipeline.worker.write_product_file
+    calls = {"n": 0}
+
+    def outage(*args, **kw):
+        calls["n"] += 1
+        if calls["n"] > 2:  # the store goes away after two frames
+            raise ConnectionError("connection reset by peer")
+        return real(*args, **kw)
+
+    monkeypatch.setattr(pipeline.worker, "write_product_file", outage)
+    with pytest.raises(StoreError, match=f"writing {root} failed: ConnectionError"):
+        _run(archive, out, products=root)
+    assert status(out).per_stage["tally"] == {"done": 2, "failed": 0, "pending": 2}
+    monkeypatch.setattr(pipeline.worker, "write_product_file", real)
+    assert _run(archive, out).done == 4  # the rerun finds the recorded root
+
+
+def test_product_store_that_cannot_be_opened_is_a_store_error(archive, tmp_path, monkeypatch):
+    def refuse(*args, **kw):
+        raise ConnectionError("no route to host")
+
+    monkeypatch.setattr(pipeline.runner, "ensure_zarr", refuse)
+    with pytest.raises(StoreError, match="cannot open the product store at memory://x/y"):
+        _run(archive, tmp_path / "run", products="memory://x/y")
 
 
 def test_threads_scheduler_gives_the_same_products(archive, tmp_path):
