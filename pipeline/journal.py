@@ -131,46 +131,66 @@ def table_schema(schema: pa.Schema | None) -> pa.Schema:
 
 
 def write_frames_table(plan: RunPlan, state: RunState) -> None:
-    """``frames.parquet``: one row per catalog frame with status, error, timings, figures."""
-    done = state.done()
+    """``frames.parquet``: one row per catalog frame with status, error, timings, figures.
+
+    Built column by column while the completion records stream from the journal, so the
+    driver never holds every record (or a dict per row) at once: it rewrites this table
+    after every batch, and at 2,000 frames the record dicts alone were ~30 MB.
+    """
+    frames = plan.catalog.frames
+    n = len(frames)
+    stage_order = {s.name: k for k, s in enumerate(plan.graph.stages)}
     failed = state.failed()
-    rows = []
-    for i, frame in enumerate(plan.catalog.frames):
-        fid = frame.frame_id
-        keys = plan.keys.get(fid)
-        row: dict[str, Any] = {"frame_id": fid, "index": i}
-        complete = keys is not None and all(
-            (fid, s) in done and done[(fid, s)].key == k for s, k in keys.items()
-        )
-        if keys is None:  # not selected in this run: judge by what is recorded
-            complete = all((fid, s.name) in done for s in plan.graph.stages)
-        row["status"] = "failed" if fid in failed else ("done" if complete else "pending")
-        row["failed_stage"] = failed[fid][0] if fid in failed else None
-        row["error"] = failed[fid][1] if fid in failed else None
-        row["left"] = str(frame.left)
-        row["right"] = str(frame.right)
-        notes: list[str] = []
-        for stage in plan.graph.stages:
-            record = done.get((fid, stage.name))
-            row[f"{stage.name}_seconds"] = record.seconds if record else None
-            if record:
-                notes += record.notes
-                for name, value in record.figures.items():
-                    row[f"{stage.name}_{name}"] = value
-        row["notes"] = "; ".join(notes) or None
+    matching = [0] * n  # stages whose record is current (selected) or present (others)
+    notes: dict[int, list[tuple[int, list[str]]]] = {}
+    stage_columns: list[dict[str, list[Any]]] = [
+        {f"{s.name}_seconds": [None] * n} for s in plan.graph.stages
+    ]
+    for record in state.iter_done(integrity=False):
+        i = plan.indices.get(record.frame_id)
+        k = stage_order.get(record.stage)
+        if i is None or k is None:
+            continue
+        keys = plan.keys.get(record.frame_id)
+        if keys is None or keys.get(record.stage) == record.key:
+            matching[i] += 1
+        columns = stage_columns[k]
+        columns[f"{record.stage}_seconds"][i] = record.seconds
+        for name, value in record.figures.items():
+            columns.setdefault(f"{record.stage}_{name}", [None] * n)[i] = value
+        if record.notes:
+            notes.setdefault(i, []).append((k, record.notes))
+    n_stages = len(stage_order)
+    out: dict[str, list[Any]] = {
+        "frame_id": [f.frame_id for f in frames],
+        "index": list(range(n)),
+        "status": [
+            "failed" if f.frame_id in failed else ("done" if matching[i] == n_stages else "pending")
+            for i, f in enumerate(frames)
+        ],
+        "failed_stage": [failed[f.frame_id][0] if f.frame_id in failed else None for f in frames],
+        "error": [failed[f.frame_id][1] if f.frame_id in failed else None for f in frames],
+        "left": [str(f.left) for f in frames],
+        "right": [str(f.right) for f in frames],
+    }
+    for columns in stage_columns:
+        out.update(columns)
+    out["notes"] = [
+        "; ".join(note for _k, ns in sorted(notes[i], key=lambda x: x[0]) for note in ns)
+        if i in notes
+        else None
+        for i in range(n)
+    ]
+    taken = set(out)  # a catalog column never replaces one of the engine's
+    for i, frame in enumerate(frames):
         for name, value in frame.metadata.items():
-            row.setdefault(name, value)
-        rows.append(row)
-    table = pa.Table.from_pylist(rows)
-    write_parquet_atomic(table, plan.rundir / FRAMES_NAME)
+            if name not in taken:
+                out.setdefault(name, [None] * n)[i] = value
+    write_parquet_atomic(pa.table(out), plan.rundir / FRAMES_NAME)
 
 
 def publish(plan: RunPlan, state: RunState, product: str) -> None:
-    live = {
-        fid: rec.part_ids[product]
-        for (fid, _stage), rec in state.done().items()
-        if product in rec.part_ids
-    }
+    live = state.live_parts(product)
     parts = state.parts(product)
     publish_table(
         plan.rundir,

@@ -187,7 +187,7 @@ def plan_run(
     if reader is None and (rundir / "state.sqlite").exists():
         reader = RunState(rundir, readonly=True)
     try:
-        done = reader.done() if reader else {}
+        done = reader.done_keys() if reader else {}
         failed = reader.failed() if reader else {}
         hashes = _hash_inputs(selected, reader, remember=state is not None)
     finally:
@@ -202,14 +202,14 @@ def plan_run(
         keys[fid] = frame_keys(graph, params, frame, hashes[fid], image_shape)
         todo[fid], reasons[fid] = [], {}
         for stage in graph.stages:
-            record = done.get((fid, stage.name))
-            if record is not None and record.key == keys[fid][stage.name]:
+            recorded = done.get((fid, stage.name))
+            if recorded == keys[fid][stage.name]:
                 continue
             todo[fid].append(stage.name)
             if fid in failed:
                 reasons[fid][stage.name] = "failed"
             else:
-                reasons[fid][stage.name] = "new" if record is None else "changed"
+                reasons[fid][stage.name] = "new" if recorded is None else "changed"
     return RunPlan(
         catalog=catalog,
         graph=graph,

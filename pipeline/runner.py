@@ -279,15 +279,12 @@ def _execute(
             executor.close()
     failures = state.failed()
     selected = {f.frame_id for f in plan.frames}
-    done_records = state.done()
+    done_keys = state.done_keys()
     n_done = sum(
         1
         for fid in selected
         if fid not in failures
-        and all(
-            done_records.get((fid, s), None) is not None and done_records[(fid, s)].key == k
-            for s, k in plan.keys[fid].items()
-        )
+        and all(done_keys.get((fid, s)) == k for s, k in plan.keys[fid].items())
     )
     summary = RunSummary(
         rundir=plan.rundir,

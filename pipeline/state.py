@@ -109,12 +109,22 @@ class RunState:
 
     # -- reading -------------------------------------------------------------------------
     def done(self) -> dict[tuple[str, str], StageRecord]:
-        rows = self._db.execute(
-            "SELECT frame_id, stage, key, run_id, seconds, figures, notes, checksums, part_ids "
-            "FROM stage_done"
-        ).fetchall()
-        return {
-            (r[0], r[1]): StageRecord(
+        """Every completion record, keyed by (frame_id, stage)."""
+        return {(r.frame_id, r.stage): r for r in self.iter_done()}
+
+    def iter_done(self, *, integrity: bool = True) -> Iterator[StageRecord]:
+        """The completion records one at a time, in the order they were recorded.
+
+        ``integrity=False`` leaves ``checksums`` and ``part_ids`` empty: the frames table
+        needs neither, and they are most of a record's size.
+        """
+        extra = "checksums, part_ids" if integrity else "'{}', '{}'"
+        cursor = self._db.execute(
+            f"SELECT frame_id, stage, key, run_id, seconds, figures, notes, {extra} "
+            "FROM stage_done ORDER BY rowid"
+        )
+        for r in cursor:
+            yield StageRecord(
                 r[0],
                 r[1],
                 r[2],
@@ -125,8 +135,21 @@ class RunState:
                 json.loads(r[7]),
                 json.loads(r[8]),
             )
-            for r in rows
-        }
+
+    def done_keys(self) -> dict[tuple[str, str], str]:
+        """The cache key of every completed (frame_id, stage): all that planning needs."""
+        rows = self._db.execute("SELECT frame_id, stage, key FROM stage_done").fetchall()
+        return {(r[0], r[1]): r[2] for r in rows}
+
+    def live_parts(self, product: str) -> dict[str, str]:
+        """frame_id -> the staged part holding that frame's current rows of a table."""
+        path = f'$."{product}"'
+        rows = self._db.execute(
+            "SELECT frame_id, json_extract(part_ids, ?) FROM stage_done "
+            "WHERE json_extract(part_ids, ?) IS NOT NULL",
+            (path, path),
+        ).fetchall()
+        return {r[0]: r[1] for r in rows}
 
     def failed(self) -> dict[str, tuple[str, str]]:
         rows = self._db.execute("SELECT frame_id, stage, error FROM frame_failed").fetchall()
@@ -142,8 +165,8 @@ class RunState:
 
     def live_part_ids(self) -> set[str]:
         live: set[str] = set()
-        for record in self.done().values():
-            live.update(record.part_ids.values())
+        for (part_ids,) in self._db.execute("SELECT part_ids FROM stage_done"):
+            live.update(json.loads(part_ids).values())
         return live
 
     def input_hash(self, path: str, size: int, mtime_ns: int) -> str | None:
