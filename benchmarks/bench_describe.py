@@ -18,7 +18,13 @@ Renders pairs with ``pipeline.synth.pair.render_pair`` and runs
   ``height_max_m``, median range error), all matched rocks, relation agreement, relation
   rows per frame, CPU ms per frame of ``describe_frame`` alone; then the near rocks split
   by the truth's ``touches_border``: rocks seen whole (interior) and rocks cut by the image
-  border, whose truth is of the whole rock while only part of it is visible.
+  border, whose truth is of the whole rock while only part of it is visible; last the signed
+  median width error of the near rocks (the median |error| hides a bias).
+  ``--labels truth`` / ``--depth truth`` describe the truth labels / the truth disparity,
+  range and height instead of the run's; ``--dump CSV`` writes one row per matched rock
+  (descriptors, ``t_`` truth columns, IoU and mask pixel counts); ``--decompose`` scores the
+  same rocks (matched by the run, near, seen whole; pooled per archive) with each of the
+  four combinations, which splits the error between segmentation, depth and describe.
 
 Scores against the truth rocks with ``pipeline.metrics`` (rocks within ``--near`` m of the
 camera for the descriptor targets; relations between matched rocks).
@@ -29,6 +35,8 @@ Usage::
     PYTHONPATH=. .venv/bin/python benchmarks/bench_describe.py --stage-speed  # CPU ms/frame
     PYTHONPATH=. .venv/bin/python benchmarks/bench_describe.py --rundir runs/lab runs/lava \
         --set describe.relation_radius_m=1e6
+    PYTHONPATH=. .venv/bin/python benchmarks/bench_describe.py --decompose \
+        --rundir runs/eval/lab runs/eval/mojave runs/eval/lava
 """
 
 from __future__ import annotations
@@ -142,8 +150,22 @@ def _as_rows(columns: dict) -> list[dict]:
     return [dict(zip(names, values, strict=True)) for values in zip(*columns.values(), strict=True)]
 
 
-def _rundir_scores(rundir: str, overrides: dict, near: float) -> dict:
-    """Describe every frame of a finished run again and score it like ``arroyo evaluate``."""
+def _rundir_scores(
+    rundir: str,
+    overrides: dict,
+    near: float,
+    *,
+    labels_from: str = "run",
+    depth_from: str = "run",
+    dump: list | None = None,
+) -> dict:
+    """Describe every frame of a finished run again and score it like ``arroyo evaluate``.
+
+    ``labels_from`` / ``depth_from`` = ``'truth'`` swap the run's labels / disparity, range
+    and height for the truth's (to split an error between segmentation, matching and the
+    describe stage's own rules); ``dump`` collects one dict per matched rock (the
+    descriptor row, ``t_``-prefixed truth columns, the pair's IoU and pixel counts).
+    """
     import pyarrow.parquet as pq
     import xarray as xr
 
@@ -170,9 +192,14 @@ def _rundir_scores(rundir: str, overrides: dict, near: float) -> dict:
         with np.load(truth_dir / f"{frame_id}.npz") as npz:
             truth_labels = npz["labels"].astype(np.int32)
             truth_range = npz["range"]
+            truth_depth = {k: npz[k] for k in ("disparity", "range", "height")}
         labels = np.asarray(frame["labels"].values).astype(np.int32)
+        if labels_from == "truth":
+            labels = truth_labels
         arrays = [
-            np.asarray(frame[name].values)
+            truth_depth[name]
+            if depth_from == "truth" and name in truth_depth
+            else np.asarray(frame[name].values)
             for name in (camera.reference, "disparity", "range", "height", "ground_plane")
         ]
         start = time.process_time()  # describe only: the products are read before
@@ -186,35 +213,93 @@ def _rundir_scores(rundir: str, overrides: dict, near: float) -> dict:
         rocks_by_id = {int(r["rock_id"]): r for r in rocks if r["frame_id"] == frame_id}
         matches = match_objects(labels, truth_labels)
         p_rows, t_rows = _pair_columns(matches, _as_rows(desc), rocks_by_id)
+        if dump is not None:
+            _dump_rows(
+                dump,
+                (rundir, run["archive"], frame_id),
+                matches,
+                desc,
+                rocks_by_id,
+                labels,
+                truth_labels,
+            )
         pairs[0].extend(p_rows)
         pairs[1].extend(t_rows)
         occlusions = true_occlusions(truth_labels, truth_range)
         for key, values in _edges(_as_rows(rel), matches, rocks_by_id, occlusions).items():
             edges.setdefault(key, []).extend(values)
-    err = descriptor_errors(
-        _columns(pairs[0], _PRED_COLUMNS), _columns(pairs[1], _TRUE_COLUMNS), near_range_m=near
-    )
+    p_cols = _columns(pairs[0], _PRED_COLUMNS)
+    t_cols = _columns(pairs[1], _TRUE_COLUMNS)
+    err = descriptor_errors(p_cols, t_cols, near_range_m=near)
     agreement = _relation_scores(edges)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        signed = p_cols["width_m"] / t_cols["width_m"] - 1
+    near_rocks = t_cols["range_m"] <= near
     return {
         "archive": run["archive"],
         "err": err,
+        # the median |error| hides a bias: a width biased low and one biased high score alike
+        "signed": float(np.nanmedian(signed[near_rocks])) if near_rocks.any() else np.nan,
         "rel": agreement["agreement"],
         "rows": n_rel / max(n_frames, 1),
         "ms": 1000 * cpu / max(n_frames, 1),
     }
 
 
-def _rundir_main(rundirs: list[str], items: list[str], near: float) -> None:
+def _dump_rows(
+    out: list,
+    where: tuple[str, str, str],
+    matches,
+    desc: dict,
+    rocks_by_id: dict,
+    labels: np.ndarray,
+    truth_labels: np.ndarray,
+) -> None:
+    """Append one row per matched rock: descriptors, ``t_`` truth columns, IoU, pixel counts.
+
+    ``pred_px``, ``true_px``, ``both_px``: pixels of the object, of the truth rock and of both
+    (mask recall = both / true, precision = both / pred).
+    """
+    row_of = {int(i): k for k, i in enumerate(desc["object_id"].tolist())}
+    for n, (p, t) in enumerate(
+        zip(matches.pred_ids.tolist(), matches.true_ids.tolist(), strict=True)
+    ):
+        if p not in row_of or t not in rocks_by_id:
+            continue
+        row = dict(zip(("rundir", "archive", "frame_id"), where, strict=True))
+        row.update({k: v[row_of[p]] for k, v in desc.items()})
+        row.update({f"t_{k}": v for k, v in rocks_by_id[t].items() if k != "frame_id"})
+        pm, tm = labels == p, truth_labels == t
+        row["pred_px"] = int(pm.sum())
+        row["true_px"] = int(tm.sum())
+        row["both_px"] = int((pm & tm).sum())
+        row["iou"] = float(matches.iou[n])
+        out.append(row)
+
+
+def _rundir_main(
+    rundirs: list[str],
+    items: list[str],
+    near: float,
+    *,
+    labels_from: str = "run",
+    depth_from: str = "run",
+    dump_path: str | None = None,
+) -> None:
     from pipeline.graph import default_graph, parse_set_overrides
 
     overrides = parse_set_overrides(default_graph(), items).get("describe", {})
     print(
         f"{'archive':9} {'rocks':>5} {'near':>5} {'dw/w':>6} {'class':>6} {'|dh| m':>7} "
         f"{'dr/r':>6} {'all dw/w':>8} {'all cls':>7} {'rel':>6} {'rows/fr':>8} {'cpu ms':>7} "
-        f"| {'interior':>8} {'dw/w':>6} {'class':>6} | {'border':>6} {'dw/w':>6} {'class':>6}"
+        f"| {'interior':>8} {'dw/w':>6} {'class':>6} | {'border':>6} {'dw/w':>6} {'class':>6} "
+        f"| {'sgn dw/w':>8}"
     )
+    dump: list | None = [] if dump_path else None
     for rundir in rundirs:
-        r = _rundir_scores(rundir, overrides, near)
+        r = _rundir_scores(
+            rundir, overrides, near, labels_from=labels_from, depth_from=depth_from, dump=dump
+        )
         e = r["err"]
         split = " | ".join(
             f"{e.get(f'near_{part}_n_rocks', float('nan')):{w}.0f} "
@@ -227,7 +312,79 @@ def _rundir_main(rundirs: list[str], items: list[str], near: float) -> None:
             f"{e['near_width_rel_err_median']:6.3f} {e['near_class_accuracy']:6.3f} "
             f"{e['near_height_abs_err_median_m']:7.4f} {e['near_range_rel_err_median']:6.4f} "
             f"{e['width_rel_err_median']:8.3f} {e['class_accuracy']:7.3f} {r['rel']:6.3f} "
-            f"{r['rows']:8.0f} {r['ms']:7.1f} | {split}"
+            f"{r['rows']:8.0f} {r['ms']:7.1f} | {split} | {r['signed']:+8.3f}"
+        )
+    if dump_path and dump is not None:
+        import pyarrow as pa
+        import pyarrow.csv as pacsv
+
+        pacsv.write_csv(pa.Table.from_pylist(dump), dump_path)
+        print(f"wrote {len(dump)} matched rocks to {dump_path}")
+
+
+_COMBOS = (("run", "run"), ("truth", "run"), ("run", "truth"), ("truth", "truth"))
+"""(labels, depth) sources of ``--decompose``: the pipeline, then each input made perfect."""
+
+
+def _decompose_main(rundirs: list[str], items: list[str], near: float) -> None:
+    """Width error and class accuracy of the same rocks with each input swapped for truth.
+
+    The rocks are those the run's own objects match (IoU >= 0.5) within ``near`` m and not
+    cut by the image border, pooled per archive over ``rundirs``. Swapping the labels and/or
+    the depth products for the truth's splits the error between segmentation, depth and the
+    describe stage's own rules (truth labels and truth depth).
+    """
+    from pipeline.graph import default_graph, parse_set_overrides
+
+    overrides = parse_set_overrides(default_graph(), items).get("describe", {})
+    limit = float(overrides.get("sample_max_m", 0.10))
+    dumps: dict[tuple[str, str], list] = {combo: [] for combo in _COMBOS}
+    for labels_from, depth_from in _COMBOS:
+        for rundir in rundirs:
+            _rundir_scores(
+                rundir,
+                overrides,
+                near,
+                labels_from=labels_from,
+                depth_from=depth_from,
+                dump=dumps[labels_from, depth_from],
+            )
+
+    def key(row: dict) -> tuple:
+        return row["rundir"], row["frame_id"], int(row["t_rock_id"])
+
+    by_key = {combo: {key(r): r for r in rows} for combo, rows in dumps.items()}
+    base = [r for r in dumps["run", "run"] if r["t_range_m"] <= near and not r["t_touches_border"]]
+    print(
+        "median |width error| (signed median) and class accuracy of the same rocks "
+        f"(matched by the run, within {near:g} m, seen whole) with labels/depth from run or truth"
+    )
+    print(
+        f"{'archive':8} {'rocks':>5} "
+        + " ".join(f"{lab + '/' + dep:>22}" for lab, dep in _COMBOS)
+        + f" {'recall':>6} {'prec':>5} {'iou':>5} | {'<=1cm':>5} {'cls':>5} {'other':>5}"
+    )
+    for archive in sorted({r["archive"] for r in base}):
+        rows = [r for r in base if r["archive"] == archive]
+        cells = []
+        for combo in _COMBOS:
+            pairs = [(by_key[combo].get(key(r)), r) for r in rows]
+            err = np.array([p["width_m"] / r["t_width_m"] - 1 if p else np.nan for p, r in pairs])
+            ok = np.array([bool(p) and p["size_class"] == r["t_size_class"] for p, r in pairs])
+            cells.append(
+                f"{np.nanmedian(np.abs(err)):6.3f} ({np.nanmedian(err):+6.3f}) {ok.mean():6.3f}"
+            )
+        recall = np.median([r["both_px"] / r["true_px"] for r in rows])
+        precision = np.median([r["both_px"] / r["pred_px"] for r in rows])
+        iou = np.median([r["iou"] for r in rows])
+        close = np.array([abs(r["t_width_m"] - limit) <= 0.01 for r in rows])
+        ok = np.array([r["size_class"] == r["t_size_class"] for r in rows])
+        print(
+            f"{archive:8} {len(rows):5d} "
+            + " ".join(f"{c:>22}" for c in cells)
+            + f" {recall:6.2f} {precision:5.2f} {iou:5.2f} | {int(close.sum()):5d} "
+            f"{ok[close].mean() if close.any() else np.nan:5.2f} "
+            f"{ok[~close].mean() if (~close).any() else np.nan:5.3f}"
         )
 
 
@@ -247,9 +404,37 @@ def main() -> None:
     parser.add_argument(
         "--set", action="append", default=[], metavar="describe.PARAM=VALUE", dest="overrides"
     )
+    parser.add_argument(
+        "--labels",
+        choices=("run", "truth"),
+        default="run",
+        help="with --rundir: describe the run's labels or the truth labels",
+    )
+    parser.add_argument(
+        "--depth",
+        choices=("run", "truth"),
+        default="run",
+        help="with --rundir: the run's disparity/range/height or the truth's",
+    )
+    parser.add_argument("--dump", metavar="CSV", help="with --rundir: one row per matched rock")
+    parser.add_argument(
+        "--decompose",
+        action="store_true",
+        help="with --rundir: the same rocks with labels and/or depth from the truth",
+    )
     args = parser.parse_args()
+    if args.rundir and args.decompose:
+        _decompose_main(args.rundir, args.overrides, args.near)
+        return
     if args.rundir:
-        _rundir_main(args.rundir, args.overrides, args.near)
+        _rundir_main(
+            args.rundir,
+            args.overrides,
+            args.near,
+            labels_from=args.labels,
+            depth_from=args.depth,
+            dump_path=args.dump,
+        )
         return
     if args.stage_speed:
         from bench_segment import stage_speed  # sibling script (benchmarks/ is on sys.path)
