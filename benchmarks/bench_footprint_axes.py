@@ -1,0 +1,106 @@
+"""Footprint extents across and along the line of sight against the truth rock's extents.
+
+The describe stage's ``width_m`` is the largest dimension of a rock's footprint: its ground
+points (pixels projected with a disparity surface fitted per object) projected on 60
+directions. This benchmark splits that measurement by axis on the truth labels of finished
+``arroyo run`` directories: the spread of the footprint along the ground x axis (across the
+view) and y axis (along the view), one pixel added as in
+:func:`stages._descriptors.footprint_dimensions`, against the truth's ``extent_x_m`` and
+``extent_y_m``. Rocks within ``--near`` m, seen whole; the whole truth region (no fringe
+trimming, no outlier rule). Disparity per pixel from the truth or the run (``--depth``),
+either raw or on the describe stage's fitted surface (:func:`stages._ground.fit_disparity_surface`
+with the footprint's quadratic threshold). Prints per archive the median signed and absolute
+relative error of each axis.
+
+Usage::
+
+    PYTHONPATH=. .venv/bin/python benchmarks/bench_footprint_axes.py --depth truth \\
+        runs/eval/lab runs/eval/mojave runs/eval/lava
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.camera import Camera
+from stages._descriptors import _FOOTPRINT_QUADRATIC_PX
+from stages._ground import fit_disparity_surface, frame_ground, pixel_points
+
+
+def _axis_errors(rundir: str, depth: str, near: float) -> tuple[str, dict[str, list[float]]]:
+    import pyarrow.parquet as pq
+    import xarray as xr
+
+    path = Path(rundir)
+    run = json.loads((path / "run.json").read_text())
+    truth_dir = Path(run["catalog"]["truth_dir"])
+    camera = Camera(**run["camera"])
+    rocks = pq.read_table(truth_dir / "rocks.parquet").to_pylist()
+    products = xr.open_zarr(path / "products.zarr", consolidated=False)
+    out: dict[str, list[float]] = {}
+    for frame_id in map(str, products["frame"].values):
+        frame = products.sel(frame=frame_id)
+        with np.load(truth_dir / f"{frame_id}.npz") as npz:
+            labels = npz["labels"]
+            disparity = npz["disparity"] if depth == "truth" else None
+        if disparity is None:
+            disparity = np.asarray(frame["disparity"].values)
+        ground = frame_ground(camera, np.asarray(frame["ground_plane"].values))
+        if ground is None:
+            continue
+        for rock in rocks:
+            if rock["frame_id"] != frame_id or rock["touches_border"] or rock["range_m"] > near:
+                continue
+            rows, cols = np.nonzero(labels == rock["rock_id"])
+            d = disparity[rows, cols].astype(np.float64)
+            d[~(d > 0)] = np.nan
+            if np.count_nonzero(np.isfinite(d)) < 10:
+                continue
+            pixel_m = float(np.nanmedian(camera.k_m_px / d)) / camera.focal_px
+            surfaces = {
+                "raw": d,
+                "fitted": fit_disparity_surface(
+                    rows, cols, d, min_quadratic=_FOOTPRINT_QUADRATIC_PX
+                ),
+            }
+            for name, surface in surfaces.items():
+                p = ground.to_ground(
+                    pixel_points(rows, cols, surface, camera=camera, shape=labels.shape)
+                )
+                p = p[np.isfinite(p).all(axis=1)]
+                for axis, truth in ((0, rock["extent_x_m"]), (1, rock["extent_y_m"])):
+                    key = f"{name}_{'xy'[axis]}"
+                    spread = float(np.ptp(p[:, axis])) + pixel_m
+                    out.setdefault(key, []).append(spread / truth - 1)
+    return run["archive"], out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("rundirs", nargs="+", help="finished arroyo run directories")
+    parser.add_argument("--depth", choices=("truth", "run"), default="truth")
+    parser.add_argument("--near", type=float, default=2.0)
+    args = parser.parse_args()
+    pooled: dict[str, dict[str, list[float]]] = {}
+    for rundir in args.rundirs:
+        archive, errors = _axis_errors(rundir, args.depth, args.near)
+        for key, values in errors.items():
+            pooled.setdefault(archive, {}).setdefault(key, []).extend(values)
+    keys = ("raw_x", "raw_y", "fitted_x", "fitted_y")
+    print(f"depth from {args.depth}: median signed (median |.|) relative error of the extent")
+    print(f"{'archive':8} {'rocks':>5} " + " ".join(f"{k:>16}" for k in keys))
+    for archive, errors in sorted(pooled.items()):
+        cells = []
+        for key in keys:
+            e = np.asarray(errors.get(key, []))
+            cells.append(f"{np.median(e):+.3f} ({np.median(np.abs(e)):.3f})" if e.size else "-")
+        n = len(errors.get("raw_x", []))
+        print(f"{archive:8} {n:5d} " + " ".join(f"{c:>16}" for c in cells))
+
+
+if __name__ == "__main__":
+    main()
