@@ -74,8 +74,10 @@ def _axis_errors(rundir: str, depth: str, near: float) -> tuple[str, dict[str, l
                 p = p[np.isfinite(p).all(axis=1)]
                 for axis, truth in ((0, rock["extent_x_m"]), (1, rock["extent_y_m"])):
                     key = f"{name}_{'xy'[axis]}"
-                    spread = float(np.ptp(p[:, axis])) + pixel_m
-                    out.setdefault(key, []).append(spread / truth - 1)
+                    spread = float(np.ptp(p[:, axis]))
+                    out.setdefault(key, []).append((spread + pixel_m) / truth - 1)
+                    out.setdefault(f"{key}_no_px", []).append(spread / truth - 1)
+            out.setdefault("size_px", []).append(rock["extent_x_m"] / pixel_m)
     return run["archive"], out
 
 
@@ -84,6 +86,12 @@ def main() -> None:
     parser.add_argument("rundirs", nargs="+", help="finished arroyo run directories")
     parser.add_argument("--depth", choices=("truth", "run"), default="truth")
     parser.add_argument("--near", type=float, default=2.0)
+    parser.add_argument(
+        "--by-size",
+        action="store_true",
+        help="also the across-view extent by the rock's size in pixels, with and without "
+        "the one pixel footprint_dimensions adds",
+    )
     args = parser.parse_args()
     pooled: dict[str, dict[str, list[float]]] = {}
     for rundir in args.rundirs:
@@ -100,6 +108,26 @@ def main() -> None:
             cells.append(f"{np.median(e):+.3f} ({np.median(np.abs(e)):.3f})" if e.size else "-")
         n = len(errors.get("raw_x", []))
         print(f"{archive:8} {n:5d} " + " ".join(f"{c:>16}" for c in cells))
+    if args.by_size:
+        _by_size(pooled)
+
+
+def _by_size(pooled: dict[str, dict[str, list[float]]]) -> None:
+    """Median signed error of the across-view extent per size bin (truth extent_x in px)."""
+    edges = (0, 12, 18, 25, 40, 10_000)
+    keys = ("raw_x", "raw_x_no_px", "fitted_x", "fitted_x_no_px")
+    print(f"{'archive':8} {'size px':>9} {'rocks':>5} " + " ".join(f"{k:>14}" for k in keys))
+    for archive, errors in sorted(pooled.items()):
+        size = np.asarray(errors["size_px"])
+        for lo, hi in zip(edges[:-1], edges[1:], strict=True):
+            sel = (size > lo) & (size <= hi)
+            if not sel.any():
+                continue
+            cells = [f"{np.median(np.asarray(errors[k])[sel]):+14.3f}" for k in keys]
+            print(
+                f"{archive:8} {f'{lo}-{hi}' if hi < 10_000 else f'>{lo}':>9} "
+                f"{int(sel.sum()):5d} " + " ".join(cells)
+            )
 
 
 if __name__ == "__main__":
