@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import ndimage
 
-from stages import _stereo
+from stages import _ncc, _stereo
 from stages._stereo import (
     STATUS_NO_PEAK,
     STATUS_VALID,
@@ -272,3 +272,64 @@ def test_bad_images_raise_clear_errors():
 def test_check_settings_rejects_unknown_keys():
     with pytest.raises(TypeError, match="unknown matching settings"):
         _stereo.check_settings(window=5)
+
+
+# ---------------------------------------------------------------- adaptive kernels, (D, W)
+# The row-wise kernels of stages._ncc must give exactly what the per-pixel path gives (a
+# tile may take either path for the same pixel), so they are checked against brute force.
+
+
+def _tied_curves(shape, seed):
+    """ZNCC-like curves (D, W) on a coarse grid, so that many columns hold tied maxima."""
+    rng = np.random.default_rng(seed)
+    return (np.round(rng.uniform(-1.0, 1.0, shape) * 4) / 4).astype(np.float32)
+
+
+def test_row_peaks_equal_the_per_pixel_peak():
+    curves = _tied_curves((9, 40), seed=0)
+    best = np.full(40, -7, np.int64)
+    top = np.zeros(40, np.float32)
+    second = np.zeros(40, np.float32)
+    _ncc._row_peaks(best, top, second, curves, 3, 37)
+    for x in range(3, 37):
+        expected = _ncc._peak(np.ascontiguousarray(curves[:, x]), 0, curves.shape[0])
+        assert (best[x], top[x], second[x]) == expected
+    assert np.all(best[:3] == -7) and np.all(best[37:] == -7)  # outside x0..x1 untouched
+
+
+@pytest.mark.parametrize("d_min", [-3, 0, 2])
+def test_left_best_is_the_left_reference_argmax(d_min):
+    n_disp, w, hw = 7, 30, 2
+    curves = _tied_curves((n_disp, w), seed=1)
+    index = np.zeros(w, np.int64)
+    value = np.zeros(w, np.float32)
+    _ncc._left_best(index, value, curves, hw, d_min)
+    for xl in range(w):
+        # C_left(xl, j) = C_ref(xl - d_min - j, j) where both windows fit; ties: largest j
+        found = [
+            (curves[j, xl - d_min - j], j)
+            for j in range(n_disp)
+            if hw <= xl < w - hw and hw <= xl - d_min - j < w - hw
+        ]
+        expected = max(found) if found else (-np.inf, -1)
+        assert (value[xl], index[xl]) == expected
+
+
+def test_window_sums_are_box_sums_of_the_products():
+    rng = np.random.default_rng(2)
+    ref = rng.integers(-128, 128, (12, 25)).astype(np.int32)
+    oth = rng.integers(-128, 128, (12, 25)).astype(np.int32)
+    d_min, n_disp, hy, hw = -2, 6, 2, 3
+    cs = np.zeros((n_disp, 25), np.int32)
+    hs = np.zeros((n_disp, 25), np.int32)
+    for y in range(hy, 12 - hy):
+        _ncc._advance_column_sums_t(cs, ref, oth, y, hy, d_min)
+        _ncc._window_sums_t(hs, cs, hw)
+        for j in range(n_disp):
+            d = d_min + j
+            product = np.zeros((12, 25), np.int64)  # R(y, x) L(y, x + d), 0 off the image
+            lo, hi = max(0, -d), min(25, 25 - d)
+            product[:, lo:hi] = ref[:, lo:hi] * oth[:, lo + d : hi + d]
+            window = product[y - hy : y + hy + 1].sum(axis=0)
+            expected = np.convolve(window, np.ones(2 * hw + 1, np.int64), mode="valid")
+            np.testing.assert_array_equal(hs[j, hw : 25 - hw], expected)
