@@ -314,6 +314,57 @@ def _left_best(left_index, left_value, curves, hw, d_min):  # pragma: no cover -
             best_index[i] = j if better else best_index[i]
 
 
+@njit(cache=True)
+def _border_curves(shifted, j_first, j_last, curves, hw, d_min, x0, x1):  # pragma: no cover
+    """Curves of the columns ``x0 .. x1 - 1`` with the window shifted to fit, (D, W).
+
+    Near the image's sides :func:`adaptive_match` moves a window that does not fit at a
+    disparity to the nearest centre where it does (:func:`_shifted_centre`, at most ``hw``
+    px away); its ZNCC is then ``curves[j, centre]``. Where no such centre exists the value
+    is -inf, which no maximum picks. ``j_first``, ``j_last`` receive each column's valid
+    index range ``[j_first, j_last)`` (contiguous: the centre moves monotonically with j).
+    """
+    # At index j the centre is x clamped to [a, b] (the columns where the window fits in
+    # both images), valid within hw of x: a constant run, a copy of the curve row, and
+    # another constant run, all contiguous slices.
+    n_disp, w = curves.shape
+    if x1 <= x0:
+        return
+    j_first[x0:x1] = n_disp
+    j_last[x0:x1] = 0
+    for j in range(n_disp):
+        out = shifted[j]
+        row = curves[j]
+        out[x0:x1] = -np.inf
+        a = max(hw, hw - d_min - j)
+        b = min(w - 1 - hw, w - 1 - hw - d_min - j)
+        if a > b:
+            continue
+        v0 = max(x0, a - hw)
+        v1 = min(x1, b + hw + 1)
+        if v1 <= v0:
+            continue
+        for x in range(v0, min(v1, a)):
+            out[x] = row[a]
+        c0 = max(v0, a)
+        c1 = min(v1, b + 1)
+        if c1 > c0:
+            out[c0:c1] = row[c0:c1]
+        for x in range(max(v0, b + 1), v1):
+            out[x] = row[b]
+        first = j_first[v0:v1]
+        for i in range(v1 - v0):
+            first[i] = min(first[i], j)
+        j_last[v0:v1] = j + 1
+
+
+@njit(cache=True, inline="always")
+def _shifted_centre(x, j, hw, d_min, w):  # pragma: no cover - numba
+    """Nearest window centre to column ``x`` where the window fits in both images at index j."""
+    x_ref = min(max(x, hw), w - 1 - hw)
+    return max(min(x_ref, w - 1 - hw - d_min - j), hw - d_min - j)
+
+
 @njit(cache=True, fastmath={"nnan", "ninf", "nsz", "reassoc"})
 def _max(curve, j0, j1):  # pragma: no cover - numba
     # A max is exact in any order, so letting LLVM vectorise it changes no result; the
@@ -384,7 +435,9 @@ def adaptive_match(
     left_index = np.full(w, -1, np.int64)
     left_value = np.full(w, -np.inf, np.float32)
     pending = np.empty(w, np.int64)
-    centre = np.empty(n_disp, np.int64)
+    shifted = np.full((n_disp, w), -np.inf, np.float32)
+    j_first = np.zeros(w, np.int64)
+    j_last = np.zeros(w, np.int64)
     peak_seen = np.zeros(w, np.bool_)
     # Row of each window's centre: the pixel's row, or the nearest row where the window fits
     # (near the top and bottom the window is shifted vertically, by at most its half-height,
@@ -444,11 +497,15 @@ def adaptive_match(
             left_ready = False  # the left-reference argmax is found on first need
             if use_row:
                 _row_curves(curves, hs_k, n, hw, rs_row, ri_row, os_row, oi_row, d_min)
-                # interior columns: the window fits at every disparity
-                _row_peaks(
-                    row_best, row_top, row_second, curves,
-                    max(hw, hw - d_min), min(w - hw, w - hw - d_min - n_disp + 1),
-                )  # fmt: skip
+                # interior columns [xa, xb): the window fits at every disparity; the others
+                # get their shifted windows' curves, and all their peaks come from row passes
+                xa = max(hw, hw - d_min)
+                xb = max(xa, min(w - hw, w - hw - d_min - n_disp + 1))
+                _row_peaks(row_best, row_top, row_second, curves, xa, xb)
+                _border_curves(shifted, j_first, j_last, curves, hw, d_min, 0, xa)
+                _border_curves(shifted, j_first, j_last, curves, hw, d_min, xb, w)
+                _row_peaks(row_best, row_top, row_second, shifted, 0, xa)
+                _row_peaks(row_best, row_top, row_second, shifted, xb, w)
             kept = 0
             for i in range(n_pending):
                 x = pending[i]
@@ -458,32 +515,37 @@ def adaptive_match(
                 if ref_std[k, yc, x_ref] < min_texture:
                     continue
                 interior = x == x_ref and hw - x - d_min <= 0 and w - hw - x - d_min >= n_disp
-                if interior:
+                if use_row:
+                    if interior:
+                        j0 = 0
+                        j1 = n_disp
+                        source = curves
+                    else:
+                        j0 = j_first[x]
+                        j1 = j_last[x]
+                        if j1 - j0 < 3:
+                            continue
+                        source = shifted
+                    best = row_best[x]
+                    best_value = row_top[x]
+                    second = row_second[x]
+                elif interior:
                     j0 = 0
                     j1 = n_disp
-                    if use_row:
-                        best = row_best[x]
-                        best_value = row_top[x]
-                        second = row_second[x]
-                    else:
-                        for j in range(n_disp):
-                            curve[j] = _ncc(hs_k, n, rs_row, ri_row, os_row, oi_row, x, j, d_min)
-                        best, best_value, second = _peak(curve, j0, j1)
+                    for j in range(n_disp):
+                        curve[j] = _ncc(hs_k, n, rs_row, ri_row, os_row, oi_row, x, j, d_min)
+                    best, best_value, second = _peak(curve, j0, j1)
                 else:
                     # Near the image's sides the window is shifted (by at most its half-width,
                     # so it still contains the pixel) to lie inside both images.
                     j0 = n_disp
                     j1 = 0
                     for j in range(n_disp):
-                        xc = max(min(x_ref, w - 1 - hw - d_min - j), hw - d_min - j)
+                        xc = _shifted_centre(x, j, hw, d_min, w)
                         if xc < hw or xc > w - 1 - hw or abs(xc - x) > hw:
                             curve[j] = -2.0
                             continue
-                        centre[j] = xc
-                        if use_row:
-                            curve[j] = curves[j, xc]
-                        else:
-                            curve[j] = _ncc(hs_k, n, rs_row, ri_row, os_row, oi_row, xc, j, d_min)
+                        curve[j] = _ncc(hs_k, n, rs_row, ri_row, os_row, oi_row, xc, j, d_min)
                         j0 = min(j0, j)
                         j1 = max(j1, j + 1)
                     if j1 - j0 < 3:
@@ -494,7 +556,7 @@ def adaptive_match(
                 if best_value - second < margins[k]:
                     continue
                 peak_seen[x] = True
-                xc = x if interior else centre[best]
+                xc = x if interior else _shifted_centre(x, best, hw, d_min, w)
                 xl = xc + d_min + best
                 if use_row:
                     if not left_ready:
@@ -518,9 +580,9 @@ def adaptive_match(
                 # The window-edge asymmetry of the reference curve's neighbours appears with
                 # the opposite sign in the left-reference curve, so averaging both parabola
                 # vertices cancels it (an exact integer shift gives an exact integer).
-                if interior and use_row:
-                    c_minus = curves[best - 1, x]
-                    c_plus = curves[best + 1, x]
+                if use_row:
+                    c_minus = source[best - 1, x]
+                    c_plus = source[best + 1, x]
                 else:
                     c_minus = curve[best - 1]
                     c_plus = curve[best + 1]

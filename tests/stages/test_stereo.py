@@ -333,3 +333,26 @@ def test_window_sums_are_box_sums_of_the_products():
             window = product[y - hy : y + hy + 1].sum(axis=0)
             expected = np.convolve(window, np.ones(2 * hw + 1, np.int64), mode="valid")
             np.testing.assert_array_equal(hs[j, hw : 25 - hw], expected)
+
+
+@pytest.mark.parametrize("d_min", [-4, 0, 3])
+def test_border_curves_read_the_shifted_windows(d_min):
+    # a window that does not fit is moved to the nearest centre where it does, at most hw
+    # px from the pixel; the row pass must read exactly that centre's value
+    n_disp, w, hw = 8, 30, 3
+    curves = _tied_curves((n_disp, w), seed=3)
+    shifted = np.zeros((n_disp, w), np.float32)
+    first = np.zeros(w, np.int64)
+    last = np.zeros(w, np.int64)
+    _ncc._border_curves(shifted, first, last, curves, hw, d_min, 0, w)
+    for x in range(w):
+        valid = []
+        for j in range(n_disp):
+            x_ref = min(max(x, hw), w - 1 - hw)
+            xc = max(min(x_ref, w - 1 - hw - d_min - j), hw - d_min - j)
+            if hw <= xc <= w - 1 - hw and abs(xc - x) <= hw:
+                valid.append(j)
+                assert shifted[j, x] == curves[j, xc]
+            else:
+                assert shifted[j, x] == -np.inf
+        assert valid == list(range(first[x], last[x]))  # one contiguous range
