@@ -390,11 +390,42 @@ def _peak(curve, j0, j1):  # pragma: no cover - numba
 
 
 @njit(cache=True)
+def _kept_from(row_start, hys, h):  # pragma: no cover - numba
+    """First disparity index whose column sums each window keeps up to date, per centre row.
+
+    A window centred on row ``c`` serves row ``c`` (and, shifted vertically, the rows above
+    the first centre or below the last one); the sums at ``c`` must cover the lowest floor of
+    those rows and of every later centre, because they are running sums: an index dropped
+    once cannot be resumed. Hence a suffix minimum, which is non-decreasing down the image.
+    """
+    n_win = hys.size
+    kept = np.zeros((n_win, h), np.int64)
+    for k in range(n_win):
+        hy = hys[k]
+        if 2 * hy + 1 > h:
+            continue
+        starts = row_start[k]
+        low = starts[h - 1]
+        for c in range(h - 1 - hy, hy - 1, -1):
+            need = starts[c]
+            if c == h - 1 - hy:
+                for y in range(c, h):
+                    need = min(need, starts[y])
+            if c == hy:
+                for y in range(c + 1):
+                    need = min(need, starts[y])
+            low = min(low, need)
+            kept[k, c] = low
+    return kept
+
+
+@njit(cache=True)
 def adaptive_match(
     ref,
     other,
-    d_min,
-    n_disp,
+    d_lo,
+    n_all,
+    row_start,
     hys,
     hxs,
     ref_sums,
@@ -410,8 +441,10 @@ def adaptive_match(
     """Adaptive-window ZNCC matching with subpixel peak and left-right check.
 
     Parameters are centred float32 images (H, W), the first disparity and the number of
-    disparities, the window half-widths in increasing order (K,), per-window statistics
-    of shape (K, H, W) from :func:`window_stats`, and the least peak margin per window (K,).
+    disparities, the first disparity index each window searches in each row (K, H) (the
+    row's floor, ``0 <= row_start <= n_all - 3``), the window half-widths in increasing
+    order (K,), per-window statistics of shape (K, H, W) from :func:`window_stats`, and
+    the least peak margin per window (K,).
 
     Returns
     -------
@@ -425,17 +458,17 @@ def adaptive_match(
     n_win = hys.size
     disparity = np.full((h, w), NO_PEAK, np.float32)
     window = np.full((h, w), -1, np.int8)
-    cs = np.zeros((n_win, n_disp, w), np.int32)
-    hs = np.zeros((n_win, n_disp, w), np.int32)
-    curves = np.full((n_disp, w), -2.0, np.float32)
-    curve = np.empty(n_disp, np.float32)
+    cs = np.zeros((n_win, n_all, w), np.int32)
+    hs = np.zeros((n_win, n_all, w), np.int32)
+    all_curves = np.full((n_all, w), -2.0, np.float32)
+    curve = np.empty(n_all, np.float32)
     row_best = np.zeros(w, np.int64)
     row_top = np.zeros(w, np.float32)
     row_second = np.zeros(w, np.float32)
     left_index = np.full(w, -1, np.int64)
     left_value = np.full(w, -np.inf, np.float32)
     pending = np.empty(w, np.int64)
-    shifted = np.full((n_disp, w), -np.inf, np.float32)
+    all_shifted = np.full((n_all, w), -np.inf, np.float32)
     j_first = np.zeros(w, np.int64)
     j_last = np.zeros(w, np.int64)
     peak_seen = np.zeros(w, np.bool_)
@@ -443,6 +476,7 @@ def adaptive_match(
     # (near the top and bottom the window is shifted vertically, by at most its half-height,
     # like the sideways shift below). The sums advance one row at a time from row hy.
     centre_row = np.full(n_win, -1, np.int64)
+    kept_from = _kept_from(row_start, hys, h)
     # The column sums must follow every row (they are running sums), but the window sums
     # along the row are only formed in rows where a textured pixel still needs the window:
     # the larger windows are needed by few rows where the small ones match nearly everywhere.
@@ -453,7 +487,8 @@ def adaptive_match(
                 continue
             yc = min(max(y, hys[k]), h - 1 - hys[k])
             if yc != centre_row[k]:
-                _advance_column_sums_t(cs[k], ref, other, yc, hys[k], d_min)
+                j_keep = kept_from[k, yc]
+                _advance_column_sums_t(cs[k, j_keep:], ref, other, yc, hys[k], d_lo + j_keep)
                 centre_row[k] = yc
                 sums_row[k] = -1  # window sums are formed on first need in the row
         n_pending = 0
@@ -472,7 +507,14 @@ def adaptive_match(
                 break
             yc = centre_row[k]
             n = (2 * hy + 1) * (2 * hw + 1)
-            hs_k = hs[k]
+            # The window's search range in this row starts at its floor: the row arrays are
+            # viewed from there, and d_min, n_disp below are the row's.
+            js = row_start[k, y]
+            d_min = d_lo + js
+            n_disp = n_all - js
+            curves = all_curves[js:]
+            shifted = all_shifted[js:]
+            hs_k = hs[k, js:]
             rs_row = ref_sums[k, yc]
             ri_row = ref_inv[k, yc]
             os_row = other_sums[k, yc]
@@ -491,7 +533,8 @@ def adaptive_match(
             if textured == 0:
                 continue
             if sums_row[k] != yc:
-                _window_sums_t(hs_k, cs[k], hw)
+                j_keep = kept_from[k, yc]  # all sums kept at this centre (<= js)
+                _window_sums_t(hs[k, j_keep:], cs[k, j_keep:], hw)
                 sums_row[k] = yc
             use_row = 4 * textured > w - 2 * hw
             left_ready = False  # the left-reference argmax is found on first need

@@ -12,6 +12,16 @@ nearest visible ground point, from camera height and pitch) plus 25 % and 2 px f
 standing above it, else 64 px. For the built-in archives (f = 430 px, b = 0.1 m, 1.2 m up,
 pitched 38 deg) that is about 51 px; for the 0.8 m Viking baseline about 380 px.
 
+Search floor (``adaptive``). Nothing visible lies below the ground, so at a given row no
+disparity is smaller than the ground's there: with a pose, the windows after the first
+search each row only from ``(1 - floor_margin)`` times the pose plane's disparity at that
+row minus 2 px (:func:`stages.geometry.derive_row_floor`; the margins absorb a few degrees
+of pitch error, a 25 % height error and hollows). In the built-in archives that drops
+about a quarter of those windows' disparities (row floors 2 .. 26 px of 0 .. 51); the
+first window keeps the whole range because its competitors below the floor are what flags
+a small window's match as ambiguous (:mod:`stages._stereo`, "Search floor").
+``floor_margin = 1`` searches the whole range everywhere.
+
 Choosing the method. ``adaptive`` (default) is the most accurate where the ground has
 texture (mojave, lava: about a quarter of StereoSGBM's bad-2 rate, see
 ``benchmarks/bench_depth_accuracy.py``). On nearly textureless floors add a wide window
@@ -39,6 +49,7 @@ from pipeline.stage import FrameContext, Param, Product, Stage, StageResult
 from . import _refine, _stereo
 from .geometry import (
     derive_max_disparity,
+    derive_row_floor,
     fit_ground_plane,
     height_above_plane,
     pseudo_left,
@@ -46,7 +57,7 @@ from .geometry import (
     residual,
 )
 
-__all__ = ["STAGE", "run_depth", "resolve_disparity_range"]
+__all__ = ["STAGE", "run_depth", "resolve_disparity_range", "resolve_row_floor"]
 
 PARAMS: tuple[Param, ...] = (
     Param("method", str, "adaptive", "matching method", choices=_stereo.METHODS),
@@ -65,6 +76,15 @@ PARAMS: tuple[Param, ...] = (
         0.0,
         "nearest range anything can be at (m), sets max_disparity = f*b/range; 0 = unknown",
         minimum=0.0,
+    ),
+    Param(
+        "floor_margin",
+        float,
+        0.25,
+        "adaptive, windows after the first: per-row search floor (1 - this) x the pose's ground "
+        "disparity - 2 px; 1 = none",
+        minimum=0.0,
+        maximum=1.0,
     ),
     Param(
         "windows",
@@ -183,17 +203,39 @@ def _coerce_settings(params: dict[str, Any]) -> dict[str, Any]:
         raise ParamError(f"depth: {error}") from None
 
 
-def _match(reference: np.ndarray, other: np.ndarray, lo: int, hi: int, params: dict):
+def resolve_row_floor(
+    camera: Camera, shape: tuple[int, int], params: dict[str, Any]
+) -> np.ndarray | None:
+    """(M,) least disparity the ``adaptive`` method searches per row, or None (no floor).
+
+    From the camera pose (:func:`stages.geometry.derive_row_floor`); None for other methods,
+    without a pose, or with ``floor_margin = 1``.
+    """
+    margin = float(params["floor_margin"])
+    if params["method"] != "adaptive" or margin >= 1.0:
+        return None
+    return derive_row_floor(camera, shape=shape, margin=margin)
+
+
+def _match(
+    reference: np.ndarray,
+    other: np.ndarray,
+    lo: int,
+    hi: int,
+    floor: np.ndarray | None,
+    params: dict,
+):
     settings = _coerce_settings(params)
     tile_px = int(params["tile_px"])
     if tile_px and max(reference.shape) > tile_px:
         return _stereo.match_tiled(
             reference, other, tile_px=max(tile_px, 16), min_disparity=lo, max_disparity=hi,
-            **settings,
+            row_min_disparity=floor, **settings,
         ), True  # fmt: skip
     matching = _stereo.match_disparity(
-        reference, other, min_disparity=lo, max_disparity=hi, **settings
-    )
+        reference, other, min_disparity=lo, max_disparity=hi, row_min_disparity=floor,
+        **settings,
+    )  # fmt: skip
     return matching, False
 
 
@@ -245,7 +287,8 @@ def run_depth(
     else:
         reference, other = right, left
     lo, hi = resolve_disparity_range(camera, right.shape, params)
-    matching, tiled = _match(reference, other, lo, hi, params)
+    floor = resolve_row_floor(camera, right.shape, params)
+    matching, tiled = _match(reference, other, lo, hi, floor, params)
     if tiled:
         notes.append(f"matched in tiles of {params['tile_px']} px")
     disparity_m = matching.disparity
@@ -305,7 +348,7 @@ def run_depth(
 
 STAGE = Stage(
     name="depth",
-    version="3",
+    version="4",
     inputs=("left", "right"),
     outputs=OUTPUTS,
     params=PARAMS,

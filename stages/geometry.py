@@ -45,6 +45,7 @@ __all__ = [
     "height_above_plane",
     "ground_disparity_at_row",
     "derive_max_disparity",
+    "derive_row_floor",
 ]
 
 
@@ -417,3 +418,51 @@ def derive_max_disparity(
     else:
         value = fallback
     return int(max(3, min(value, w - 1)))
+
+
+def derive_row_floor(
+    camera: Camera,
+    *,
+    shape: tuple[int, int],
+    margin: float = 0.25,
+    slack_px: float = 2.0,
+) -> np.ndarray | None:
+    """Least disparity worth searching in each image row (the row's *floor*), from the pose.
+
+    Why: nothing the camera sees lies below the ground, so at a given row nothing is
+    farther than the ground seen there, and no disparity is smaller than the ground's (rocks
+    stand above it: nearer, larger). Near the top of a forward-pitched frame that rules out
+    most of the range (mojave: ground 5.7 px at the top row, 38 px at the bottom, range up
+    to 51 px). The margin keeps ground that dips below the pose's plane (a wrong pitch or
+    height, hollows): the floor is ``(1 - margin) g(y) - slack_px`` rounded down, ``g(y)``
+    the pose plane's least disparity along the row (:func:`ground_disparity_at_row`).
+
+    Parameters
+    ----------
+    camera : pipeline.camera.Camera
+    shape : (int, int)
+        Image shape ``(M, N)``.
+    margin : float in [0, 1]
+        Relative margin below the ground's disparity; 1 gives no floor above ``-slack_px``.
+    slack_px : float
+        Absolute margin (px), >= 0.
+
+    Returns
+    -------
+    floor : (M,) ndarray of int64 or None
+        None without a pose (height and pitch).
+    """
+    cam = _coerce_camera(camera)
+    if not 0.0 <= margin <= 1.0 or not slack_px >= 0.0:
+        raise ValueError(
+            f"margin must be in [0, 1] and slack_px >= 0, got margin={margin}, "
+            f"slack_px={slack_px}"
+        )
+    if not cam.has_pose:
+        return None
+    assert cam.height_m is not None and cam.pitch_deg is not None
+    plane = plane_from_pose(height_m=cam.height_m, pitch_deg=cam.pitch_deg)
+    alpha, beta, gamma = plane_disparity_coefficients(plane, camera=cam, shape=shape)
+    # the lowest ground disparity along the row (the pose has no roll: alpha = 0)
+    ground = beta * np.arange(shape[0]) + gamma + min(0.0, alpha * (shape[1] - 1))
+    return np.floor((1.0 - margin) * ground - slack_px).astype(np.int64)

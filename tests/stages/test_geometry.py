@@ -13,6 +13,7 @@ from scipy import ndimage
 from pipeline.camera import Camera
 from stages.geometry import (
     derive_max_disparity,
+    derive_row_floor,
     disparity_from_range,
     fit_ground_plane,
     ground_disparity_at_row,
@@ -172,3 +173,17 @@ def test_max_disparity_from_pose_nearest_range_and_fallback():
     bare = Camera(focal_px=100.0, baseline_m=0.1)
     assert derive_max_disparity(bare, shape=SHAPE) == 64
     assert derive_max_disparity(bare, shape=(20, 30)) == 29  # never beyond the image
+
+
+def test_row_floor_lies_below_the_ground_by_the_margins():
+    floor = derive_row_floor(CAMERA, shape=SHAPE)
+    ground = np.array(
+        [ground_disparity_at_row(CAMERA, row=y, shape=SHAPE) for y in range(SHAPE[0])]
+    )
+    np.testing.assert_array_equal(floor, np.floor(0.75 * ground - 2.0).astype(np.int64))
+    assert np.all(np.diff(floor) >= 0)  # the ground is nearer lower in the image
+    assert np.all(np.nan_to_num(_ground_disparity(CAMERA), nan=np.inf) > floor[:, None])
+    assert derive_row_floor(CAMERA, shape=SHAPE, margin=1.0).max() <= -2  # no floor
+    assert derive_row_floor(Camera(focal_px=100.0, baseline_m=0.1), shape=SHAPE) is None
+    with pytest.raises(ValueError, match="margin"):
+        derive_row_floor(CAMERA, shape=SHAPE, margin=1.5)

@@ -356,3 +356,79 @@ def test_border_curves_read_the_shifted_windows(d_min):
             else:
                 assert shifted[j, x] == -np.inf
         assert valid == list(range(first[x], last[x]))  # one contiguous range
+
+
+def _kernel(right, left, lo, hi, row_start, windows="5,9"):
+    """_ncc.adaptive_match on a pair: (disparity, window), with per-window row floors."""
+    s = _stereo.check_settings(windows=windows)
+    hys = np.array([r // 2 for r, _ in s["windows"]], np.int64)
+    hxs = np.array([c // 2 for _, c in s["windows"]], np.int64)
+    r32, o32 = _stereo._centred(right), _stereo._centred(left)
+    rs, ri, rsd = _ncc.window_stats(r32, hys, hxs)
+    os_, oi, _ = _ncc.window_stats(o32, hys, hxs)
+    return _ncc.adaptive_match(
+        r32, o32, lo, hi - lo + 1, row_start, hys, hxs, rs, ri, rsd, os_, oi,
+        1.0, 0.1, _stereo._margins(s), 1.0,
+    )  # fmt: skip
+
+
+def test_row_floors_equal_raising_the_range_row_by_row():
+    # a floor f searches [f, hi] exactly as a range starting at f would; rows with different
+    # floors share running column sums, which must stay exact across the floor's steps
+    right, left, _, _ = _occlusion_scene(shape=(48, 90))
+    h = right.shape[0]
+    floors = np.where(np.arange(h) < 20, 0, np.where(np.arange(h) < 33, 3, 6))
+    row_start = np.tile(floors, (2, 1)).astype(np.int64)
+    varied, _ = _kernel(right, left, 0, 20, row_start)
+    for f in (0, 3, 6):
+        whole, _ = _kernel(right, left, f, 20, np.zeros((2, h), np.int64))
+        rows = floors == f
+        np.testing.assert_array_equal(varied[rows], whole[rows])
+
+
+def test_floor_leaves_the_first_window_whole_range():
+    # the first window's competitors below the floor flag ambiguous matches (see the
+    # "Search floor" docstring): with a single window the floor changes nothing
+    right, left, _, _ = _occlusion_scene(shape=(48, 90))
+    args = {"min_disparity": 0, "max_disparity": 20, "windows": "7"}
+    plain = match_disparity(right, left, **args)
+    floored = match_disparity(right, left, row_min_disparity=np.full(48, 10), **args)
+    np.testing.assert_array_equal(floored.disparity, plain.disparity)
+
+
+def test_floor_above_the_truth_stops_the_larger_windows():
+    # pixels left to the second window find nothing when the floor is above their disparity
+    right, left = _shifted_pair((40, 100), 5, seed=4)
+    lo_floor = match_disparity(
+        right, left, min_disparity=0, max_disparity=16, windows="3,9",
+        row_min_disparity=np.zeros(40, np.int64),
+    )  # fmt: skip
+    hi_floor = match_disparity(
+        right, left, min_disparity=0, max_disparity=16, windows="3,9",
+        row_min_disparity=np.full(40, 8),
+    )  # fmt: skip
+    right_lo = np.abs(lo_floor.disparity - 5) < 0.5
+    right_hi = np.abs(hi_floor.disparity - 5) < 0.5
+    assert np.mean(right_lo) > 0.9
+    # the second window's matches are gone; the first window's stay where they were
+    assert np.mean(right_hi) < np.mean(right_lo) - 0.05
+    assert np.all(right_lo[right_hi])
+
+
+def test_tiled_equals_whole_frame_with_row_floors():
+    right, left, _, _ = _occlusion_scene(shape=(80, 130))
+    floor = (np.arange(80) // 10).astype(np.int64)
+    args = {"min_disparity": 0, "max_disparity": 20, "speckle_size": 20, "windows": "5,9,15"}
+    whole = match_disparity(right, left, row_min_disparity=floor, **args)
+    tiled = match_tiled(right, left, tile_px=32, row_min_disparity=floor, **args)
+    np.testing.assert_array_equal(tiled.disparity, whole.disparity)
+    np.testing.assert_array_equal(tiled.status, whole.status)
+
+
+def test_bad_row_floors_raise_clear_errors():
+    right, left = _shifted_pair((20, 40), 3, seed=0)
+    args = {"min_disparity": 0, "max_disparity": 8}
+    with pytest.raises(ValueError, match="one disparity per image row"):
+        match_disparity(right, left, row_min_disparity=np.zeros(19, int), **args)
+    with pytest.raises(TypeError, match="integers"):
+        match_disparity(right, left, row_min_disparity=np.zeros(20), **args)
