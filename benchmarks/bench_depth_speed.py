@@ -13,10 +13,10 @@ Usage::
 
 ``x sgbm`` is each method's time over OpenCV StereoSGBM's on the same pair in the same run.
 ``--set`` passes depth-stage settings (for example ``windows=9,15x41,31x63,63x255``, the lab
-catalog's) to every method. ``adaptive`` searches each row from the floor the depth stage
-derives from the rendered camera's pose (``depth.floor_margin``, clipped to 0..63);
-``--set floor_margin=1`` searches all 64 disparities in every row, as before depth stage
-version 4.
+catalog's) to every method. ``adaptive``'s larger windows search each row's band the
+depth stage derives from the rendered camera's pose (``depth.floor_margin``,
+``depth.ceiling_ratio``, clipped to 0..63); ``--set floor_margin=1 ceiling_ratio=0`` searches
+all 64 disparities in every row, as before depth stage version 4.
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ from pipeline.graph import default_graph, parse_set_overrides  # noqa: E402
 from pipeline.synth import render_pair  # noqa: E402
 from stages._stereo import match_disparity  # noqa: E402
 from stages.depth import STAGE as DEPTH  # noqa: E402
-from stages.depth import resolve_row_floor  # noqa: E402
+from stages.depth import resolve_row_band  # noqa: E402
 
 D_MAX = 63  # 64 disparities, 0..63
 
@@ -64,9 +64,10 @@ def main() -> None:
     settings = parse_set_overrides(default_graph(), [f"depth.{i}" for i in args.set]).get(
         "depth", {}
     )
-    # stage parameters that are not matching settings: the floor's margin
-    floor_params = {**DEPTH.defaults(), **settings}
-    settings.pop("floor_margin", None)
+    # stage parameters that are not matching settings: the search band's
+    band_params = {**DEPTH.defaults(), **settings}
+    for name in ("floor_margin", "ceiling_ratio"):
+        settings.pop(name, None)
     cv2.setNumThreads(1)
     methods = args.methods.split(",")
     print(
@@ -84,11 +85,11 @@ def main() -> None:
             args.repeats,
         )
         for method in methods:
-            floor = resolve_row_floor(camera, right.shape, {**floor_params, "method": method})
+            band = resolve_row_band(camera, right.shape, {**band_params, "method": method})
             secs = _median_seconds(
-                lambda m=method, lft=left, rgt=right, fl=floor: match_disparity(
+                lambda m=method, lft=left, rgt=right, b=band: match_disparity(
                     rgt, lft, min_disparity=0, max_disparity=D_MAX, method=m,
-                    row_min_disparity=fl, **settings,
+                    row_min_disparity=b[0], row_max_disparity=b[1], **settings,
                 ),
                 args.repeats,
             )  # fmt: skip

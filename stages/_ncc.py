@@ -390,33 +390,37 @@ def _peak(curve, j0, j1):  # pragma: no cover - numba
 
 
 @njit(cache=True)
-def _kept_from(row_start, hys, h):  # pragma: no cover - numba
-    """First disparity index whose column sums each window keeps up to date, per centre row.
+def _kept_range(row_start, row_end, hys, h):  # pragma: no cover - numba
+    """Per window and centre row: first disparity index whose column sums are kept up to
+    date, and the end of the indices whose window sums the rows it serves need.
 
     A window centred on row ``c`` serves row ``c`` (and, shifted vertically, the rows above
-    the first centre or below the last one); the sums at ``c`` must cover the lowest floor of
-    those rows and of every later centre, because they are running sums: an index dropped
-    once cannot be resumed. Hence a suffix minimum, which is non-decreasing down the image.
+    the first centre or below the last one). The kept start must cover the lowest floor of
+    those rows and of every later centre, because column sums are running sums: an index
+    dropped once cannot be resumed. Hence a suffix minimum, non-decreasing down the image.
+    (Column sums are kept up to the last index: the ceilings rise down the image.)
     """
     n_win = hys.size
     kept = np.zeros((n_win, h), np.int64)
+    end = np.zeros((n_win, h), np.int64)
     for k in range(n_win):
         hy = hys[k]
         if 2 * hy + 1 > h:
             continue
-        starts = row_start[k]
-        low = starts[h - 1]
+        low = row_start[k, h - 1]
         for c in range(h - 1 - hy, hy - 1, -1):
-            need = starts[c]
-            if c == h - 1 - hy:
-                for y in range(c, h):
-                    need = min(need, starts[y])
-            if c == hy:
-                for y in range(c + 1):
-                    need = min(need, starts[y])
+            # the rows this centre serves
+            y0 = 0 if c == hy else c
+            y1 = h if c == h - 1 - hy else c + 1
+            need = row_start[k, y0]
+            top = row_end[k, y0]
+            for y in range(y0, y1):
+                need = min(need, row_start[k, y])
+                top = max(top, row_end[k, y])
             low = min(low, need)
             kept[k, c] = low
-    return kept
+            end[k, c] = top
+    return kept, end
 
 
 @njit(cache=True)
@@ -426,6 +430,7 @@ def adaptive_match(
     d_lo,
     n_all,
     row_start,
+    row_end,
     hys,
     hxs,
     ref_sums,
@@ -441,10 +446,11 @@ def adaptive_match(
     """Adaptive-window ZNCC matching with subpixel peak and left-right check.
 
     Parameters are centred float32 images (H, W), the first disparity and the number of
-    disparities, the first disparity index each window searches in each row (K, H) (the
-    row's floor, ``0 <= row_start <= n_all - 3``), the window half-widths in increasing
-    order (K,), per-window statistics of shape (K, H, W) from :func:`window_stats`, and
-    the least peak margin per window (K,).
+    disparities, the first and one past the last disparity index each window searches in
+    each row, (K, H) each (the row's floor and ceiling, ``0 <= row_start``, ``row_start + 3
+    <= row_end <= n_all``), the window half-widths in increasing order (K,), per-window
+    statistics of shape (K, H, W) from :func:`window_stats`, and the least peak margin per
+    window (K,).
 
     Returns
     -------
@@ -476,7 +482,7 @@ def adaptive_match(
     # (near the top and bottom the window is shifted vertically, by at most its half-height,
     # like the sideways shift below). The sums advance one row at a time from row hy.
     centre_row = np.full(n_win, -1, np.int64)
-    kept_from = _kept_from(row_start, hys, h)
+    kept_from, kept_end = _kept_range(row_start, row_end, hys, h)
     # The column sums must follow every row (they are running sums), but the window sums
     # along the row are only formed in rows where a textured pixel still needs the window:
     # the larger windows are needed by few rows where the small ones match nearly everywhere.
@@ -510,11 +516,12 @@ def adaptive_match(
             # The window's search range in this row starts at its floor: the row arrays are
             # viewed from there, and d_min, n_disp below are the row's.
             js = row_start[k, y]
+            je = row_end[k, y]
             d_min = d_lo + js
-            n_disp = n_all - js
-            curves = all_curves[js:]
-            shifted = all_shifted[js:]
-            hs_k = hs[k, js:]
+            n_disp = je - js
+            curves = all_curves[js:je]
+            shifted = all_shifted[js:je]
+            hs_k = hs[k, js:je]
             rs_row = ref_sums[k, yc]
             ri_row = ref_inv[k, yc]
             os_row = other_sums[k, yc]
@@ -533,8 +540,10 @@ def adaptive_match(
             if textured == 0:
                 continue
             if sums_row[k] != yc:
-                j_keep = kept_from[k, yc]  # all sums kept at this centre (<= js)
-                _window_sums_t(hs[k, j_keep:], cs[k, j_keep:], hw)
+                # the indices any row served by this centre searches (js .. je within)
+                j_keep = kept_from[k, yc]
+                j_end = kept_end[k, yc]
+                _window_sums_t(hs[k, j_keep:j_end], cs[k, j_keep:j_end], hw)
                 sums_row[k] = yc
             use_row = 4 * textured > w - 2 * hw
             left_ready = False  # the left-reference argmax is found on first need

@@ -46,6 +46,7 @@ __all__ = [
     "ground_disparity_at_row",
     "derive_max_disparity",
     "derive_row_floor",
+    "derive_row_ceiling",
 ]
 
 
@@ -466,3 +467,49 @@ def derive_row_floor(
     # the lowest ground disparity along the row (the pose has no roll: alpha = 0)
     ground = beta * np.arange(shape[0]) + gamma + min(0.0, alpha * (shape[1] - 1))
     return np.floor((1.0 - margin) * ground - slack_px).astype(np.int64)
+
+
+def derive_row_ceiling(
+    camera: Camera,
+    *,
+    shape: tuple[int, int],
+    ratio: float = 2.0,
+    slack_px: float = 2.0,
+) -> np.ndarray | None:
+    """Largest disparity worth searching for ground-like surfaces in each row (its *ceiling*).
+
+    Why: along the ray of a row, a point ``z`` above the ground has ``1 / (1 - z / h)``
+    times the disparity of the ground seen there (``h`` the camera height), so a ceiling of
+    ``ratio`` times the ground's disparity admits objects up to ``(1 - 1 / ratio) h`` tall
+    (ratio 2: half the camera height, 0.6 m in the built-in archives, where no truth pixel
+    exceeds 1.25 times the ground's disparity + 2 px). The stage's ``max_disparity``
+    already assumes 1.25 times the ground's disparity at the bottom row.
+
+    Parameters
+    ----------
+    camera : pipeline.camera.Camera
+    shape : (int, int)
+        Image shape ``(M, N)``.
+    ratio : float
+        >= 1; the ceiling is ``ratio g(y) + slack_px`` rounded up, ``g(y)`` the pose plane's
+        largest disparity along the row.
+    slack_px : float
+        Absolute margin (px), >= 0.
+
+    Returns
+    -------
+    ceiling : (M,) ndarray of int64 or None
+        None without a pose (height and pitch).
+    """
+    cam = _coerce_camera(camera)
+    if not ratio >= 1.0 or not slack_px >= 0.0:
+        raise ValueError(
+            f"ratio must be >= 1 and slack_px >= 0, got ratio={ratio}, slack_px={slack_px}"
+        )
+    if not cam.has_pose:
+        return None
+    assert cam.height_m is not None and cam.pitch_deg is not None
+    plane = plane_from_pose(height_m=cam.height_m, pitch_deg=cam.pitch_deg)
+    alpha, beta, gamma = plane_disparity_coefficients(plane, camera=cam, shape=shape)
+    ground = beta * np.arange(shape[0]) + gamma + max(0.0, alpha * (shape[1] - 1))
+    return np.ceil(ratio * np.maximum(ground, 0.0) + slack_px).astype(np.int64)

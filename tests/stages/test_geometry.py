@@ -13,6 +13,7 @@ from scipy import ndimage
 from pipeline.camera import Camera
 from stages.geometry import (
     derive_max_disparity,
+    derive_row_ceiling,
     derive_row_floor,
     disparity_from_range,
     fit_ground_plane,
@@ -187,3 +188,17 @@ def test_row_floor_lies_below_the_ground_by_the_margins():
     assert derive_row_floor(Camera(focal_px=100.0, baseline_m=0.1), shape=SHAPE) is None
     with pytest.raises(ValueError, match="margin"):
         derive_row_floor(CAMERA, shape=SHAPE, margin=1.5)
+
+
+def test_row_ceiling_admits_objects_up_to_the_ratio_height():
+    # a point z above the ground on a row's ray has g / (1 - z / h) disparity: ratio 2 admits
+    # up to half the camera height
+    ceiling = derive_row_ceiling(CAMERA, shape=SHAPE, ratio=2.0, slack_px=0.0)
+    ground = np.array(
+        [ground_disparity_at_row(CAMERA, row=y, shape=SHAPE) for y in range(SHAPE[0])]
+    )
+    np.testing.assert_array_equal(ceiling, np.ceil(2.0 * np.maximum(ground, 0)).astype(np.int64))
+    assert np.all(derive_row_ceiling(CAMERA, shape=SHAPE) >= ceiling + 2)
+    assert derive_row_ceiling(Camera(focal_px=100.0, baseline_m=0.1), shape=SHAPE) is None
+    with pytest.raises(ValueError, match="ratio"):
+        derive_row_ceiling(CAMERA, shape=SHAPE, ratio=0.5)

@@ -358,8 +358,10 @@ def test_border_curves_read_the_shifted_windows(d_min):
         assert valid == list(range(first[x], last[x]))  # one contiguous range
 
 
-def _kernel(right, left, lo, hi, row_start, windows="5,9"):
-    """_ncc.adaptive_match on a pair: (disparity, window), with per-window row floors."""
+def _kernel(right, left, lo, hi, row_start, row_end=None, windows="5,9"):
+    """_ncc.adaptive_match on a pair: (disparity, window), with per-window row bands."""
+    if row_end is None:
+        row_end = np.full_like(row_start, hi - lo + 1)
     s = _stereo.check_settings(windows=windows)
     hys = np.array([r // 2 for r, _ in s["windows"]], np.int64)
     hxs = np.array([c // 2 for _, c in s["windows"]], np.int64)
@@ -367,33 +369,38 @@ def _kernel(right, left, lo, hi, row_start, windows="5,9"):
     rs, ri, rsd = _ncc.window_stats(r32, hys, hxs)
     os_, oi, _ = _ncc.window_stats(o32, hys, hxs)
     return _ncc.adaptive_match(
-        r32, o32, lo, hi - lo + 1, row_start, hys, hxs, rs, ri, rsd, os_, oi,
+        r32, o32, lo, hi - lo + 1, row_start, row_end, hys, hxs, rs, ri, rsd, os_, oi,
         1.0, 0.1, _stereo._margins(s), 1.0,
     )  # fmt: skip
 
 
-def test_row_floors_equal_raising_the_range_row_by_row():
-    # a floor f searches [f, hi] exactly as a range starting at f would; rows with different
-    # floors share running column sums, which must stay exact across the floor's steps
+@pytest.mark.parametrize("bands", [((0, 20), (3, 20), (6, 20)), ((0, 14), (2, 17), (5, 20))])
+def test_row_bands_equal_narrowing_the_range_row_by_row(bands):
+    # a band [f, c] searches exactly as a range [f, c] would; rows with different bands
+    # share running column sums, which must stay exact across the bands' steps
     right, left, _, _ = _occlusion_scene(shape=(48, 90))
     h = right.shape[0]
-    floors = np.where(np.arange(h) < 20, 0, np.where(np.arange(h) < 33, 3, 6))
+    part = np.where(np.arange(h) < 20, 0, np.where(np.arange(h) < 33, 1, 2))
+    floors = np.array([b[0] for b in bands])[part]
+    ceilings = np.array([b[1] for b in bands])[part]
     row_start = np.tile(floors, (2, 1)).astype(np.int64)
-    varied, _ = _kernel(right, left, 0, 20, row_start)
-    for f in (0, 3, 6):
-        whole, _ = _kernel(right, left, f, 20, np.zeros((2, h), np.int64))
-        rows = floors == f
-        np.testing.assert_array_equal(varied[rows], whole[rows])
+    row_end = np.tile(ceilings + 1, (2, 1)).astype(np.int64)
+    varied, _ = _kernel(right, left, 0, 20, row_start, row_end)
+    for i, (f, c) in enumerate(bands):
+        whole, _ = _kernel(right, left, f, c, np.zeros((2, h), np.int64))
+        np.testing.assert_array_equal(varied[part == i], whole[part == i])
 
 
-def test_floor_leaves_the_first_window_whole_range():
-    # the first window's competitors below the floor flag ambiguous matches (see the
-    # "Search floor" docstring): with a single window the floor changes nothing
+def test_band_leaves_the_first_window_whole_range():
+    # the first window's competitors outside the band flag ambiguous matches (see the
+    # "Search band" docstring): with a single window the band changes nothing
     right, left, _, _ = _occlusion_scene(shape=(48, 90))
     args = {"min_disparity": 0, "max_disparity": 20, "windows": "7"}
     plain = match_disparity(right, left, **args)
-    floored = match_disparity(right, left, row_min_disparity=np.full(48, 10), **args)
-    np.testing.assert_array_equal(floored.disparity, plain.disparity)
+    banded = match_disparity(
+        right, left, row_min_disparity=np.full(48, 10), row_max_disparity=np.full(48, 14), **args
+    )
+    np.testing.assert_array_equal(banded.disparity, plain.disparity)
 
 
 def test_floor_above_the_truth_stops_the_larger_windows():
@@ -415,20 +422,33 @@ def test_floor_above_the_truth_stops_the_larger_windows():
     assert np.all(right_lo[right_hi])
 
 
-def test_tiled_equals_whole_frame_with_row_floors():
+def test_tiled_equals_whole_frame_with_row_bands():
     right, left, _, _ = _occlusion_scene(shape=(80, 130))
     floor = (np.arange(80) // 10).astype(np.int64)
+    band = {"row_min_disparity": floor, "row_max_disparity": floor + 13}
     args = {"min_disparity": 0, "max_disparity": 20, "speckle_size": 20, "windows": "5,9,15"}
-    whole = match_disparity(right, left, row_min_disparity=floor, **args)
-    tiled = match_tiled(right, left, tile_px=32, row_min_disparity=floor, **args)
+    whole = match_disparity(right, left, **band, **args)
+    tiled = match_tiled(right, left, tile_px=32, **band, **args)
     np.testing.assert_array_equal(tiled.disparity, whole.disparity)
     np.testing.assert_array_equal(tiled.status, whole.status)
 
 
-def test_bad_row_floors_raise_clear_errors():
+def test_bad_row_bands_raise_clear_errors():
     right, left = _shifted_pair((20, 40), 3, seed=0)
     args = {"min_disparity": 0, "max_disparity": 8}
-    with pytest.raises(ValueError, match="one disparity per image row"):
+    with pytest.raises(ValueError, match="row_min_disparity must hold one disparity per"):
         match_disparity(right, left, row_min_disparity=np.zeros(19, int), **args)
-    with pytest.raises(TypeError, match="integers"):
-        match_disparity(right, left, row_min_disparity=np.zeros(20), **args)
+    with pytest.raises(TypeError, match="row_max_disparity must be integers"):
+        match_disparity(right, left, row_max_disparity=np.full(20, 5.0), **args)
+
+
+def test_ceiling_below_the_truth_stops_the_larger_windows():
+    right, left = _shifted_pair((40, 100), 9, seed=4)
+    args = {"min_disparity": 0, "max_disparity": 16, "windows": "3,9"}
+    open_band = match_disparity(right, left, **args)
+    low_ceiling = match_disparity(right, left, row_max_disparity=np.full(40, 6), **args)
+    right_open = np.abs(open_band.disparity - 9) < 0.5
+    right_low = np.abs(low_ceiling.disparity - 9) < 0.5
+    assert np.mean(right_open) > 0.85  # all but the columns that leave the image
+    assert np.mean(right_low) < np.mean(right_open) - 0.05
+    assert np.all(right_open[right_low])  # the first window's matches stay
