@@ -4,7 +4,10 @@ Renders a few frames per archetype with ``pipeline.synth.render_pair``, matches 
 ``stages._stereo.match_disparity`` (the depth stage's math, search range as the stage derives
 it from the camera) and with the evaluate module's StereoSGBM baseline on the same range,
 and prints bad-1 / bad-2 / EPE / density pooled over the frames (non-occluded truth pixels,
-``pipeline.metrics`` conventions).
+``pipeline.metrics`` conventions). The ``adaptive`` method's larger windows search each row's
+band the stage derives from the camera pose (``depth.floor_margin``, ``depth.ceiling_ratio``;
+``--set floor_margin=1 ceiling_ratio=0`` searches the whole range, as before depth stage
+version 4).
 
 Usage::
 
@@ -23,6 +26,8 @@ from pipeline.graph import default_graph, parse_set_overrides
 from pipeline.metrics import disparity_errors, pool_disparity_errors
 from pipeline.synth import render_pair
 from stages._stereo import match_disparity
+from stages.depth import STAGE as DEPTH
+from stages.depth import resolve_row_band
 from stages.geometry import derive_max_disparity
 
 
@@ -38,6 +43,10 @@ def main() -> None:
     settings = parse_set_overrides(default_graph(), [f"depth.{i}" for i in args.set]).get(
         "depth", {}
     )
+    # stage parameters that are not matching settings: the search band's
+    band_params = {**DEPTH.defaults(), **settings}
+    for name in ("floor_margin", "ceiling_ratio"):
+        settings.pop(name, None)
     methods = args.methods.split(",")
     print(
         f"{'archetype':<10}{'method':<12}{'bad1':>8}{'bad2':>8}{'epe':>8}{'density':>9}"
@@ -55,9 +64,11 @@ def main() -> None:
             keep = ~truth["occluded"]
             for method in methods:
                 t0 = time.perf_counter()
+                band = resolve_row_band(camera, right.shape, {**band_params, "method": method})
                 m = match_disparity(
-                    right, left, min_disparity=0, max_disparity=hi, method=method, **settings
-                )
+                    right, left, min_disparity=0, max_disparity=hi, method=method,
+                    row_min_disparity=band[0], row_max_disparity=band[1], **settings,
+                )  # fmt: skip
                 secs[method] += time.perf_counter() - t0
                 per[method].append(
                     disparity_errors(m.disparity, truth["disparity"], valid_truth=keep)

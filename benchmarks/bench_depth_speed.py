@@ -13,7 +13,10 @@ Usage::
 
 ``x sgbm`` is each method's time over OpenCV StereoSGBM's on the same pair in the same run.
 ``--set`` passes depth-stage settings (for example ``windows=9,15x41,31x63,63x255``, the lab
-catalog's) to every method.
+catalog's) to every method. ``adaptive``'s larger windows search each row's band the
+depth stage derives from the rendered camera's pose (``depth.floor_margin``,
+``depth.ceiling_ratio``, clipped to 0..63); ``--set floor_margin=1 ceiling_ratio=0`` searches
+all 64 disparities in every row, as before depth stage version 4.
 """
 
 from __future__ import annotations
@@ -29,9 +32,12 @@ import time  # noqa: E402
 import cv2  # noqa: E402
 
 from pipeline._baselines import sgbm_disparity  # noqa: E402
+from pipeline.camera import Camera  # noqa: E402
 from pipeline.graph import default_graph, parse_set_overrides  # noqa: E402
 from pipeline.synth import render_pair  # noqa: E402
 from stages._stereo import match_disparity  # noqa: E402
+from stages.depth import STAGE as DEPTH  # noqa: E402
+from stages.depth import resolve_row_band  # noqa: E402
 
 D_MAX = 63  # 64 disparities, 0..63
 
@@ -58,6 +64,10 @@ def main() -> None:
     settings = parse_set_overrides(default_graph(), [f"depth.{i}" for i in args.set]).get(
         "depth", {}
     )
+    # stage parameters that are not matching settings: the search band's
+    band_params = {**DEPTH.defaults(), **settings}
+    for name in ("floor_margin", "ceiling_ratio"):
+        settings.pop(name, None)
     cv2.setNumThreads(1)
     methods = args.methods.split(",")
     print(
@@ -66,7 +76,8 @@ def main() -> None:
     )
     print(f"{'archetype':<10}{'method':<10}{'ms/pair':>9}{'pairs/s':>9}{'x sgbm':>8}")
     for archetype in args.archetypes.split(","):
-        left, right, *_ = render_pair(archetype, seed=0, size=args.size)
+        left, right, _, _, cam = render_pair(archetype, seed=0, size=args.size)
+        camera = Camera(**{k: cam[k] for k in ("focal_px", "baseline_m", "height_m", "pitch_deg")})
         sgbm = _median_seconds(
             lambda lft=left, rgt=right: sgbm_disparity(
                 lft, rgt, min_disparity=0, max_disparity=D_MAX
@@ -74,12 +85,14 @@ def main() -> None:
             args.repeats,
         )
         for method in methods:
+            band = resolve_row_band(camera, right.shape, {**band_params, "method": method})
             secs = _median_seconds(
-                lambda m=method, lft=left, rgt=right: match_disparity(
-                    rgt, lft, min_disparity=0, max_disparity=D_MAX, method=m, **settings
+                lambda m=method, lft=left, rgt=right, b=band: match_disparity(
+                    rgt, lft, min_disparity=0, max_disparity=D_MAX, method=m,
+                    row_min_disparity=b[0], row_max_disparity=b[1], **settings,
                 ),
                 args.repeats,
-            )
+            )  # fmt: skip
             print(f"{archetype:<10}{method:<10}{secs * 1e3:9.1f}{1 / secs:9.2f}{secs / sgbm:8.2f}")
         print(f"{archetype:<10}{'sgbm':<10}{sgbm * 1e3:9.1f}{1 / sgbm:9.2f}{1.0:8.2f}")
 

@@ -144,66 +144,225 @@ def _parabola_offset(c_minus, c_0, c_plus):  # pragma: no cover - numba
     return min(0.5, max(-0.5, offset))
 
 
+# ------------------------------------------------------------ adaptive matching, (D, W) layout
+#
+# The adaptive matcher keeps its per-row sums and curves disparity-major, ``a[j, x]``: the
+# work that dominates (the ZNCC of every column, its peak and runner-up, the left-reference
+# argmax) then runs over contiguous columns for one disparity at a time, so every column is
+# an independent SIMD lane instead of a short serial search per pixel. Only the sliding
+# window sum along the row is serial (one running sum per disparity).
+
+
+@njit(cache=True)
+def _update_column_sums_t(cs, ref, other, y_add, y_sub, d_min):  # pragma: no cover - numba
+    """(D, W) column sums: add product row ``y_add``, remove row ``y_sub`` (skipped if < 0)."""
+    n_disp, w = cs.shape
+    ref_add = ref[y_add]
+    oth_add = other[y_add]
+    ref_sub = ref[max(y_sub, 0)]
+    oth_sub = other[max(y_sub, 0)]
+    for j in range(n_disp):
+        d = d_min + j
+        x0 = max(0, -d)
+        x1 = min(w, w - d)
+        if x1 <= x0:
+            continue
+        sums = cs[j, x0:x1]
+        ra = ref_add[x0:x1]
+        la = oth_add[x0 + d : x1 + d]
+        if y_sub >= 0:
+            rs = ref_sub[x0:x1]
+            ls = oth_sub[x0 + d : x1 + d]
+            for i in range(x1 - x0):
+                sums[i] += ra[i] * la[i] - rs[i] * ls[i]
+        else:
+            for i in range(x1 - x0):
+                sums[i] += ra[i] * la[i]
+
+
+@njit(cache=True)
+def _window_sums_t(hs, cs, hw):  # pragma: no cover - numba
+    """(D, W) sums of the ``2 hw + 1`` wide window along each disparity's row."""
+    # The window sum's change from x - 1 to x, cs[x + hw] - cs[x - hw - 1], is formed in a
+    # vectorised pass; only the running total of those changes is serial (one add per
+    # element), which halves the cost of a plain sliding sum.
+    n_disp, w = cs.shape
+    if w < 2 * hw + 1:
+        return
+    m = w - 2 * hw - 1
+    for j in range(n_disp):
+        column = cs[j]
+        out = hs[j, hw + 1 : w - hw]
+        acc = np.int32(0)
+        for x in range(2 * hw + 1):
+            acc += column[x]
+        hs[j, hw] = acc
+        ahead = column[2 * hw + 1 :]
+        behind = column[:m]
+        for i in range(m):
+            out[i] = ahead[i] - behind[i]
+        for i in range(m):
+            acc += out[i]
+            out[i] = acc
+
+
+@njit(cache=True)
+def _advance_column_sums_t(cs, ref, other, y, hy, d_min):  # pragma: no cover - numba
+    """Bring the (D, W) column sums of one window height to row ``y`` (from row y - 1)."""
+    if y == hy:
+        cs[:, :] = 0
+        for yy in range(2 * hy + 1):
+            _update_column_sums_t(cs, ref, other, yy, -1, d_min)
+    else:
+        _update_column_sums_t(cs, ref, other, y + hy, y - hy - 1, d_min)
+
+
 @njit(cache=True, inline="always")
 def _ncc(hs, n, rs_row, ri_row, os_row, oi_row, x, j, d_min):  # pragma: no cover - numba
-    """ZNCC of reference column ``x`` at disparity index ``j`` in the current row."""
+    """ZNCC of reference column ``x`` at disparity index ``j`` in the current row (hs (D, W))."""
     xo = x + d_min + j
-    num = n * np.float64(hs[x, j]) - np.float64(rs_row[x]) * np.float64(os_row[xo])
+    num = n * np.float64(hs[j, x]) - np.float64(rs_row[x]) * np.float64(os_row[xo])
     return np.float32(num * ri_row[x] * oi_row[xo])
 
 
 @njit(cache=True)
 def _row_curves(curves, hs, n, hw, rs_row, ri_row, os_row, oi_row, d_min):  # pragma: no cover
-    """ZNCC of every column and disparity of the current row; -2 where undefined.
+    """ZNCC of every disparity and column of the current row, (D, W); -2 where undefined.
 
-    ``n`` is the window's pixel count, ``hw`` its half-width.
+    ``n`` is the window's pixel count, ``hw`` its half-width. The float operations are the
+    same, in the same order, as in :func:`_ncc`, so both give identical values.
     """
-    # Row slices indexed from 0 let LLVM vectorise (see _update_column_sums); the float
-    # operations are the same, in the same order, as in _ncc.
-    w, n_disp = curves.shape
+    n_disp, w = curves.shape
     curves[:, :] = -2.0
-    for x in range(hw, w - hw):
-        j0 = max(0, hw - x - d_min)
-        j1 = min(n_disp, w - hw - x - d_min)
-        if j1 <= j0:
+    for j in range(n_disp):
+        d = d_min + j
+        x0 = max(hw, hw - d)
+        x1 = min(w - hw, w - hw - d)
+        if x1 <= x0:
             continue
-        rs = np.float64(rs_row[x])
-        ri = np.float64(ri_row[x])
-        out = curves[x, j0:j1]
-        sums = hs[x, j0:j1]
-        o_sums = os_row[x + d_min + j0 : x + d_min + j1]
-        o_inv = oi_row[x + d_min + j0 : x + d_min + j1]
-        for j in range(j1 - j0):
-            num = n * np.float64(sums[j]) - rs * np.float64(o_sums[j])
-            out[j] = np.float32(num * ri * o_inv[j])
+        out = curves[j, x0:x1]
+        sums = hs[j, x0:x1]
+        r_sums = rs_row[x0:x1]
+        r_inv = ri_row[x0:x1]
+        o_sums = os_row[x0 + d : x1 + d]
+        o_inv = oi_row[x0 + d : x1 + d]
+        for i in range(x1 - x0):
+            num = n * np.float64(sums[i]) - np.float64(r_sums[i]) * np.float64(o_sums[i])
+            out[i] = np.float32(num * np.float64(r_inv[i]) * o_inv[i])
+
+
+@njit(cache=True)
+def _row_peaks(best_index, best_value, second, curves, x0, x1):  # pragma: no cover - numba
+    """:func:`_peak` of the columns ``x0 .. x1 - 1`` of the row's curves (all disparities).
+
+    Three passes over the (D, W) curves, each a branch-free update of contiguous columns:
+    the maximum, the first index that reaches it, the best value more than one index
+    away. Maxima are exact, so the results equal :func:`_peak`'s column by column.
+    """
+    n_disp = curves.shape[0]
+    if x1 <= x0:
+        return
+    top = best_value[x0:x1]
+    index = best_index[x0:x1]
+    runner = second[x0:x1]
+    top[:] = -np.inf
+    for j in range(n_disp):
+        row = curves[j, x0:x1]
+        for i in range(x1 - x0):
+            v = row[i]
+            top[i] = v if v > top[i] else top[i]
+    index[:] = n_disp
+    for j in range(n_disp - 1, -1, -1):  # descending: the smallest index reaching it wins
+        row = curves[j, x0:x1]
+        for i in range(x1 - x0):
+            index[i] = j if row[i] == top[i] else index[i]
+    runner[:] = -np.inf
+    for j in range(n_disp):
+        row = curves[j, x0:x1]
+        for i in range(x1 - x0):
+            v = row[i]
+            far = j < index[i] - 1 or j > index[i] + 1
+            runner[i] = v if far and v > runner[i] else runner[i]
 
 
 @njit(cache=True)
 def _left_best(left_index, left_value, curves, hw, d_min):  # pragma: no cover - numba
-    """Best disparity index of every column of the other image from the row's curves.
+    """Best disparity index of every column of the other image from the row's (D, W) curves.
 
     The left-reference curve is the reference one re-indexed, ``C_left(xl, j) =
-    C_ref(xl - d_min - j, j)``, so one pass over the row's curves finds every argmax.
+    C_ref(xl - d_min - j, j)``, so one pass over the row's curves finds every argmax. Of
+    equal values the largest index wins ('>=' over increasing j), as in the per-pixel
+    check of :func:`adaptive_match`.
     """
-    # Within one column x the indices j land on distinct xl, so the branch-free update of
-    # row slices vectorises; the strict '>' keeps the first maximum in visiting order.
-    w, n_disp = curves.shape
+    n_disp, w = curves.shape
     left_index[:] = -1
     left_value[:] = -np.inf
-    for x in range(hw, w - hw):
-        j0 = max(0, hw - x - d_min)
-        j1 = min(n_disp, w - hw - x - d_min)
-        if j1 <= j0:
+    for j in range(n_disp):
+        d = d_min + j
+        # the reference column xl - d and the left column xl both hold the whole window
+        xl0 = max(hw, hw + d)
+        xl1 = min(w - hw, w - hw + d)
+        if xl1 <= xl0:
             continue
-        values = curves[x, j0:j1]
-        best_value = left_value[x + d_min + j0 : x + d_min + j1]
-        best_index = left_index[x + d_min + j0 : x + d_min + j1]
-        for i in range(j1 - j0):
+        values = curves[j, xl0 - d : xl1 - d]
+        best_value = left_value[xl0:xl1]
+        best_index = left_index[xl0:xl1]
+        for i in range(xl1 - xl0):
             v = values[i]
-            old = best_value[i]
-            better = v > old
-            best_value[i] = v if better else old
-            best_index[i] = (i + j0) if better else best_index[i]
+            better = v >= best_value[i]
+            best_value[i] = v if better else best_value[i]
+            best_index[i] = j if better else best_index[i]
+
+
+@njit(cache=True)
+def _border_curves(shifted, j_first, j_last, curves, hw, d_min, x0, x1):  # pragma: no cover
+    """Curves of the columns ``x0 .. x1 - 1`` with the window shifted to fit, (D, W).
+
+    Near the image's sides :func:`adaptive_match` moves a window that does not fit at a
+    disparity to the nearest centre where it does (:func:`_shifted_centre`, at most ``hw``
+    px away); its ZNCC is then ``curves[j, centre]``. Where no such centre exists the value
+    is -inf, which no maximum picks. ``j_first``, ``j_last`` receive each column's valid
+    index range ``[j_first, j_last)`` (contiguous: the centre moves monotonically with j).
+    """
+    # At index j the centre is x clamped to [a, b] (the columns where the window fits in
+    # both images), valid within hw of x: a constant run, a copy of the curve row, and
+    # another constant run, all contiguous slices.
+    n_disp, w = curves.shape
+    if x1 <= x0:
+        return
+    j_first[x0:x1] = n_disp
+    j_last[x0:x1] = 0
+    for j in range(n_disp):
+        out = shifted[j]
+        row = curves[j]
+        out[x0:x1] = -np.inf
+        a = max(hw, hw - d_min - j)
+        b = min(w - 1 - hw, w - 1 - hw - d_min - j)
+        if a > b:
+            continue
+        v0 = max(x0, a - hw)
+        v1 = min(x1, b + hw + 1)
+        if v1 <= v0:
+            continue
+        for x in range(v0, min(v1, a)):
+            out[x] = row[a]
+        c0 = max(v0, a)
+        c1 = min(v1, b + 1)
+        if c1 > c0:
+            out[c0:c1] = row[c0:c1]
+        for x in range(max(v0, b + 1), v1):
+            out[x] = row[b]
+        first = j_first[v0:v1]
+        for i in range(v1 - v0):
+            first[i] = min(first[i], j)
+        j_last[v0:v1] = j + 1
+
+
+@njit(cache=True, inline="always")
+def _shifted_centre(x, j, hw, d_min, w):  # pragma: no cover - numba
+    """Nearest window centre to column ``x`` where the window fits in both images at index j."""
+    x_ref = min(max(x, hw), w - 1 - hw)
+    return max(min(x_ref, w - 1 - hw - d_min - j), hw - d_min - j)
 
 
 @njit(cache=True, fastmath={"nnan", "ninf", "nsz", "reassoc"})
@@ -231,11 +390,47 @@ def _peak(curve, j0, j1):  # pragma: no cover - numba
 
 
 @njit(cache=True)
+def _kept_range(row_start, row_end, hys, h):  # pragma: no cover - numba
+    """Per window and centre row: first disparity index whose column sums are kept up to
+    date, and the end of the indices whose window sums the rows it serves need.
+
+    A window centred on row ``c`` serves row ``c`` (and, shifted vertically, the rows above
+    the first centre or below the last one). The kept start must cover the lowest floor of
+    those rows and of every later centre, because column sums are running sums: an index
+    dropped once cannot be resumed. Hence a suffix minimum, non-decreasing down the image.
+    (Column sums are kept up to the last index: the ceilings rise down the image.)
+    """
+    n_win = hys.size
+    kept = np.zeros((n_win, h), np.int64)
+    end = np.zeros((n_win, h), np.int64)
+    for k in range(n_win):
+        hy = hys[k]
+        if 2 * hy + 1 > h:
+            continue
+        low = row_start[k, h - 1]
+        for c in range(h - 1 - hy, hy - 1, -1):
+            # the rows this centre serves
+            y0 = 0 if c == hy else c
+            y1 = h if c == h - 1 - hy else c + 1
+            need = row_start[k, y0]
+            top = row_end[k, y0]
+            for y in range(y0, y1):
+                need = min(need, row_start[k, y])
+                top = max(top, row_end[k, y])
+            low = min(low, need)
+            kept[k, c] = low
+            end[k, c] = top
+    return kept, end
+
+
+@njit(cache=True)
 def adaptive_match(
     ref,
     other,
-    d_min,
-    n_disp,
+    d_lo,
+    n_all,
+    row_start,
+    row_end,
     hys,
     hxs,
     ref_sums,
@@ -251,8 +446,11 @@ def adaptive_match(
     """Adaptive-window ZNCC matching with subpixel peak and left-right check.
 
     Parameters are centred float32 images (H, W), the first disparity and the number of
-    disparities, the window half-widths in increasing order (K,), per-window statistics
-    of shape (K, H, W) from :func:`window_stats`, and the least peak margin per window (K,).
+    disparities, the first and one past the last disparity index each window searches in
+    each row, (K, H) each (the row's floor and ceiling, ``0 <= row_start``, ``row_start + 3
+    <= row_end <= n_all``), the window half-widths in increasing order (K,), per-window
+    statistics of shape (K, H, W) from :func:`window_stats`, and the least peak margin per
+    window (K,).
 
     Returns
     -------
@@ -266,35 +464,47 @@ def adaptive_match(
     n_win = hys.size
     disparity = np.full((h, w), NO_PEAK, np.float32)
     window = np.full((h, w), -1, np.int8)
-    cs = np.zeros((n_win, w, n_disp), np.int32)
-    hs = np.zeros((n_win, w, n_disp), np.int32)
-    curves = np.full((w, n_disp), -2.0, np.float32)
-    curve = np.empty(n_disp, np.float32)
+    cs = np.zeros((n_win, n_all, w), np.int32)
+    hs = np.zeros((n_win, n_all, w), np.int32)
+    all_curves = np.full((n_all, w), -2.0, np.float32)
+    curve = np.empty(n_all, np.float32)
+    row_best = np.zeros(w, np.int64)
+    row_top = np.zeros(w, np.float32)
+    row_second = np.zeros(w, np.float32)
     left_index = np.full(w, -1, np.int64)
     left_value = np.full(w, -np.inf, np.float32)
     pending = np.empty(w, np.int64)
-    centre = np.empty(n_disp, np.int64)
+    all_shifted = np.full((n_all, w), -np.inf, np.float32)
+    j_first = np.zeros(w, np.int64)
+    j_last = np.zeros(w, np.int64)
     peak_seen = np.zeros(w, np.bool_)
     # Row of each window's centre: the pixel's row, or the nearest row where the window fits
     # (near the top and bottom the window is shifted vertically, by at most its half-height,
     # like the sideways shift below). The sums advance one row at a time from row hy.
     centre_row = np.full(n_win, -1, np.int64)
+    kept_from, kept_end = _kept_range(row_start, row_end, hys, h)
+    # The column sums must follow every row (they are running sums), but the window sums
+    # along the row are only formed in rows where a textured pixel still needs the window:
+    # the larger windows are needed by few rows where the small ones match nearly everywhere.
+    sums_row = np.full(n_win, -1, np.int64)
     for y in range(h):
         for k in range(n_win):
             if 2 * hys[k] + 1 > h:
                 continue
             yc = min(max(y, hys[k]), h - 1 - hys[k])
             if yc != centre_row[k]:
-                _refresh_row(cs[k], hs[k], ref, other, yc, hys[k], hxs[k], d_min)
+                j_keep = kept_from[k, yc]
+                _advance_column_sums_t(cs[k, j_keep:], ref, other, yc, hys[k], d_lo + j_keep)
                 centre_row[k] = yc
+                sums_row[k] = -1  # window sums are formed on first need in the row
         n_pending = 0
         for x in range(w):
             pending[n_pending] = x
             n_pending += 1
         peak_seen[:] = False
         # Window by window over the row's still-unmatched pixels. Where many pixels need a
-        # window, its whole row of curves is computed in one vectorised pass and the
-        # left-right check reads the row back (C_left(xl, d) = C_ref(xl - d, d));
+        # window, its whole row of curves and their peaks are computed in vectorised passes
+        # and the left-right check reads the row back (C_left(xl, d) = C_ref(xl - d, d));
         # otherwise the few pixels are evaluated one by one. Both give identical values.
         for k in range(n_win):
             hw = hxs[k]
@@ -303,7 +513,15 @@ def adaptive_match(
                 break
             yc = centre_row[k]
             n = (2 * hy + 1) * (2 * hw + 1)
-            hs_k = hs[k]
+            # The window's search range in this row starts at its floor: the row arrays are
+            # viewed from there, and d_min, n_disp below are the row's.
+            js = row_start[k, y]
+            je = row_end[k, y]
+            d_min = d_lo + js
+            n_disp = je - js
+            curves = all_curves[js:je]
+            shifted = all_shifted[js:je]
+            hs_k = hs[k, js:je]
             rs_row = ref_sums[k, yc]
             ri_row = ref_inv[k, yc]
             os_row = other_sums[k, yc]
@@ -319,10 +537,27 @@ def adaptive_match(
                 if ref_std[k, yc, min(max(x, hw), w - 1 - hw)] >= min_texture:
                     textured += 1
             n_pending = kept
+            if textured == 0:
+                continue
+            if sums_row[k] != yc:
+                # the indices any row served by this centre searches (js .. je within)
+                j_keep = kept_from[k, yc]
+                j_end = kept_end[k, yc]
+                _window_sums_t(hs[k, j_keep:j_end], cs[k, j_keep:j_end], hw)
+                sums_row[k] = yc
             use_row = 4 * textured > w - 2 * hw
             left_ready = False  # the left-reference argmax is found on first need
             if use_row:
                 _row_curves(curves, hs_k, n, hw, rs_row, ri_row, os_row, oi_row, d_min)
+                # interior columns [xa, xb): the window fits at every disparity; the others
+                # get their shifted windows' curves, and all their peaks come from row passes
+                xa = max(hw, hw - d_min)
+                xb = max(xa, min(w - hw, w - hw - d_min - n_disp + 1))
+                _row_peaks(row_best, row_top, row_second, curves, xa, xb)
+                _border_curves(shifted, j_first, j_last, curves, hw, d_min, 0, xa)
+                _border_curves(shifted, j_first, j_last, curves, hw, d_min, xb, w)
+                _row_peaks(row_best, row_top, row_second, shifted, 0, xa)
+                _row_peaks(row_best, row_top, row_second, shifted, xb, w)
             kept = 0
             for i in range(n_pending):
                 x = pending[i]
@@ -332,42 +567,48 @@ def adaptive_match(
                 if ref_std[k, yc, x_ref] < min_texture:
                     continue
                 interior = x == x_ref and hw - x - d_min <= 0 and w - hw - x - d_min >= n_disp
-                if interior:
+                if use_row:
+                    if interior:
+                        j0 = 0
+                        j1 = n_disp
+                        source = curves
+                    else:
+                        j0 = j_first[x]
+                        j1 = j_last[x]
+                        if j1 - j0 < 3:
+                            continue
+                        source = shifted
+                    best = row_best[x]
+                    best_value = row_top[x]
+                    second = row_second[x]
+                elif interior:
                     j0 = 0
                     j1 = n_disp
-                    if use_row:
-                        row_curve = curves[x]
-                    else:
-                        for j in range(n_disp):
-                            curve[j] = _ncc(hs_k, n, rs_row, ri_row, os_row, oi_row, x, j, d_min)
-                        row_curve = curve
+                    for j in range(n_disp):
+                        curve[j] = _ncc(hs_k, n, rs_row, ri_row, os_row, oi_row, x, j, d_min)
+                    best, best_value, second = _peak(curve, j0, j1)
                 else:
                     # Near the image's sides the window is shifted (by at most its half-width,
                     # so it still contains the pixel) to lie inside both images.
                     j0 = n_disp
                     j1 = 0
                     for j in range(n_disp):
-                        xc = max(min(x_ref, w - 1 - hw - d_min - j), hw - d_min - j)
+                        xc = _shifted_centre(x, j, hw, d_min, w)
                         if xc < hw or xc > w - 1 - hw or abs(xc - x) > hw:
                             curve[j] = -2.0
                             continue
-                        centre[j] = xc
-                        if use_row:
-                            curve[j] = curves[xc, j]
-                        else:
-                            curve[j] = _ncc(hs_k, n, rs_row, ri_row, os_row, oi_row, xc, j, d_min)
+                        curve[j] = _ncc(hs_k, n, rs_row, ri_row, os_row, oi_row, xc, j, d_min)
                         j0 = min(j0, j)
                         j1 = max(j1, j + 1)
-                    row_curve = curve
-                if j1 - j0 < 3:
-                    continue
-                best, best_value, second = _peak(row_curve, j0, j1)
+                    if j1 - j0 < 3:
+                        continue
+                    best, best_value, second = _peak(curve, j0, j1)
                 if best == j0 or best == j1 - 1 or best_value < min_ncc:
                     continue
                 if best_value - second < margins[k]:
                     continue
                 peak_seen[x] = True
-                xc = x if interior else centre[best]
+                xc = x if interior else _shifted_centre(x, best, hw, d_min, w)
                 xl = xc + d_min + best
                 if use_row:
                     if not left_ready:
@@ -375,7 +616,7 @@ def adaptive_match(
                         left_ready = True
                     lr_best = left_index[xl]
                 else:
-                    # same visiting order as _left_best, so ties resolve identically
+                    # same tie rule as _left_best: of equal values the largest index wins
                     lr_best = -1
                     lr_value = np.float32(-np.inf)
                     for jj in range(n_disp - 1, -1, -1):
@@ -391,10 +632,24 @@ def adaptive_match(
                 # The window-edge asymmetry of the reference curve's neighbours appears with
                 # the opposite sign in the left-reference curve, so averaging both parabola
                 # vertices cancels it (an exact integer shift gives an exact integer).
-                offset = _parabola_offset(row_curve[best - 1], best_value, row_curve[best + 1])
+                if use_row:
+                    c_minus = source[best - 1, x]
+                    c_plus = source[best + 1, x]
+                else:
+                    c_minus = curve[best - 1]
+                    c_plus = curve[best + 1]
+                offset = _parabola_offset(c_minus, best_value, c_plus)
                 if xc - 1 >= hw and xc + 1 + hw < w:
-                    before = _ncc(hs_k, n, rs_row, ri_row, os_row, oi_row, xc + 1, best - 1, d_min)
-                    after = _ncc(hs_k, n, rs_row, ri_row, os_row, oi_row, xc - 1, best + 1, d_min)
+                    if use_row:  # the same values, already computed
+                        before = curves[best - 1, xc + 1]
+                        after = curves[best + 1, xc - 1]
+                    else:
+                        before = _ncc(
+                            hs_k, n, rs_row, ri_row, os_row, oi_row, xc + 1, best - 1, d_min
+                        )
+                        after = _ncc(
+                            hs_k, n, rs_row, ri_row, os_row, oi_row, xc - 1, best + 1, d_min
+                        )
                     offset = 0.5 * (offset + _parabola_offset(before, best_value, after))
                 disparity[y, x] = np.float32(d_min + best + offset)
                 window[y, x] = k

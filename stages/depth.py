@@ -12,6 +12,19 @@ nearest visible ground point, from camera height and pitch) plus 25 % and 2 px f
 standing above it, else 64 px. For the built-in archives (f = 430 px, b = 0.1 m, 1.2 m up,
 pitched 38 deg) that is about 51 px; for the 0.8 m Viking baseline about 380 px.
 
+Search band (``adaptive``). The windows after the first are there for the weakly textured
+ground, whose disparity at each row the pose gives. With a pose they search each row only
+between a floor, ``(1 - floor_margin)`` times the pose plane's disparity at that row minus
+2 px (nothing lies below the ground; the margins absorb a few degrees of pitch error, a 25 %
+height error and hollows), and a ceiling, ``ceiling_ratio`` times it plus 2 px (objects up
+to ``(1 - 1 / ceiling_ratio)`` of the camera height: 0.6 m with the default 2 at 1.2 m;
+no truth pixel of the built-in archives exceeds 1.25 times the ground's disparity + 2 px).
+:func:`stages.geometry.derive_row_floor` and ``derive_row_ceiling`` give them. The first
+window keeps the whole range because its competitors outside the band are what flags a
+small window's match as ambiguous (:mod:`stages._stereo`, "Search band").
+``floor_margin = 1`` and ``ceiling_ratio = 0`` search the whole range everywhere; raise
+``ceiling_ratio`` where taller objects than that must be matched on weak texture.
+
 Choosing the method. ``adaptive`` (default) is the most accurate where the ground has
 texture (mojave, lava: about a quarter of StereoSGBM's bad-2 rate, see
 ``benchmarks/bench_depth_accuracy.py``). On nearly textureless floors add a wide window
@@ -39,6 +52,8 @@ from pipeline.stage import FrameContext, Param, Product, Stage, StageResult
 from . import _refine, _stereo
 from .geometry import (
     derive_max_disparity,
+    derive_row_ceiling,
+    derive_row_floor,
     fit_ground_plane,
     height_above_plane,
     pseudo_left,
@@ -46,7 +61,7 @@ from .geometry import (
     residual,
 )
 
-__all__ = ["STAGE", "run_depth", "resolve_disparity_range"]
+__all__ = ["STAGE", "run_depth", "resolve_disparity_range", "resolve_row_band"]
 
 PARAMS: tuple[Param, ...] = (
     Param("method", str, "adaptive", "matching method", choices=_stereo.METHODS),
@@ -64,6 +79,23 @@ PARAMS: tuple[Param, ...] = (
         float,
         0.0,
         "nearest range anything can be at (m), sets max_disparity = f*b/range; 0 = unknown",
+        minimum=0.0,
+    ),
+    Param(
+        "floor_margin",
+        float,
+        0.25,
+        "adaptive, windows after the first: per-row search floor (1 - this) x the pose's ground "
+        "disparity - 2 px; 1 = none",
+        minimum=0.0,
+        maximum=1.0,
+    ),
+    Param(
+        "ceiling_ratio",
+        float,
+        2.0,
+        "adaptive, windows after the first: per-row search ceiling this x the pose's ground "
+        "disparity + 2 px (objects up to (1 - 1/this) x camera height); 0 = none",
         minimum=0.0,
     ),
     Param(
@@ -183,17 +215,54 @@ def _coerce_settings(params: dict[str, Any]) -> dict[str, Any]:
         raise ParamError(f"depth: {error}") from None
 
 
-def _match(reference: np.ndarray, other: np.ndarray, lo: int, hi: int, params: dict):
+def resolve_row_band(
+    camera: Camera, shape: tuple[int, int], params: dict[str, Any]
+) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """(M,) least and largest disparity the ``adaptive`` method's larger windows search per
+    row, each None when not bounded.
+
+    From the camera pose (:func:`stages.geometry.derive_row_floor`, ``derive_row_ceiling``);
+    both None for other methods or without a pose; the floor None with
+    ``floor_margin = 1``, the ceiling None with ``ceiling_ratio = 0``.
+
+    Raises
+    ------
+    ParamError
+        When ``ceiling_ratio`` is between 0 and 1 (a ceiling below the ground).
+    """
+    margin = float(params["floor_margin"])
+    ratio = float(params["ceiling_ratio"])
+    if 0.0 < ratio < 1.0:
+        raise ParamError(
+            f"depth.ceiling_ratio must be 0 (no ceiling) or >= 1, got {ratio}; a ceiling "
+            "below the ground's disparity would exclude the ground itself"
+        )
+    if params["method"] != "adaptive":
+        return None, None
+    floor = derive_row_floor(camera, shape=shape, margin=margin) if margin < 1.0 else None
+    ceiling = derive_row_ceiling(camera, shape=shape, ratio=ratio) if ratio > 0.0 else None
+    return floor, ceiling
+
+
+def _match(
+    reference: np.ndarray,
+    other: np.ndarray,
+    lo: int,
+    hi: int,
+    band: tuple[np.ndarray | None, np.ndarray | None],
+    params: dict,
+):
     settings = _coerce_settings(params)
     tile_px = int(params["tile_px"])
     if tile_px and max(reference.shape) > tile_px:
         return _stereo.match_tiled(
             reference, other, tile_px=max(tile_px, 16), min_disparity=lo, max_disparity=hi,
-            **settings,
+            row_min_disparity=band[0], row_max_disparity=band[1], **settings,
         ), True  # fmt: skip
     matching = _stereo.match_disparity(
-        reference, other, min_disparity=lo, max_disparity=hi, **settings
-    )
+        reference, other, min_disparity=lo, max_disparity=hi, row_min_disparity=band[0],
+        row_max_disparity=band[1], **settings,
+    )  # fmt: skip
     return matching, False
 
 
@@ -245,7 +314,8 @@ def run_depth(
     else:
         reference, other = right, left
     lo, hi = resolve_disparity_range(camera, right.shape, params)
-    matching, tiled = _match(reference, other, lo, hi, params)
+    band = resolve_row_band(camera, right.shape, params)
+    matching, tiled = _match(reference, other, lo, hi, band, params)
     if tiled:
         notes.append(f"matched in tiles of {params['tile_px']} px")
     disparity_m = matching.disparity
@@ -305,7 +375,7 @@ def run_depth(
 
 STAGE = Stage(
     name="depth",
-    version="3",
+    version="4",
     inputs=("left", "right"),
     outputs=OUTPUTS,
     params=PARAMS,

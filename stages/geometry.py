@@ -45,6 +45,8 @@ __all__ = [
     "height_above_plane",
     "ground_disparity_at_row",
     "derive_max_disparity",
+    "derive_row_floor",
+    "derive_row_ceiling",
 ]
 
 
@@ -417,3 +419,97 @@ def derive_max_disparity(
     else:
         value = fallback
     return int(max(3, min(value, w - 1)))
+
+
+def derive_row_floor(
+    camera: Camera,
+    *,
+    shape: tuple[int, int],
+    margin: float = 0.25,
+    slack_px: float = 2.0,
+) -> np.ndarray | None:
+    """Least disparity worth searching in each image row (the row's *floor*), from the pose.
+
+    Why: nothing the camera sees lies below the ground, so at a given row nothing is
+    farther than the ground seen there, and no disparity is smaller than the ground's (rocks
+    stand above it: nearer, larger). Near the top of a forward-pitched frame that rules out
+    most of the range (mojave: ground 5.7 px at the top row, 38 px at the bottom, range up
+    to 51 px). The margin keeps ground that dips below the pose's plane (a wrong pitch or
+    height, hollows): the floor is ``(1 - margin) g(y) - slack_px`` rounded down, ``g(y)``
+    the pose plane's least disparity along the row (:func:`ground_disparity_at_row`).
+
+    Parameters
+    ----------
+    camera : pipeline.camera.Camera
+    shape : (int, int)
+        Image shape ``(M, N)``.
+    margin : float in [0, 1]
+        Relative margin below the ground's disparity; 1 gives no floor above ``-slack_px``.
+    slack_px : float
+        Absolute margin (px), >= 0.
+
+    Returns
+    -------
+    floor : (M,) ndarray of int64 or None
+        None without a pose (height and pitch).
+    """
+    cam = _coerce_camera(camera)
+    if not 0.0 <= margin <= 1.0 or not slack_px >= 0.0:
+        raise ValueError(
+            f"margin must be in [0, 1] and slack_px >= 0, got margin={margin}, "
+            f"slack_px={slack_px}"
+        )
+    if not cam.has_pose:
+        return None
+    assert cam.height_m is not None and cam.pitch_deg is not None
+    plane = plane_from_pose(height_m=cam.height_m, pitch_deg=cam.pitch_deg)
+    alpha, beta, gamma = plane_disparity_coefficients(plane, camera=cam, shape=shape)
+    # the lowest ground disparity along the row (the pose has no roll: alpha = 0)
+    ground = beta * np.arange(shape[0]) + gamma + min(0.0, alpha * (shape[1] - 1))
+    return np.floor((1.0 - margin) * ground - slack_px).astype(np.int64)
+
+
+def derive_row_ceiling(
+    camera: Camera,
+    *,
+    shape: tuple[int, int],
+    ratio: float = 2.0,
+    slack_px: float = 2.0,
+) -> np.ndarray | None:
+    """Largest disparity worth searching for ground-like surfaces in each row (its *ceiling*).
+
+    Why: along the ray of a row, a point ``z`` above the ground has ``1 / (1 - z / h)``
+    times the disparity of the ground seen there (``h`` the camera height), so a ceiling of
+    ``ratio`` times the ground's disparity admits objects up to ``(1 - 1 / ratio) h`` tall
+    (ratio 2: half the camera height, 0.6 m in the built-in archives, where no truth pixel
+    exceeds 1.25 times the ground's disparity + 2 px). The stage's ``max_disparity``
+    already assumes 1.25 times the ground's disparity at the bottom row.
+
+    Parameters
+    ----------
+    camera : pipeline.camera.Camera
+    shape : (int, int)
+        Image shape ``(M, N)``.
+    ratio : float
+        >= 1; the ceiling is ``ratio g(y) + slack_px`` rounded up, ``g(y)`` the pose plane's
+        largest disparity along the row.
+    slack_px : float
+        Absolute margin (px), >= 0.
+
+    Returns
+    -------
+    ceiling : (M,) ndarray of int64 or None
+        None without a pose (height and pitch).
+    """
+    cam = _coerce_camera(camera)
+    if not ratio >= 1.0 or not slack_px >= 0.0:
+        raise ValueError(
+            f"ratio must be >= 1 and slack_px >= 0, got ratio={ratio}, slack_px={slack_px}"
+        )
+    if not cam.has_pose:
+        return None
+    assert cam.height_m is not None and cam.pitch_deg is not None
+    plane = plane_from_pose(height_m=cam.height_m, pitch_deg=cam.pitch_deg)
+    alpha, beta, gamma = plane_disparity_coefficients(plane, camera=cam, shape=shape)
+    ground = beta * np.arange(shape[0]) + gamma + max(0.0, alpha * (shape[1] - 1))
+    return np.ceil(ratio * np.maximum(ground, 0.0) + slack_px).astype(np.int64)

@@ -9,7 +9,7 @@ from scipy import ndimage
 from pipeline.camera import Camera
 from pipeline.errors import ParamError
 from pipeline.stage import FrameContext
-from stages.depth import STAGE, resolve_disparity_range
+from stages.depth import STAGE, resolve_disparity_range, resolve_row_band
 from stages.geometry import plane_disparity_coefficients, plane_from_pose
 
 CAMERA = Camera(focal_px=120.0, baseline_m=0.1, height_m=1.2, pitch_deg=38.0)
@@ -173,3 +173,30 @@ def test_ground_refine_option_sharpens_the_ground():
     assert np.array_equal(np.isfinite(d0), np.isfinite(d1))  # never adds or drops a match
     ok = np.isfinite(d1)
     assert np.median(np.abs(d1[ok] - truth[ok])) <= np.median(np.abs(d0[ok] - truth[ok]))
+
+
+def test_row_band_only_for_the_adaptive_method_with_a_pose():
+    params = STAGE.defaults()
+    floor, ceiling = resolve_row_band(CAMERA, (96, 128), params)
+    assert floor is not None and ceiling is not None and floor.shape == ceiling.shape == (96,)
+    assert np.all(ceiling > floor)
+    assert resolve_row_band(CAMERA, (96, 128), {**params, "floor_margin": 1.0})[0] is None
+    assert resolve_row_band(CAMERA, (96, 128), {**params, "ceiling_ratio": 0.0})[1] is None
+    assert resolve_row_band(CAMERA, (96, 128), {**params, "method": "sgm"}) == (None, None)
+    bare = Camera(focal_px=120.0, baseline_m=0.1)
+    assert resolve_row_band(bare, (96, 128), params) == (None, None)
+    with pytest.raises(ParamError, match="ceiling_ratio"):
+        resolve_row_band(CAMERA, (96, 128), {**params, "ceiling_ratio": 0.5})
+
+
+def test_default_band_keeps_the_ground_matches():
+    # the band holds the ground with margins: on a ground plane the larger windows find the
+    # same matches with and without it
+    left, right, truth = _ground_pair()
+    floored = _run(left, right).arrays["disparity"]
+    whole = _run(left, right, floor_margin=1.0, ceiling_ratio=0.0).arrays["disparity"]
+    valid = np.isfinite(whole)
+    assert np.mean(np.isfinite(floored)) >= np.mean(valid) - 0.01
+    both = valid & np.isfinite(floored)
+    assert np.median(np.abs(floored[both] - truth[both])) < 0.2
+    assert np.mean(floored[both] == whole[both]) > 0.98

@@ -13,6 +13,8 @@ from scipy import ndimage
 from pipeline.camera import Camera
 from stages.geometry import (
     derive_max_disparity,
+    derive_row_ceiling,
+    derive_row_floor,
     disparity_from_range,
     fit_ground_plane,
     ground_disparity_at_row,
@@ -172,3 +174,31 @@ def test_max_disparity_from_pose_nearest_range_and_fallback():
     bare = Camera(focal_px=100.0, baseline_m=0.1)
     assert derive_max_disparity(bare, shape=SHAPE) == 64
     assert derive_max_disparity(bare, shape=(20, 30)) == 29  # never beyond the image
+
+
+def test_row_floor_lies_below_the_ground_by_the_margins():
+    floor = derive_row_floor(CAMERA, shape=SHAPE)
+    ground = np.array(
+        [ground_disparity_at_row(CAMERA, row=y, shape=SHAPE) for y in range(SHAPE[0])]
+    )
+    np.testing.assert_array_equal(floor, np.floor(0.75 * ground - 2.0).astype(np.int64))
+    assert np.all(np.diff(floor) >= 0)  # the ground is nearer lower in the image
+    assert np.all(np.nan_to_num(_ground_disparity(CAMERA), nan=np.inf) > floor[:, None])
+    assert derive_row_floor(CAMERA, shape=SHAPE, margin=1.0).max() <= -2  # no floor
+    assert derive_row_floor(Camera(focal_px=100.0, baseline_m=0.1), shape=SHAPE) is None
+    with pytest.raises(ValueError, match="margin"):
+        derive_row_floor(CAMERA, shape=SHAPE, margin=1.5)
+
+
+def test_row_ceiling_admits_objects_up_to_the_ratio_height():
+    # a point z above the ground on a row's ray has g / (1 - z / h) disparity: ratio 2 admits
+    # up to half the camera height
+    ceiling = derive_row_ceiling(CAMERA, shape=SHAPE, ratio=2.0, slack_px=0.0)
+    ground = np.array(
+        [ground_disparity_at_row(CAMERA, row=y, shape=SHAPE) for y in range(SHAPE[0])]
+    )
+    np.testing.assert_array_equal(ceiling, np.ceil(2.0 * np.maximum(ground, 0)).astype(np.int64))
+    assert np.all(derive_row_ceiling(CAMERA, shape=SHAPE) >= ceiling + 2)
+    assert derive_row_ceiling(Camera(focal_px=100.0, baseline_m=0.1), shape=SHAPE) is None
+    with pytest.raises(ValueError, match="ratio"):
+        derive_row_ceiling(CAMERA, shape=SHAPE, ratio=0.5)

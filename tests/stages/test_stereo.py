@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import ndimage
 
-from stages import _stereo
+from stages import _ncc, _stereo
 from stages._stereo import (
     STATUS_NO_PEAK,
     STATUS_VALID,
@@ -272,3 +272,183 @@ def test_bad_images_raise_clear_errors():
 def test_check_settings_rejects_unknown_keys():
     with pytest.raises(TypeError, match="unknown matching settings"):
         _stereo.check_settings(window=5)
+
+
+# ---------------------------------------------------------------- adaptive kernels, (D, W)
+# The row-wise kernels of stages._ncc must give exactly what the per-pixel path gives (a
+# tile may take either path for the same pixel), so they are checked against brute force.
+
+
+def _tied_curves(shape, seed):
+    """ZNCC-like curves (D, W) on a coarse grid, so that many columns hold tied maxima."""
+    rng = np.random.default_rng(seed)
+    return (np.round(rng.uniform(-1.0, 1.0, shape) * 4) / 4).astype(np.float32)
+
+
+def test_row_peaks_equal_the_per_pixel_peak():
+    curves = _tied_curves((9, 40), seed=0)
+    best = np.full(40, -7, np.int64)
+    top = np.zeros(40, np.float32)
+    second = np.zeros(40, np.float32)
+    _ncc._row_peaks(best, top, second, curves, 3, 37)
+    for x in range(3, 37):
+        expected = _ncc._peak(np.ascontiguousarray(curves[:, x]), 0, curves.shape[0])
+        assert (best[x], top[x], second[x]) == expected
+    assert np.all(best[:3] == -7) and np.all(best[37:] == -7)  # outside x0..x1 untouched
+
+
+@pytest.mark.parametrize("d_min", [-3, 0, 2])
+def test_left_best_is_the_left_reference_argmax(d_min):
+    n_disp, w, hw = 7, 30, 2
+    curves = _tied_curves((n_disp, w), seed=1)
+    index = np.zeros(w, np.int64)
+    value = np.zeros(w, np.float32)
+    _ncc._left_best(index, value, curves, hw, d_min)
+    for xl in range(w):
+        # C_left(xl, j) = C_ref(xl - d_min - j, j) where both windows fit; ties: largest j
+        found = [
+            (curves[j, xl - d_min - j], j)
+            for j in range(n_disp)
+            if hw <= xl < w - hw and hw <= xl - d_min - j < w - hw
+        ]
+        expected = max(found) if found else (-np.inf, -1)
+        assert (value[xl], index[xl]) == expected
+
+
+def test_window_sums_are_box_sums_of_the_products():
+    rng = np.random.default_rng(2)
+    ref = rng.integers(-128, 128, (12, 25)).astype(np.int32)
+    oth = rng.integers(-128, 128, (12, 25)).astype(np.int32)
+    d_min, n_disp, hy, hw = -2, 6, 2, 3
+    cs = np.zeros((n_disp, 25), np.int32)
+    hs = np.zeros((n_disp, 25), np.int32)
+    for y in range(hy, 12 - hy):
+        _ncc._advance_column_sums_t(cs, ref, oth, y, hy, d_min)
+        _ncc._window_sums_t(hs, cs, hw)
+        for j in range(n_disp):
+            d = d_min + j
+            product = np.zeros((12, 25), np.int64)  # R(y, x) L(y, x + d), 0 off the image
+            lo, hi = max(0, -d), min(25, 25 - d)
+            product[:, lo:hi] = ref[:, lo:hi] * oth[:, lo + d : hi + d]
+            window = product[y - hy : y + hy + 1].sum(axis=0)
+            expected = np.convolve(window, np.ones(2 * hw + 1, np.int64), mode="valid")
+            np.testing.assert_array_equal(hs[j, hw : 25 - hw], expected)
+
+
+@pytest.mark.parametrize("d_min", [-4, 0, 3])
+def test_border_curves_read_the_shifted_windows(d_min):
+    # a window that does not fit is moved to the nearest centre where it does, at most hw
+    # px from the pixel; the row pass must read exactly that centre's value
+    n_disp, w, hw = 8, 30, 3
+    curves = _tied_curves((n_disp, w), seed=3)
+    shifted = np.zeros((n_disp, w), np.float32)
+    first = np.zeros(w, np.int64)
+    last = np.zeros(w, np.int64)
+    _ncc._border_curves(shifted, first, last, curves, hw, d_min, 0, w)
+    for x in range(w):
+        valid = []
+        for j in range(n_disp):
+            x_ref = min(max(x, hw), w - 1 - hw)
+            xc = max(min(x_ref, w - 1 - hw - d_min - j), hw - d_min - j)
+            if hw <= xc <= w - 1 - hw and abs(xc - x) <= hw:
+                valid.append(j)
+                assert shifted[j, x] == curves[j, xc]
+            else:
+                assert shifted[j, x] == -np.inf
+        assert valid == list(range(first[x], last[x]))  # one contiguous range
+
+
+def _kernel(right, left, lo, hi, row_start, row_end=None, windows="5,9"):
+    """_ncc.adaptive_match on a pair: (disparity, window), with per-window row bands."""
+    if row_end is None:
+        row_end = np.full_like(row_start, hi - lo + 1)
+    s = _stereo.check_settings(windows=windows)
+    hys = np.array([r // 2 for r, _ in s["windows"]], np.int64)
+    hxs = np.array([c // 2 for _, c in s["windows"]], np.int64)
+    r32, o32 = _stereo._centred(right), _stereo._centred(left)
+    rs, ri, rsd = _ncc.window_stats(r32, hys, hxs)
+    os_, oi, _ = _ncc.window_stats(o32, hys, hxs)
+    return _ncc.adaptive_match(
+        r32, o32, lo, hi - lo + 1, row_start, row_end, hys, hxs, rs, ri, rsd, os_, oi,
+        1.0, 0.1, _stereo._margins(s), 1.0,
+    )  # fmt: skip
+
+
+@pytest.mark.parametrize("bands", [((0, 20), (3, 20), (6, 20)), ((0, 14), (2, 17), (5, 20))])
+def test_row_bands_equal_narrowing_the_range_row_by_row(bands):
+    # a band [f, c] searches exactly as a range [f, c] would; rows with different bands
+    # share running column sums, which must stay exact across the bands' steps
+    right, left, _, _ = _occlusion_scene(shape=(48, 90))
+    h = right.shape[0]
+    part = np.where(np.arange(h) < 20, 0, np.where(np.arange(h) < 33, 1, 2))
+    floors = np.array([b[0] for b in bands])[part]
+    ceilings = np.array([b[1] for b in bands])[part]
+    row_start = np.tile(floors, (2, 1)).astype(np.int64)
+    row_end = np.tile(ceilings + 1, (2, 1)).astype(np.int64)
+    varied, _ = _kernel(right, left, 0, 20, row_start, row_end)
+    for i, (f, c) in enumerate(bands):
+        whole, _ = _kernel(right, left, f, c, np.zeros((2, h), np.int64))
+        np.testing.assert_array_equal(varied[part == i], whole[part == i])
+
+
+def test_band_leaves_the_first_window_whole_range():
+    # the first window's competitors outside the band flag ambiguous matches (see the
+    # "Search band" docstring): with a single window the band changes nothing
+    right, left, _, _ = _occlusion_scene(shape=(48, 90))
+    args = {"min_disparity": 0, "max_disparity": 20, "windows": "7"}
+    plain = match_disparity(right, left, **args)
+    banded = match_disparity(
+        right, left, row_min_disparity=np.full(48, 10), row_max_disparity=np.full(48, 14), **args
+    )
+    np.testing.assert_array_equal(banded.disparity, plain.disparity)
+
+
+def test_floor_above_the_truth_stops_the_larger_windows():
+    # pixels left to the second window find nothing when the floor is above their disparity
+    right, left = _shifted_pair((40, 100), 5, seed=4)
+    lo_floor = match_disparity(
+        right, left, min_disparity=0, max_disparity=16, windows="3,9",
+        row_min_disparity=np.zeros(40, np.int64),
+    )  # fmt: skip
+    hi_floor = match_disparity(
+        right, left, min_disparity=0, max_disparity=16, windows="3,9",
+        row_min_disparity=np.full(40, 8),
+    )  # fmt: skip
+    right_lo = np.abs(lo_floor.disparity - 5) < 0.5
+    right_hi = np.abs(hi_floor.disparity - 5) < 0.5
+    assert np.mean(right_lo) > 0.9
+    # the second window's matches are gone; the first window's stay where they were
+    assert np.mean(right_hi) < np.mean(right_lo) - 0.05
+    assert np.all(right_lo[right_hi])
+
+
+def test_tiled_equals_whole_frame_with_row_bands():
+    right, left, _, _ = _occlusion_scene(shape=(80, 130))
+    floor = (np.arange(80) // 10).astype(np.int64)
+    band = {"row_min_disparity": floor, "row_max_disparity": floor + 13}
+    args = {"min_disparity": 0, "max_disparity": 20, "speckle_size": 20, "windows": "5,9,15"}
+    whole = match_disparity(right, left, **band, **args)
+    tiled = match_tiled(right, left, tile_px=32, **band, **args)
+    np.testing.assert_array_equal(tiled.disparity, whole.disparity)
+    np.testing.assert_array_equal(tiled.status, whole.status)
+
+
+def test_bad_row_bands_raise_clear_errors():
+    right, left = _shifted_pair((20, 40), 3, seed=0)
+    args = {"min_disparity": 0, "max_disparity": 8}
+    with pytest.raises(ValueError, match="row_min_disparity must hold one disparity per"):
+        match_disparity(right, left, row_min_disparity=np.zeros(19, int), **args)
+    with pytest.raises(TypeError, match="row_max_disparity must be integers"):
+        match_disparity(right, left, row_max_disparity=np.full(20, 5.0), **args)
+
+
+def test_ceiling_below_the_truth_stops_the_larger_windows():
+    right, left = _shifted_pair((40, 100), 9, seed=4)
+    args = {"min_disparity": 0, "max_disparity": 16, "windows": "3,9"}
+    open_band = match_disparity(right, left, **args)
+    low_ceiling = match_disparity(right, left, row_max_disparity=np.full(40, 6), **args)
+    right_open = np.abs(open_band.disparity - 9) < 0.5
+    right_low = np.abs(low_ceiling.disparity - 9) < 0.5
+    assert np.mean(right_open) > 0.85  # all but the columns that leave the image
+    assert np.mean(right_low) < np.mean(right_open) - 0.05
+    assert np.all(right_open[right_low])  # the first window's matches stay
