@@ -474,12 +474,15 @@ def ground_albedo(
 
 @njit(cache=True, nogil=True)
 def _ground_first_hit(
-    ground, perm, ox, oy, oz, dx, dy, dz, tmin, tmax, start_above
+    ground, perm, ox, oy, oz, dx, dy, dz, tmin, tmax, start_above, gap_min
 ) -> float:  # pragma: no cover - numba
     """First ``t`` in [tmin, tmax] with the ray below the ground; inf when none.
 
     ``start_above``: the caller knows the ray is above the ground at ``tmin`` (a secondary
     ray leaving a ground point along its normal), which saves a height evaluation.
+    ``gap_min`` > 0: the caller knows the ray is at least that high above the ground at
+    ``tmin`` (a primary ray seeded from the ray below): the march takes its first step from
+    that bound instead of evaluating the height there. 0 when unknown.
     """
     gmin = ground[G_MIN]
     gmax = ground[G_MAX]
@@ -517,10 +520,15 @@ def _ground_first_hit(
     horizontal = max(horizontal_len, 0.2)
     min_step = min(max((tb - ta) / 32.0, max(0.005, 0.002 * ta) / horizontal), tb - ta)
     t = ta
-    g, slow = _ground_geometry(ground, perm, ox + dx * t, oy + dy * t)
-    gap = oz + dz * t - g
-    if gap <= 0.0:
-        return t
+    if gap_min > 0.0 and ta == tmin:
+        # a smaller gap than the true one only shortens the first step
+        gap = gap_min
+        slow = _INF  # unknown: no band shortcut on the first step
+    else:
+        g, slow = _ground_geometry(ground, perm, ox + dx * t, oy + dy * t)
+        gap = oz + dz * t - g
+        if gap <= 0.0:
+            return t
     while t < tb:
         step = max(gap / rate, min_step)
         above_band = oz + dz * t - slow - fast
@@ -981,6 +989,8 @@ def rock_lipschitz(a: float, b: float, c: float, relief_amp: float, relief_freq:
 # ==== ray caster ====
 _NORMAL_OFFSET = 5e-4  # m: secondary rays start this far off the surface
 _MAX_T = 1.0e3
+# m: a refined ground hit lies within this height of the surface (about 1e-6, with a margin)
+_GROUND_TOL = 1e-5
 
 
 @njit(cache=True, nogil=True)
@@ -1013,24 +1023,28 @@ def _ground_clear_until(ground, below, dx, dy, dz):
     distance ``s = t |h_below|``; this one climbs ``tan(elevation)`` faster per metre and
     strays sideways by ``|u - u_below|`` per metre (``u``: unit horizontal directions), and
     the ground rises at most ``lipschitz`` per metre sideways, so while the climb beats
-    the stray this ray is above the ground up to the same distance ``s``. 0 when unknown.
+    the stray this ray is above the ground up to the same distance ``s``.
+
+    Returns ``(t, gap)``: that ``t`` and a lower bound of the ray's height above the ground
+    there (the climb minus the stray over ``s``, less the ray below's refinement
+    tolerance); ``(0, 0)`` when unknown.
     """
     t_below = below[0]
     if t_below == _INF:
-        return 0.0
+        return 0.0, 0.0
     h = math.sqrt(dx * dx + dy * dy)
     bx, by, bz = below[1], below[2], below[3]
     hb = math.sqrt(bx * bx + by * by)
     if h < 1e-9 or hb < 1e-9:
-        return 0.0
+        return 0.0, 0.0
     ux = dx / h - bx / hb
     uy = dy / h - by / hb
     margin = dz / h - bz / hb - ground[G_LIP] * math.sqrt(ux * ux + uy * uy)
     s = t_below * hb
     # keep a clear gap at the start (the ray below's hit is refined to about 1e-6 m)
-    if margin * s < 1e-5:
-        return 0.0
-    return s / h
+    if margin * s < _GROUND_TOL:
+        return 0.0, 0.0
+    return s / h, margin * s - _GROUND_TOL
 
 
 @njit(cache=True, nogil=True)
@@ -1106,8 +1120,8 @@ def render_view(
             dx *= inv
             dy *= inv
             dz *= inv
-            t0 = _ground_clear_until(ground, below[ix], dx, dy, dz)
-            t = _ground_first_hit(ground, perm, ox, oy, oz, dx, dy, dz, t0, _MAX_T, False)
+            t0, gap0 = _ground_clear_until(ground, below[ix], dx, dy, dz)
+            t = _ground_first_hit(ground, perm, ox, oy, oz, dx, dy, dz, t0, _MAX_T, False, gap0)
             below[ix, 0] = t
             sid = 0 if t < _INF else -1
             j0, j1 = _source_cell(sp, ss, 0, ox, oy, oz, dx, dy, dz)
@@ -1172,7 +1186,9 @@ def render_view(
                     continue
                 # (inline, not a helper: a call passing the scene's arrays costs more
                 # than the test when nothing is in the way)
-                hit = _ground_first_hit(ground, perm, sx, sy, sz, lx, ly, lz, 1e-6, ldist, above)
+                hit = _ground_first_hit(
+                    ground, perm, sx, sy, sz, lx, ly, lz, 1e-6, ldist, above, 0.0
+                )
                 if hit < _INF:
                     continue
                 j0, j1 = _source_cell(sp, ss, li + 1, sx, sy, sz, lx, ly, lz)
@@ -1192,7 +1208,9 @@ def render_view(
                 qx /= qd
                 qy /= qd
                 qz /= qd
-                hit = _ground_first_hit(ground, perm, sx, sy, sz, qx, qy, qz, 1e-6, qd, above)
+                hit = _ground_first_hit(
+                    ground, perm, sx, sy, sz, qx, qy, qz, 1e-6, qd, above, 0.0
+                )
                 hidden = hit < _INF
                 if not hidden:
                     j0, j1 = _source_cell(sp, ss, n_lights + 1, sx, sy, sz, qx, qy, qz)

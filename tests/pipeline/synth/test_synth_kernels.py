@@ -109,9 +109,15 @@ def test_clear_start_from_the_ray_below_never_passes_the_ground(name):
         dirs = _pixel_rays(camera, rows, np.full(SIZE, col))
         below = np.full(4, np.inf)
         for d in dirs:
-            t_hit = K._ground_first_hit(scene.ground, scene.perm, *origin, *d, 0.0, 1e3, False)
-            t0 = K._ground_clear_until(scene.ground, below, *d)
+            t_hit = K._ground_first_hit(scene.ground, scene.perm, *origin, *d, 0.0, 1e3, False, 0.0)
+            t0, gap = K._ground_clear_until(scene.ground, below, *d)
             assert t0 <= t_hit
-            seeded += t0 > 0
+            # and the height it vouches for at t0 (the seeded march's first step) is there
+            p = origin + t0 * d
+            assert p[2] - K.ground_height(scene.ground, scene.perm, p[0], p[1], 0.0) >= gap
+            assert K._ground_first_hit(
+                scene.ground, scene.perm, *origin, *d, t0, 1e3, False, gap
+            ) == pytest.approx(t_hit, abs=1e-4)
+            seeded += gap > 0
             below[:] = (t_hit, *d)
     assert seeded > 0.9 * 3 * SIZE
