@@ -474,7 +474,7 @@ def ground_albedo(
 
 @njit(cache=True, nogil=True)
 def _ground_first_hit(
-    ground, perm, ox, oy, oz, dx, dy, dz, tmin, tmax, start_above, gap_min
+    ground, perm, ox, oy, oz, dx, dy, dz, tmin, tmax, start_above, gap_min, any_hit
 ) -> float:  # pragma: no cover - numba
     """First ``t`` in [tmin, tmax] with the ray below the ground; inf when none.
 
@@ -483,6 +483,8 @@ def _ground_first_hit(
     ``gap_min`` > 0: the caller knows the ray is at least that high above the ground at
     ``tmin`` (a primary ray seeded from the ray below): the march takes its first step from
     that bound instead of evaluating the height there. 0 when unknown.
+    ``any_hit``: any ``t`` below the ground will do (a shadow or occlusion ray only asks
+    whether there is a hit): the first sample found below it, not refined.
     """
     gmin = ground[G_MIN]
     gmax = ground[G_MAX]
@@ -540,6 +542,8 @@ def _ground_first_hit(
         g, slow = _ground_geometry(ground, perm, ox + dx * tn, oy + dy * tn)
         gap_n = oz + dz * tn - g
         if gap_n <= 0.0:
+            if any_hit:
+                return tn
             return _refine_ground(ground, perm, ox, oy, oz, dx, dy, dz, t, gap, tn, gap_n)
         t = tn
         gap = gap_n
@@ -1121,7 +1125,9 @@ def render_view(
             dy *= inv
             dz *= inv
             t0, gap0 = _ground_clear_until(ground, below[ix], dx, dy, dz)
-            t = _ground_first_hit(ground, perm, ox, oy, oz, dx, dy, dz, t0, _MAX_T, False, gap0)
+            t = _ground_first_hit(
+                ground, perm, ox, oy, oz, dx, dy, dz, t0, _MAX_T, False, gap0, False
+            )
             below[ix, 0] = t
             sid = 0 if t < _INF else -1
             j0, j1 = _source_cell(sp, ss, 0, ox, oy, oz, dx, dy, dz)
@@ -1187,7 +1193,7 @@ def render_view(
                 # (inline, not a helper: a call passing the scene's arrays costs more
                 # than the test when nothing is in the way)
                 hit = _ground_first_hit(
-                    ground, perm, sx, sy, sz, lx, ly, lz, 1e-6, ldist, above, 0.0
+                    ground, perm, sx, sy, sz, lx, ly, lz, 1e-6, ldist, above, 0.0, True
                 )
                 if hit < _INF:
                     continue
@@ -1209,7 +1215,7 @@ def render_view(
                 qy /= qd
                 qz /= qd
                 hit = _ground_first_hit(
-                    ground, perm, sx, sy, sz, qx, qy, qz, 1e-6, qd, above, 0.0
+                    ground, perm, sx, sy, sz, qx, qy, qz, 1e-6, qd, above, 0.0, True
                 )
                 hidden = hit < _INF
                 if not hidden:
