@@ -23,6 +23,10 @@ once its convex base rises past the relief's reach; both roots are refined with 
 Illinois variant of regula falsi. The rocks a ray may meet come from a list per ray source
 (camera, lamp, sun, other camera) indexed by where the ray's line crosses the plane z = 0.
 
+Kernels compile with numba's numpy error model: a float division by zero would give
+inf or nan instead of raising, which spares a zero test per division in the marches (no
+division here ever has a zero divisor in a render: v4's Python error model never raised).
+
 The hot loop of :func:`render_view` calls only small kernels: a call that passes many of
 the scene's arrays costs about 0.1-0.2 us (measured), more than a shadow test itself.
 
@@ -60,12 +64,12 @@ def make_permutation(rng: np.random.Generator) -> np.ndarray:
     return np.concatenate([p, p])
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _fade(t: float) -> float:
     return t * t * t * (t * (t * 6.0 - 15.0) + 10.0)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _grad(h: int, x: float, y: float, z: float) -> float:
     h &= 15
     u = x if h < 8 else y
@@ -78,7 +82,7 @@ def _grad(h: int, x: float, y: float, z: float) -> float:
     return (u if (h & 1) == 0 else -u) + (v if (h & 2) == 0 else -v)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def perlin3(perm: np.ndarray, x: float, y: float, z: float) -> float:
     """Improved Perlin noise at ``(x, y, z)``; values in about [-1, 1], period 256."""
     fx = math.floor(x)
@@ -119,7 +123,7 @@ def perlin3(perm: np.ndarray, x: float, y: float, z: float) -> float:
     return l0 + w * (l1 - l0)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def fbm(perm: np.ndarray, x: float, y: float, z: float, octaves: int, footprint: float) -> float:
     """Fractal sum of ``octaves`` noise octaves (gain 1/2, lacunarity 2).
 
@@ -145,7 +149,7 @@ def fbm(perm: np.ndarray, x: float, y: float, z: float, octaves: int, footprint:
     return total
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def perlin2(perm: np.ndarray, x: float, y: float) -> float:
     """2-D gradient noise (four diagonal gradients); values in about [-1, 1], period 256."""
     fx = math.floor(x)
@@ -173,7 +177,7 @@ def perlin2(perm: np.ndarray, x: float, y: float) -> float:
     return l0 + v * (l1 - l0)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def fbm2(perm: np.ndarray, x: float, y: float, octaves: int, footprint: float) -> float:
     """2-D counterpart of :func:`fbm` (cheaper: for heightfields)."""
     total = 0.0
@@ -250,7 +254,7 @@ _INF = np.inf
 
 
 # ---- ground ------------------------------------------------------------------------------
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _ripple_phase(ground: np.ndarray, perm: np.ndarray, x: float, y: float) -> float:
     wf = ground[G_RIP_WARP_F]
     return (x * ground[G_RIP_DX] + y * ground[G_RIP_DY]) / ground[G_RIP_LAMBDA] + ground[
@@ -258,7 +262,7 @@ def _ripple_phase(ground: np.ndarray, perm: np.ndarray, x: float, y: float) -> f
     ] * perlin2(perm, x * wf + 3.7, y * wf + 1.9)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def ground_height(
     ground: np.ndarray, perm: np.ndarray, x: float, y: float, footprint: float
 ) -> float:
@@ -286,7 +290,7 @@ def ground_height(
     return h
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _ground_geometry(ground: np.ndarray, perm: np.ndarray, x: float, y: float):
     """``(g, slow)``: the full-detail height ``ground_height(..., 0)`` and its slow part.
 
@@ -325,7 +329,7 @@ def _ground_geometry(ground: np.ndarray, perm: np.ndarray, x: float, y: float):
     return h, slow
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _perlin2_grad(perm: np.ndarray, x: float, y: float):
     """:func:`perlin2` and its partial derivatives ``(value, d/dx, d/dy)``."""
     fx = math.floor(x)
@@ -372,7 +376,7 @@ def _perlin2_grad(perm: np.ndarray, x: float, y: float):
     )
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _fbm2_grad(perm: np.ndarray, x: float, y: float, octaves: int, footprint: float):
     """Partial derivatives ``(d/dx, d/dy)`` of :func:`fbm2` (same octave weights)."""
     gx = 0.0
@@ -392,7 +396,7 @@ def _fbm2_grad(perm: np.ndarray, x: float, y: float, octaves: int, footprint: fl
     return gx, gy
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _ground_gradient(ground, perm, x, y, footprint):
     """``(dg/dx, dg/dy)`` of ``ground_height(..., footprint)``, analytically."""
     gx = 0.0
@@ -434,7 +438,7 @@ def _ground_gradient(ground, perm, x, y, footprint):
     return gx, gy
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def ground_albedo(
     ground: np.ndarray, perm: np.ndarray, x: float, y: float, z: float, footprint: float
 ) -> float:
@@ -472,7 +476,7 @@ def ground_albedo(
     return min(0.98, max(0.01, alb))
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _ground_first_hit(
     ground, perm, ox, oy, oz, dx, dy, dz, tmin, tmax, start_above, gap_min, any_hit
 ) -> float:  # pragma: no cover - numba
@@ -550,7 +554,7 @@ def _ground_first_hit(
     return _INF
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _refine_ground(ground, perm, ox, oy, oz, dx, dy, dz, lo, f_lo, hi, f_hi):
     # Illinois regula falsi on the height gap: f_lo > 0 >= f_hi
     side = 0
@@ -576,7 +580,7 @@ def _refine_ground(ground, perm, ox, oy, oz, dx, dy, dz, lo, f_lo, hi, f_hi):
 
 
 # ---- rocks -------------------------------------------------------------------------------
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _to_local(rock, px, py, pz):
     x = px - rock[R_CX]
     y = py - rock[R_CY]
@@ -589,7 +593,7 @@ def _to_local(rock, px, py, pz):
     return u, v, w
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _pow_abs(x, e):
     ax = abs(x)
     if ax == 0.0:
@@ -597,13 +601,13 @@ def _pow_abs(x, e):
     return math.exp(e * math.log(ax))
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def rock_field(rock: np.ndarray, perm: np.ndarray, px: float, py: float, pz: float) -> float:
     """Implicit function of one rock at a world point: < 0 inside, > 0 outside."""
     return _rock_field_base(rock, perm, px, py, pz)[0]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _rock_field_base(rock, perm, px, py, pz):
     """``(F, B)``: :func:`rock_field` and its convex base ``B`` (the facetted superquadric).
 
@@ -629,7 +633,7 @@ def _rock_field_base(rock, perm, px, py, pz):
     return s - rock[R_RELIEF_AMP] * n, s
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def rock_albedo(
     rock: np.ndarray, perm: np.ndarray, px: float, py: float, pz: float, footprint: float
 ) -> float:
@@ -642,7 +646,7 @@ def rock_albedo(
     return min(0.98, max(0.01, alb))
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _rock_interval(rock, ox, oy, oz, dx, dy, dz, t0, t1):
     """Clip ``[t0, t1]`` to the rock's bounding polytope (box and facet planes).
 
@@ -702,7 +706,7 @@ def _rock_interval(rock, ox, oy, oz, dx, dy, dz, t0, t1):
     return t0, t1
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def rock_first_hit(rock, perm, ox, oy, oz, dx, dy, dz, tmin, tmax, zfloor, exact) -> float:
     """First ``t`` in [tmin, tmax] where the unit ray enters the rock; inf when none.
 
@@ -764,7 +768,7 @@ def rock_first_hit(rock, perm, ox, oy, oz, dx, dy, dz, tmin, tmax, zfloor, exact
     return _INF
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _refine_rock(rock, perm, ox, oy, oz, dx, dy, dz, lo, f_lo, hi, f_hi):
     # Illinois regula falsi on the implicit function: f_lo > 0 > f_hi
     side = 0
@@ -797,7 +801,7 @@ _SRC_START_OFF, _SRC_ITEM_OFF = 10, 11
 _SRC_CELLS = 65536  # cells per source grid (about)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _cell_meets_sphere(kind, sx, sy, sz, x0, y0, cell, ix, iy, rock):
     """Whether a line of the source through cell ``(ix, iy)`` may pass the rock's sphere.
 
@@ -831,7 +835,7 @@ def _cell_meets_sphere(kind, sx, sy, sz, x0, y0, cell, ix, iy, rock):
     return dist2 <= reach * reach
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _source_grid(kind, sx, sy, sz, rocks, zfloor):
     """``(params, start, items)`` of one source (kind 0: direction, 1: point; see above).
 
@@ -914,7 +918,7 @@ def _source_grid(kind, sx, sy, sz, rocks, zfloor):
     return params, start, items
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _source_grids(sources, rocks, zfloor):
     """The grids of several sources ``(m, 4)``: kind, x, y, z, packed into three arrays."""
     m = sources.shape[0]
@@ -934,7 +938,7 @@ def _source_grids(sources, rocks, zfloor):
     return params, all_starts, all_items
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _source_cell(src_params, src_start, src, ox, oy, oz, dx, dy, dz):
     """``(j0, j1)``: the range of ``src_items`` listing the rocks a ray of ``src`` may meet.
 
@@ -964,7 +968,7 @@ def _source_cell(src_params, src_start, src, ox, oy, oz, dx, dy, dz):
     return off + src_start[c], off + src_start[c + 1]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _listed_rocks_hit(
     rocks, perm, items, j0, j1, ox, oy, oz, dx, dy, dz, tmin, best_t, zfloor, any_hit
 ):  # fmt: skip
@@ -997,7 +1001,7 @@ _MAX_T = 1.0e3
 _GROUND_TOL = 1e-5
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _ground_normal(ground, perm, x, y, footprint):
     # the analytic gradient of the footprint-filtered heightfield (one noise evaluation
     # with derivatives per term instead of three for finite differences)
@@ -1006,7 +1010,7 @@ def _ground_normal(ground, perm, x, y, footprint):
     return -gx * inv, -gy * inv, inv
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _rock_normal(rock, perm, x, y, z):
     h = 2e-3 * min(rock[R_A], rock[R_B], rock[R_C])
     nx = rock_field(rock, perm, x + h, y, z) - rock_field(rock, perm, x - h, y, z)
@@ -1018,7 +1022,7 @@ def _rock_normal(rock, perm, x, y, z):
     return nx / norm, ny / norm, nz / norm
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _ground_clear_until(ground, below, dx, dy, dz):
     """A ``t`` up to which a primary ray is certainly above the ground, from the ray below.
 
@@ -1051,7 +1055,7 @@ def _ground_clear_until(ground, below, dx, dy, dz):
     return s / h, margin * s - _GROUND_TOL
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def render_view(
     origin: np.ndarray,
     axes: np.ndarray,
@@ -1230,7 +1234,7 @@ def render_view(
 
 
 # ==== rock measurement ====
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def rock_columns(rock, perm, ground, n, cx, cy, cz, radius):
     top = np.full((n, n), np.nan)
     bottom = np.full((n, n), np.nan)
@@ -1259,7 +1263,7 @@ def rock_columns(rock, perm, ground, n, cx, cy, cz, radius):
     return xs, top, bottom, floor
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def rock_extents(xs, top, bottom, floor, cos, sin):
     """Sums over the columns of :func:`rock_columns` (one pass instead of numpy's many).
 
