@@ -458,11 +458,14 @@ def ground_albedo(
         s_px = footprint * f
         weight = 1.0 if s_px <= 0.25 else max(0.0, (0.5 - s_px) / 0.25)
         thr = ground[G_PEB_THR]
-        n1 = perlin2(perm, x * f + 40.1, y * f + 12.7)
-        n2 = perlin2(perm, x * f + 90.3, y * f + 61.9)
-        dark = min(1.0, max(0.0, (n1 - thr) / 0.08))
-        light = min(1.0, max(0.0, (n2 - thr) / 0.08))
-        # unresolved pebbles blend into their mean (about 3 % cover each)
+        # unresolved pebbles blend into their mean (about 3 % cover each); fully
+        # unresolved ones need no noise (0 * x + 1 * 0.03 is exactly 0.03)
+        dark = light = 0.0
+        if weight > 0.0:
+            n1 = perlin2(perm, x * f + 40.1, y * f + 12.7)
+            n2 = perlin2(perm, x * f + 90.3, y * f + 61.9)
+            dark = min(1.0, max(0.0, (n1 - thr) / 0.08))
+            light = min(1.0, max(0.0, (n2 - thr) / 0.08))
         dark = weight * dark + (1.0 - weight) * 0.03
         light = weight * light + (1.0 - weight) * 0.03
         alb *= (1.0 - amp * dark) * (1.0 + amp * light)
@@ -471,8 +474,9 @@ def ground_albedo(
         # coarse dark grains collect in ripple troughs: albedo striations along the crests
         s_px = footprint / ground[G_RIP_LAMBDA]
         weight = 1.0 if s_px <= 0.25 else max(0.0, (0.5 - s_px) / 0.25)
-        s = 2.0 * math.pi * _ripple_phase(ground, perm, x, y)
-        alb *= 1.0 + weight * amp * math.sin(s)
+        if weight > 0.0:  # (else the factor is exactly 1)
+            s = 2.0 * math.pi * _ripple_phase(ground, perm, x, y)
+            alb *= 1.0 + weight * amp * math.sin(s)
     return min(0.98, max(0.01, alb))
 
 
@@ -707,6 +711,24 @@ def _rock_interval(rock, ox, oy, oz, dx, dy, dz, t0, t1):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
+def _rock_lipschitz_along(rock, dx, dy, dz):
+    """Bound on ``|dF/dt|`` along the unit direction ``d`` (never above ``rock[R_LIP]``).
+
+    ``R_LIP`` bounds the base's gradient by ``1 / min(a, b, c)`` for any direction; along
+    ``d`` it changes by at most the length of ``d`` in the rock's normalised coordinates
+    ``(u/a, v/b, w/c)`` (the gradients of the e-norm, e >= 2, and of the unit facet planes
+    have 2-norm <= 1 there); the relief's part is isotropic.
+    """
+    r = R_ROT
+    du = (rock[r + 0] * dx + rock[r + 3] * dy + rock[r + 6] * dz) / rock[R_A]
+    dv = (rock[r + 1] * dx + rock[r + 4] * dy + rock[r + 7] * dz) / rock[R_B]
+    dw = (rock[r + 2] * dx + rock[r + 5] * dy + rock[r + 8] * dz) / rock[R_C]
+    base = 1.0 / min(rock[R_A], rock[R_B], rock[R_C])
+    along = math.sqrt(du * du + dv * dv + dw * dw)
+    return rock[R_LIP] - base + min(along, base)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def rock_first_hit(rock, perm, ox, oy, oz, dx, dy, dz, tmin, tmax, zfloor, exact) -> float:
     """First ``t`` in [tmin, tmax] where the unit ray enters the rock; inf when none.
 
@@ -744,7 +766,9 @@ def rock_first_hit(rock, perm, ox, oy, oz, dx, dy, dz, tmin, tmax, zfloor, exact
     t0, t1 = _rock_interval(rock, ox, oy, oz, dx, dy, dz, t0, t1)
     if t0 >= t1:
         return _INF
-    lip = rock[R_LIP]
+    # (primary rays keep the direction-free bound: their steps, hence the surfaces the
+    # march finds, stay those of renderer v4)
+    lip = rock[R_LIP] if exact else _rock_lipschitz_along(rock, dx, dy, dz)
     slack = ROCK_RELIEF_BOUND * rock[R_RELIEF_AMP]
     min_step = (t1 - t0) / (48.0 if exact else 16.0)
     t = t0

@@ -148,3 +148,45 @@ def test_any_hit_ground_march_answers_as_the_refined_one(name):
             p = np.array([x, y, z]) + fast * np.array(d)
             assert p[2] <= K.ground_height(scene.ground, scene.perm, p[0], p[1], 0.0)
     assert hits > 40  # low rays over rough ground do meet it: the comparison is not vacuous
+
+
+@pytest.mark.parametrize("name", ["lab", "lava"])
+def test_rock_step_bound_along_a_ray_bounds_the_field_slope(name):
+    # shadow and occlusion rays step by F / (slope bound along their direction): the
+    # bound must hold for the rock function's actual slope along the ray
+    scene, _ = _scene(name)
+    rng = np.random.default_rng(5)
+    worst = 0.0
+    for k in rng.integers(0, len(scene.rocks), 20):
+        rock = scene.rocks[k]
+        centre = rock[[K.R_CX, K.R_CY, K.R_CZ]]
+        radius = rock[K.R_RADIUS]
+        for _ in range(10):
+            d = rng.normal(size=3)
+            d /= np.linalg.norm(d)
+            lip = K._rock_lipschitz_along(rock, *d)
+            assert lip <= rock[K.R_LIP]
+            ts = np.linspace(-radius, radius, 300)
+            h = ts[1] - ts[0]
+            start = centre + rng.uniform(-0.5, 0.5, 3) * radius
+            f = [K.rock_field(rock, scene.perm, *(start + t * d)) for t in ts]
+            worst = max(worst, float(np.max(np.abs(np.diff(f)))) / h / lip)
+    assert 0.2 < worst <= 1.0  # the bound holds, and is not vacuous
+
+
+@pytest.mark.parametrize(("name", "wavelength_field"), [("mojave", "pebble"), ("dunes", "ripple")])
+def test_albedo_skips_only_detail_that_has_faded_out(name, wavelength_field):
+    # pebbles and striations skip their noise once the footprint fades them out entirely:
+    # the albedo there must be the limit of the faded-in albedo (continuous at the cut)
+    scene, _ = _scene(name)
+    g = scene.ground
+    if wavelength_field == "pebble":
+        cut = 0.5 / g[K.G_PEB_F]
+    else:
+        cut = 0.5 * g[K.G_RIP_LAMBDA]
+    rng = np.random.default_rng(6)
+    for _ in range(200):
+        x, y = rng.uniform(-3.0, 3.0), rng.uniform(0.5, 9.0)
+        skipped = K.ground_albedo(g, scene.perm, x, y, 0.0, cut)
+        faded = K.ground_albedo(g, scene.perm, x, y, 0.0, cut * (1.0 - 1e-9))
+        assert skipped == pytest.approx(faded, abs=1e-6)
