@@ -489,7 +489,8 @@ def _ground_first_hit(
     ``start_above``: the caller knows the ray is above the ground at ``tmin`` (a secondary
     ray leaving a ground point along its normal), which saves a height evaluation.
     ``gap_min`` > 0: the caller knows the ray is at least that high above the ground at
-    ``tmin`` (a primary ray seeded from the ray below): the march takes its first step from
+    ``tmin`` (a primary ray seeded from the ray below, a secondary ray leaving a ground
+    point along its normal): the march takes its first step from
     that bound instead of evaluating the height there. 0 when unknown.
     ``any_hit``: any ``t`` below the ground will do (a shadow or occlusion ray only asks
     whether there is a hit): the first sample found below it, not refined.
@@ -1047,6 +1048,18 @@ def _rock_normal(rock, perm, x, y, z):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
+def _offset_clearance(ground, nx, ny, nz):
+    """Height above the ground of a ground hit moved ``_NORMAL_OFFSET`` along ``n``, at least.
+
+    The point rises ``offset * nz`` while the ground under it rises at most ``lipschitz``
+    times its sideways move ``offset * |n_h|``; less the hit's own tolerance. 0 when that
+    leaves nothing (the point may be below the ground).
+    """
+    clear = _NORMAL_OFFSET * (nz - ground[G_LIP] * math.sqrt(nx * nx + ny * ny)) - _GROUND_TOL
+    return clear if clear > 0.0 else 0.0
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def _ground_clear_until(ground, below, dx, dy, dz):
     """A ``t`` up to which a primary ray is certainly above the ground, from the ray below.
 
@@ -1197,9 +1210,10 @@ def render_view(
             sz = pz + nz * _NORMAL_OFFSET
             # a ground point moved off the surface along its normal is above the ground
             # when the ground cannot rise that fast (the hit itself is within ~1e-6 m)
-            above = sid == 0 and _NORMAL_OFFSET * (
-                nz - ground[G_LIP] * math.sqrt(nx * nx + ny * ny)
-            ) > 1e-5
+            # (and by at least gap_start: the march of a shadow or occlusion ray takes its
+            # first step from that height)
+            gap_start = _offset_clearance(ground, nx, ny, nz) if sid == 0 else 0.0
+            above = gap_start > 0.0
             irradiance = ambient * (0.5 + 0.5 * nz)
             for li in range(lights.shape[0]):
                 if lights[li, 0] == 0.0:
@@ -1221,7 +1235,7 @@ def render_view(
                 # (inline, not a helper: a call passing the scene's arrays costs more
                 # than the test when nothing is in the way)
                 hit = _ground_first_hit(
-                    ground, perm, sx, sy, sz, lx, ly, lz, 1e-6, ldist, above, 0.0, True
+                    ground, perm, sx, sy, sz, lx, ly, lz, 1e-6, ldist, above, gap_start, True
                 )
                 if hit < _INF:
                     continue
@@ -1243,7 +1257,7 @@ def render_view(
                 qy /= qd
                 qz /= qd
                 hit = _ground_first_hit(
-                    ground, perm, sx, sy, sz, qx, qy, qz, 1e-6, qd, above, 0.0, True
+                    ground, perm, sx, sy, sz, qx, qy, qz, 1e-6, qd, above, gap_start, True
                 )
                 hidden = hit < _INF
                 if not hidden:

@@ -190,3 +190,24 @@ def test_albedo_skips_only_detail_that_has_faded_out(name, wavelength_field):
         skipped = K.ground_albedo(g, scene.perm, x, y, 0.0, cut)
         faded = K.ground_albedo(g, scene.perm, x, y, 0.0, cut * (1.0 - 1e-9))
         assert skipped == pytest.approx(faded, abs=1e-6)
+
+
+@pytest.mark.parametrize("name", ["dunes", "lava"])
+def test_offset_clearance_is_below_the_true_height(name):
+    # shadow and occlusion rays from a ground hit start their march from this bound
+    scene, _ = _scene(name)
+    g, perm = scene.ground, scene.perm
+    rng = np.random.default_rng(7)
+    used = 0
+    for _ in range(500):
+        x, y = rng.uniform(-3.0, 3.0), rng.uniform(0.5, 9.0)
+        # a hit lies within the refinement tolerance of the surface (here: just below it)
+        z = K.ground_height(g, perm, x, y, 0.0) - 1e-6
+        n = rng.normal(size=3)
+        n[2] = abs(n[2]) + 1.0
+        n /= np.linalg.norm(n)
+        bound = K._offset_clearance(g, *n)
+        s = np.array([x, y, z]) + K._NORMAL_OFFSET * n
+        assert s[2] - K.ground_height(g, perm, s[0], s[1], 0.0) >= bound
+        used += bound > 0.0
+    assert used > 100
