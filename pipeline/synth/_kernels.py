@@ -23,6 +23,10 @@ once its convex base rises past the relief's reach; both roots are refined with 
 Illinois variant of regula falsi. The rocks a ray may meet come from a list per ray source
 (camera, lamp, sun, other camera) indexed by where the ray's line crosses the plane z = 0.
 
+Kernels compile with numba's numpy error model: a float division by zero would give
+inf or nan instead of raising, which spares a zero test per division in the marches (no
+division here ever has a zero divisor in a render: v4's Python error model never raised).
+
 The hot loop of :func:`render_view` calls only small kernels: a call that passes many of
 the scene's arrays costs about 0.1-0.2 us (measured), more than a shadow test itself.
 
@@ -60,12 +64,12 @@ def make_permutation(rng: np.random.Generator) -> np.ndarray:
     return np.concatenate([p, p])
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _fade(t: float) -> float:
     return t * t * t * (t * (t * 6.0 - 15.0) + 10.0)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _grad(h: int, x: float, y: float, z: float) -> float:
     h &= 15
     u = x if h < 8 else y
@@ -78,7 +82,7 @@ def _grad(h: int, x: float, y: float, z: float) -> float:
     return (u if (h & 1) == 0 else -u) + (v if (h & 2) == 0 else -v)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def perlin3(perm: np.ndarray, x: float, y: float, z: float) -> float:
     """Improved Perlin noise at ``(x, y, z)``; values in about [-1, 1], period 256."""
     fx = math.floor(x)
@@ -119,7 +123,7 @@ def perlin3(perm: np.ndarray, x: float, y: float, z: float) -> float:
     return l0 + w * (l1 - l0)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def fbm(perm: np.ndarray, x: float, y: float, z: float, octaves: int, footprint: float) -> float:
     """Fractal sum of ``octaves`` noise octaves (gain 1/2, lacunarity 2).
 
@@ -145,7 +149,7 @@ def fbm(perm: np.ndarray, x: float, y: float, z: float, octaves: int, footprint:
     return total
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def perlin2(perm: np.ndarray, x: float, y: float) -> float:
     """2-D gradient noise (four diagonal gradients); values in about [-1, 1], period 256."""
     fx = math.floor(x)
@@ -173,7 +177,7 @@ def perlin2(perm: np.ndarray, x: float, y: float) -> float:
     return l0 + v * (l1 - l0)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def fbm2(perm: np.ndarray, x: float, y: float, octaves: int, footprint: float) -> float:
     """2-D counterpart of :func:`fbm` (cheaper: for heightfields)."""
     total = 0.0
@@ -250,7 +254,7 @@ _INF = np.inf
 
 
 # ---- ground ------------------------------------------------------------------------------
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _ripple_phase(ground: np.ndarray, perm: np.ndarray, x: float, y: float) -> float:
     wf = ground[G_RIP_WARP_F]
     return (x * ground[G_RIP_DX] + y * ground[G_RIP_DY]) / ground[G_RIP_LAMBDA] + ground[
@@ -258,7 +262,7 @@ def _ripple_phase(ground: np.ndarray, perm: np.ndarray, x: float, y: float) -> f
     ] * perlin2(perm, x * wf + 3.7, y * wf + 1.9)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def ground_height(
     ground: np.ndarray, perm: np.ndarray, x: float, y: float, footprint: float
 ) -> float:
@@ -286,7 +290,7 @@ def ground_height(
     return h
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _ground_geometry(ground: np.ndarray, perm: np.ndarray, x: float, y: float):
     """``(g, slow)``: the full-detail height ``ground_height(..., 0)`` and its slow part.
 
@@ -325,7 +329,7 @@ def _ground_geometry(ground: np.ndarray, perm: np.ndarray, x: float, y: float):
     return h, slow
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _perlin2_grad(perm: np.ndarray, x: float, y: float):
     """:func:`perlin2` and its partial derivatives ``(value, d/dx, d/dy)``."""
     fx = math.floor(x)
@@ -372,7 +376,7 @@ def _perlin2_grad(perm: np.ndarray, x: float, y: float):
     )
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _fbm2_grad(perm: np.ndarray, x: float, y: float, octaves: int, footprint: float):
     """Partial derivatives ``(d/dx, d/dy)`` of :func:`fbm2` (same octave weights)."""
     gx = 0.0
@@ -392,7 +396,7 @@ def _fbm2_grad(perm: np.ndarray, x: float, y: float, octaves: int, footprint: fl
     return gx, gy
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _ground_gradient(ground, perm, x, y, footprint):
     """``(dg/dx, dg/dy)`` of ``ground_height(..., footprint)``, analytically."""
     gx = 0.0
@@ -434,7 +438,7 @@ def _ground_gradient(ground, perm, x, y, footprint):
     return gx, gy
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def ground_albedo(
     ground: np.ndarray, perm: np.ndarray, x: float, y: float, z: float, footprint: float
 ) -> float:
@@ -454,11 +458,14 @@ def ground_albedo(
         s_px = footprint * f
         weight = 1.0 if s_px <= 0.25 else max(0.0, (0.5 - s_px) / 0.25)
         thr = ground[G_PEB_THR]
-        n1 = perlin2(perm, x * f + 40.1, y * f + 12.7)
-        n2 = perlin2(perm, x * f + 90.3, y * f + 61.9)
-        dark = min(1.0, max(0.0, (n1 - thr) / 0.08))
-        light = min(1.0, max(0.0, (n2 - thr) / 0.08))
-        # unresolved pebbles blend into their mean (about 3 % cover each)
+        # unresolved pebbles blend into their mean (about 3 % cover each); fully
+        # unresolved ones need no noise (0 * x + 1 * 0.03 is exactly 0.03)
+        dark = light = 0.0
+        if weight > 0.0:
+            n1 = perlin2(perm, x * f + 40.1, y * f + 12.7)
+            n2 = perlin2(perm, x * f + 90.3, y * f + 61.9)
+            dark = min(1.0, max(0.0, (n1 - thr) / 0.08))
+            light = min(1.0, max(0.0, (n2 - thr) / 0.08))
         dark = weight * dark + (1.0 - weight) * 0.03
         light = weight * light + (1.0 - weight) * 0.03
         alb *= (1.0 - amp * dark) * (1.0 + amp * light)
@@ -467,19 +474,26 @@ def ground_albedo(
         # coarse dark grains collect in ripple troughs: albedo striations along the crests
         s_px = footprint / ground[G_RIP_LAMBDA]
         weight = 1.0 if s_px <= 0.25 else max(0.0, (0.5 - s_px) / 0.25)
-        s = 2.0 * math.pi * _ripple_phase(ground, perm, x, y)
-        alb *= 1.0 + weight * amp * math.sin(s)
+        if weight > 0.0:  # (else the factor is exactly 1)
+            s = 2.0 * math.pi * _ripple_phase(ground, perm, x, y)
+            alb *= 1.0 + weight * amp * math.sin(s)
     return min(0.98, max(0.01, alb))
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _ground_first_hit(
-    ground, perm, ox, oy, oz, dx, dy, dz, tmin, tmax, start_above
+    ground, perm, ox, oy, oz, dx, dy, dz, tmin, tmax, start_above, gap_min, any_hit
 ) -> float:  # pragma: no cover - numba
     """First ``t`` in [tmin, tmax] with the ray below the ground; inf when none.
 
     ``start_above``: the caller knows the ray is above the ground at ``tmin`` (a secondary
     ray leaving a ground point along its normal), which saves a height evaluation.
+    ``gap_min`` > 0: the caller knows the ray is at least that high above the ground at
+    ``tmin`` (a primary ray seeded from the ray below, a secondary ray leaving a ground
+    point along its normal): the march takes its first step from
+    that bound instead of evaluating the height there. 0 when unknown.
+    ``any_hit``: any ``t`` below the ground will do (a shadow or occlusion ray only asks
+    whether there is a hit): the first sample found below it, not refined.
     """
     gmin = ground[G_MIN]
     gmax = ground[G_MAX]
@@ -517,10 +531,15 @@ def _ground_first_hit(
     horizontal = max(horizontal_len, 0.2)
     min_step = min(max((tb - ta) / 32.0, max(0.005, 0.002 * ta) / horizontal), tb - ta)
     t = ta
-    g, slow = _ground_geometry(ground, perm, ox + dx * t, oy + dy * t)
-    gap = oz + dz * t - g
-    if gap <= 0.0:
-        return t
+    if gap_min > 0.0 and ta == tmin:
+        # a smaller gap than the true one only shortens the first step
+        gap = gap_min
+        slow = _INF  # unknown: no band shortcut on the first step
+    else:
+        g, slow = _ground_geometry(ground, perm, ox + dx * t, oy + dy * t)
+        gap = oz + dz * t - g
+        if gap <= 0.0:
+            return t
     while t < tb:
         step = max(gap / rate, min_step)
         above_band = oz + dz * t - slow - fast
@@ -532,13 +551,15 @@ def _ground_first_hit(
         g, slow = _ground_geometry(ground, perm, ox + dx * tn, oy + dy * tn)
         gap_n = oz + dz * tn - g
         if gap_n <= 0.0:
+            if any_hit:
+                return tn
             return _refine_ground(ground, perm, ox, oy, oz, dx, dy, dz, t, gap, tn, gap_n)
         t = tn
         gap = gap_n
     return _INF
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _refine_ground(ground, perm, ox, oy, oz, dx, dy, dz, lo, f_lo, hi, f_hi):
     # Illinois regula falsi on the height gap: f_lo > 0 >= f_hi
     side = 0
@@ -564,7 +585,7 @@ def _refine_ground(ground, perm, ox, oy, oz, dx, dy, dz, lo, f_lo, hi, f_hi):
 
 
 # ---- rocks -------------------------------------------------------------------------------
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _to_local(rock, px, py, pz):
     x = px - rock[R_CX]
     y = py - rock[R_CY]
@@ -577,7 +598,7 @@ def _to_local(rock, px, py, pz):
     return u, v, w
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _pow_abs(x, e):
     ax = abs(x)
     if ax == 0.0:
@@ -585,13 +606,13 @@ def _pow_abs(x, e):
     return math.exp(e * math.log(ax))
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def rock_field(rock: np.ndarray, perm: np.ndarray, px: float, py: float, pz: float) -> float:
     """Implicit function of one rock at a world point: < 0 inside, > 0 outside."""
     return _rock_field_base(rock, perm, px, py, pz)[0]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _rock_field_base(rock, perm, px, py, pz):
     """``(F, B)``: :func:`rock_field` and its convex base ``B`` (the facetted superquadric).
 
@@ -617,7 +638,7 @@ def _rock_field_base(rock, perm, px, py, pz):
     return s - rock[R_RELIEF_AMP] * n, s
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def rock_albedo(
     rock: np.ndarray, perm: np.ndarray, px: float, py: float, pz: float, footprint: float
 ) -> float:
@@ -630,7 +651,7 @@ def rock_albedo(
     return min(0.98, max(0.01, alb))
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _rock_interval(rock, ox, oy, oz, dx, dy, dz, t0, t1):
     """Clip ``[t0, t1]`` to the rock's bounding polytope (box and facet planes).
 
@@ -690,7 +711,25 @@ def _rock_interval(rock, ox, oy, oz, dx, dy, dz, t0, t1):
     return t0, t1
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
+def _rock_lipschitz_along(rock, dx, dy, dz):
+    """Bound on ``|dF/dt|`` along the unit direction ``d`` (never above ``rock[R_LIP]``).
+
+    ``R_LIP`` bounds the base's gradient by ``1 / min(a, b, c)`` for any direction; along
+    ``d`` it changes by at most the length of ``d`` in the rock's normalised coordinates
+    ``(u/a, v/b, w/c)`` (the gradients of the e-norm, e >= 2, and of the unit facet planes
+    have 2-norm <= 1 there); the relief's part is isotropic.
+    """
+    r = R_ROT
+    du = (rock[r + 0] * dx + rock[r + 3] * dy + rock[r + 6] * dz) / rock[R_A]
+    dv = (rock[r + 1] * dx + rock[r + 4] * dy + rock[r + 7] * dz) / rock[R_B]
+    dw = (rock[r + 2] * dx + rock[r + 5] * dy + rock[r + 8] * dz) / rock[R_C]
+    base = 1.0 / min(rock[R_A], rock[R_B], rock[R_C])
+    along = math.sqrt(du * du + dv * dv + dw * dw)
+    return rock[R_LIP] - base + min(along, base)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def rock_first_hit(rock, perm, ox, oy, oz, dx, dy, dz, tmin, tmax, zfloor, exact) -> float:
     """First ``t`` in [tmin, tmax] where the unit ray enters the rock; inf when none.
 
@@ -728,7 +767,9 @@ def rock_first_hit(rock, perm, ox, oy, oz, dx, dy, dz, tmin, tmax, zfloor, exact
     t0, t1 = _rock_interval(rock, ox, oy, oz, dx, dy, dz, t0, t1)
     if t0 >= t1:
         return _INF
-    lip = rock[R_LIP]
+    # (primary rays keep the direction-free bound: their steps, hence the surfaces the
+    # march finds, stay those of renderer v4)
+    lip = rock[R_LIP] if exact else _rock_lipschitz_along(rock, dx, dy, dz)
     slack = ROCK_RELIEF_BOUND * rock[R_RELIEF_AMP]
     min_step = (t1 - t0) / (48.0 if exact else 16.0)
     t = t0
@@ -752,7 +793,7 @@ def rock_first_hit(rock, perm, ox, oy, oz, dx, dy, dz, tmin, tmax, zfloor, exact
     return _INF
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _refine_rock(rock, perm, ox, oy, oz, dx, dy, dz, lo, f_lo, hi, f_hi):
     # Illinois regula falsi on the implicit function: f_lo > 0 > f_hi
     side = 0
@@ -785,7 +826,7 @@ _SRC_START_OFF, _SRC_ITEM_OFF = 10, 11
 _SRC_CELLS = 65536  # cells per source grid (about)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _cell_meets_sphere(kind, sx, sy, sz, x0, y0, cell, ix, iy, rock):
     """Whether a line of the source through cell ``(ix, iy)`` may pass the rock's sphere.
 
@@ -819,7 +860,7 @@ def _cell_meets_sphere(kind, sx, sy, sz, x0, y0, cell, ix, iy, rock):
     return dist2 <= reach * reach
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _source_grid(kind, sx, sy, sz, rocks, zfloor):
     """``(params, start, items)`` of one source (kind 0: direction, 1: point; see above).
 
@@ -902,7 +943,7 @@ def _source_grid(kind, sx, sy, sz, rocks, zfloor):
     return params, start, items
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _source_grids(sources, rocks, zfloor):
     """The grids of several sources ``(m, 4)``: kind, x, y, z, packed into three arrays."""
     m = sources.shape[0]
@@ -922,7 +963,7 @@ def _source_grids(sources, rocks, zfloor):
     return params, all_starts, all_items
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _source_cell(src_params, src_start, src, ox, oy, oz, dx, dy, dz):
     """``(j0, j1)``: the range of ``src_items`` listing the rocks a ray of ``src`` may meet.
 
@@ -952,7 +993,7 @@ def _source_cell(src_params, src_start, src, ox, oy, oz, dx, dy, dz):
     return off + src_start[c], off + src_start[c + 1]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _listed_rocks_hit(
     rocks, perm, items, j0, j1, ox, oy, oz, dx, dy, dz, tmin, best_t, zfloor, any_hit
 ):  # fmt: skip
@@ -981,9 +1022,11 @@ def rock_lipschitz(a: float, b: float, c: float, relief_amp: float, relief_freq:
 # ==== ray caster ====
 _NORMAL_OFFSET = 5e-4  # m: secondary rays start this far off the surface
 _MAX_T = 1.0e3
+# m: a refined ground hit lies within this height of the surface (about 1e-6, with a margin)
+_GROUND_TOL = 1e-5
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _ground_normal(ground, perm, x, y, footprint):
     # the analytic gradient of the footprint-filtered heightfield (one noise evaluation
     # with derivatives per term instead of three for finite differences)
@@ -992,7 +1035,7 @@ def _ground_normal(ground, perm, x, y, footprint):
     return -gx * inv, -gy * inv, inv
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _rock_normal(rock, perm, x, y, z):
     h = 2e-3 * min(rock[R_A], rock[R_B], rock[R_C])
     nx = rock_field(rock, perm, x + h, y, z) - rock_field(rock, perm, x - h, y, z)
@@ -1004,7 +1047,19 @@ def _rock_normal(rock, perm, x, y, z):
     return nx / norm, ny / norm, nz / norm
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
+def _offset_clearance(ground, nx, ny, nz):
+    """Height above the ground of a ground hit moved ``_NORMAL_OFFSET`` along ``n``, at least.
+
+    The point rises ``offset * nz`` while the ground under it rises at most ``lipschitz``
+    times its sideways move ``offset * |n_h|``; less the hit's own tolerance. 0 when that
+    leaves nothing (the point may be below the ground).
+    """
+    clear = _NORMAL_OFFSET * (nz - ground[G_LIP] * math.sqrt(nx * nx + ny * ny)) - _GROUND_TOL
+    return clear if clear > 0.0 else 0.0
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def _ground_clear_until(ground, below, dx, dy, dz):
     """A ``t`` up to which a primary ray is certainly above the ground, from the ray below.
 
@@ -1013,27 +1068,31 @@ def _ground_clear_until(ground, below, dx, dy, dz):
     distance ``s = t |h_below|``; this one climbs ``tan(elevation)`` faster per metre and
     strays sideways by ``|u - u_below|`` per metre (``u``: unit horizontal directions), and
     the ground rises at most ``lipschitz`` per metre sideways, so while the climb beats
-    the stray this ray is above the ground up to the same distance ``s``. 0 when unknown.
+    the stray this ray is above the ground up to the same distance ``s``.
+
+    Returns ``(t, gap)``: that ``t`` and a lower bound of the ray's height above the ground
+    there (the climb minus the stray over ``s``, less the ray below's refinement
+    tolerance); ``(0, 0)`` when unknown.
     """
     t_below = below[0]
     if t_below == _INF:
-        return 0.0
+        return 0.0, 0.0
     h = math.sqrt(dx * dx + dy * dy)
     bx, by, bz = below[1], below[2], below[3]
     hb = math.sqrt(bx * bx + by * by)
     if h < 1e-9 or hb < 1e-9:
-        return 0.0
+        return 0.0, 0.0
     ux = dx / h - bx / hb
     uy = dy / h - by / hb
     margin = dz / h - bz / hb - ground[G_LIP] * math.sqrt(ux * ux + uy * uy)
     s = t_below * hb
     # keep a clear gap at the start (the ray below's hit is refined to about 1e-6 m)
-    if margin * s < 1e-5:
-        return 0.0
-    return s / h
+    if margin * s < _GROUND_TOL:
+        return 0.0, 0.0
+    return s / h, margin * s - _GROUND_TOL
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def render_view(
     origin: np.ndarray,
     axes: np.ndarray,
@@ -1106,8 +1165,10 @@ def render_view(
             dx *= inv
             dy *= inv
             dz *= inv
-            t0 = _ground_clear_until(ground, below[ix], dx, dy, dz)
-            t = _ground_first_hit(ground, perm, ox, oy, oz, dx, dy, dz, t0, _MAX_T, False)
+            t0, gap0 = _ground_clear_until(ground, below[ix], dx, dy, dz)
+            t = _ground_first_hit(
+                ground, perm, ox, oy, oz, dx, dy, dz, t0, _MAX_T, False, gap0, False
+            )
             below[ix, 0] = t
             sid = 0 if t < _INF else -1
             j0, j1 = _source_cell(sp, ss, 0, ox, oy, oz, dx, dy, dz)
@@ -1149,9 +1210,10 @@ def render_view(
             sz = pz + nz * _NORMAL_OFFSET
             # a ground point moved off the surface along its normal is above the ground
             # when the ground cannot rise that fast (the hit itself is within ~1e-6 m)
-            above = sid == 0 and _NORMAL_OFFSET * (
-                nz - ground[G_LIP] * math.sqrt(nx * nx + ny * ny)
-            ) > 1e-5
+            # (and by at least gap_start: the march of a shadow or occlusion ray takes its
+            # first step from that height)
+            gap_start = _offset_clearance(ground, nx, ny, nz) if sid == 0 else 0.0
+            above = gap_start > 0.0
             irradiance = ambient * (0.5 + 0.5 * nz)
             for li in range(lights.shape[0]):
                 if lights[li, 0] == 0.0:
@@ -1172,7 +1234,9 @@ def render_view(
                     continue
                 # (inline, not a helper: a call passing the scene's arrays costs more
                 # than the test when nothing is in the way)
-                hit = _ground_first_hit(ground, perm, sx, sy, sz, lx, ly, lz, 1e-6, ldist, above)
+                hit = _ground_first_hit(
+                    ground, perm, sx, sy, sz, lx, ly, lz, 1e-6, ldist, above, gap_start, True
+                )
                 if hit < _INF:
                     continue
                 j0, j1 = _source_cell(sp, ss, li + 1, sx, sy, sz, lx, ly, lz)
@@ -1192,7 +1256,9 @@ def render_view(
                 qx /= qd
                 qy /= qd
                 qz /= qd
-                hit = _ground_first_hit(ground, perm, sx, sy, sz, qx, qy, qz, 1e-6, qd, above)
+                hit = _ground_first_hit(
+                    ground, perm, sx, sy, sz, qx, qy, qz, 1e-6, qd, above, gap_start, True
+                )
                 hidden = hit < _INF
                 if not hidden:
                     j0, j1 = _source_cell(sp, ss, n_lights + 1, sx, sy, sz, qx, qy, qz)
@@ -1206,7 +1272,7 @@ def render_view(
 
 
 # ==== rock measurement ====
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def rock_columns(rock, perm, ground, n, cx, cy, cz, radius):
     top = np.full((n, n), np.nan)
     bottom = np.full((n, n), np.nan)
@@ -1235,7 +1301,7 @@ def rock_columns(rock, perm, ground, n, cx, cy, cz, radius):
     return xs, top, bottom, floor
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def rock_extents(xs, top, bottom, floor, cos, sin):
     """Sums over the columns of :func:`rock_columns` (one pass instead of numpy's many).
 

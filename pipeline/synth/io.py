@@ -35,7 +35,7 @@ __all__ = [
 ]
 
 # Bump whenever the images or the truth of the same arguments change.
-RENDERER_VERSION = "4"
+RENDERER_VERSION = "5"
 COMPLETE_MARKER = ".complete"
 ROCK_COLUMNS: tuple[tuple[str, pa.DataType], ...] = (
     ("frame_id", pa.string()),

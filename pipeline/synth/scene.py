@@ -31,6 +31,8 @@ _ROCK_GAP_M = 0.004
 # rocks may also lie where only a left camera up to this far to the left sees them
 _LEFT_REACH_M = 1.0
 _PLACEMENT_MARGIN_M = 0.3
+_ROT_FIELDS = ("r00", "r01", "r02", "r10", "r11", "r12", "r20", "r21", "r22")
+_PLANE_FIELDS = tuple(f"p{i}_{k}" for i in range(MAX_PLANES) for k in ("nx", "ny", "nz", "d"))
 
 
 @dataclass(frozen=True)
@@ -85,12 +87,22 @@ def _convex_hull(points: np.ndarray) -> np.ndarray:
     return np.array(lower[:-1] + upper[:-1])  # counter-clockwise
 
 
-def _inside_convex(hull: np.ndarray, xy: np.ndarray, margin: float) -> np.ndarray:
-    inside = np.ones(len(xy), dtype=bool)
+def _hull_edges(hull: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """``(a, normal)`` per edge of a counter-clockwise hull: a vertex and the outward normal."""
+    edges = []
     for i in range(len(hull)):
         a, b = hull[i], hull[(i + 1) % len(hull)]
         edge = b - a
-        normal = np.array([edge[1], -edge[0]]) / np.hypot(*edge)  # outward for CCW
+        edges.append((a, np.array([edge[1], -edge[0]]) / np.hypot(*edge)))
+    return edges
+
+
+def _inside_convex(
+    hull: np.ndarray, xy: np.ndarray, margin: float, *, edges: list | None = None
+) -> np.ndarray:
+    inside = np.ones(len(xy), dtype=bool)
+    # (the edges of one hull once, not per call: rock placement tests it hundreds of times)
+    for a, normal in edges if edges is not None else _hull_edges(hull):
         inside &= (xy - a) @ normal <= margin
     return inside
 
@@ -102,6 +114,11 @@ def _polygon_area(poly: np.ndarray) -> float:
 
 def _uniform(rng: np.random.Generator, bounds: tuple[float, float]) -> float:
     return float(rng.uniform(bounds[0], bounds[1]))
+
+
+def _scale(bounds: tuple[float, float], u: float) -> float:
+    """``Generator.uniform(lo, hi)`` from its underlying draw ``u = Generator.random()``."""
+    return bounds[0] + (bounds[1] - bounds[0]) * u
 
 
 def _make_ground(spec: ArchetypeSpec, rng: np.random.Generator) -> np.ndarray:
@@ -173,39 +190,48 @@ def _make_rocks(
     u = rng.uniform(0.0, 1.0 - math.exp(-span / spec.size_scale), size=n)
     sizes = np.sort(spec.size_min - spec.size_scale * np.log1p(-u))[::-1]
     lo, hi = region.min(axis=0), region.max(axis=0)
+    edges = _hull_edges(region)
     placed: list[np.ndarray] = []
-    centres = np.empty((0, 2))
-    radii = np.empty(0)
+    # placed centres and radii in preallocated arrays (a growing copy per rock costs more)
+    centres_all = np.empty((len(sizes), 2))
+    radii_all = np.empty(len(sizes))
+    n_placed = 0
     for size in sizes:
         a = 0.5 * float(size)
-        b = a * _uniform(rng, spec.aspect)
-        c = a * _uniform(rng, spec.flatness)
-        e = _uniform(rng, spec.exponent)
-        relief = _uniform(rng, spec.relief)
+        # the rock's 13 scalar draws in one call: the same stream of doubles, each mapped
+        # to its range as Generator.uniform does (lo + (hi - lo) * u)
+        u = rng.random(13).tolist()
+        b = a * _scale(spec.aspect, u[0])
+        c = a * _scale(spec.flatness, u[1])
+        e = _scale(spec.exponent, u[2])
+        relief = _scale(spec.relief, u[3])
         relief_freq = 1.0 / a
         radius = max(a, b, c) * 3.0 ** (0.5 - 1.0 / e) * (1.0 + 1.5 * relief)
         rot = _rotation(
-            rng.uniform(0, 2 * math.pi),
-            math.radians(rng.uniform(0, spec.tilt_max_deg)),
-            rng.uniform(0, 2 * math.pi),
+            _scale((0, 2 * math.pi), u[4]),
+            math.radians(_scale((0, spec.tilt_max_deg), u[5])),
+            _scale((0, 2 * math.pi), u[6]),
         )
-        burial = _uniform(rng, spec.burial)
+        burial = _scale(spec.burial, u[7])
         cz = c * (1.0 - 2.0 * burial)
-        lighter = rng.uniform() < spec.p_light
-        ratio = _uniform(rng, spec.light_ratio if lighter else spec.dark_ratio)
+        lighter = u[8] < spec.p_light
+        ratio = _scale(spec.light_ratio if lighter else spec.dark_ratio, u[9])
         albedo = min(0.92, ground_albedo * ratio)
-        offsets = rng.uniform(0, 200, size=3)
+        offsets = [_scale((0, 200), v) for v in u[10:13]]
         candidates = rng.uniform(lo, hi, size=(40, 2))
-        ok = _inside_convex(region, candidates, 0.0)
+        ok = _inside_convex(region, candidates, 0.0, edges=edges)
+        centres = centres_all[:n_placed]
+        radii = radii_all[:n_placed]
         for xy in candidates[ok]:
-            if len(radii) == 0 or np.all(
+            if n_placed == 0 or np.all(
                 np.hypot(*(centres - xy).T) >= radii + radius + _ROCK_GAP_M
             ):
                 break
         else:
             continue
-        centres = np.vstack([centres, xy])
-        radii = np.append(radii, radius)
+        centres_all[n_placed] = xy
+        radii_all[n_placed] = radius
+        n_placed += 1
         values = {
             "cx": xy[0], "cy": xy[1], "cz": cz, "a": a, "b": b, "c": c, "e": e,
             "relief_amp": relief, "relief_freq": relief_freq,
@@ -216,8 +242,7 @@ def _make_rocks(
             # around the solid, however blocky
             "norm_radius": (1.0 + ROCK_RELIEF_BOUND * relief) * 3.0 ** (0.5 - 1.0 / e) * 1.001,
         }  # fmt: skip
-        for i, name in enumerate(("r00", "r01", "r02", "r10", "r11", "r12", "r20", "r21", "r22")):
-            values[name] = rot.flat[i]
+        values.update(zip(_ROT_FIELDS, rot.ravel().tolist(), strict=True))
         values.update(_facets(rng, spec))
         placed.append(np.array([values[f] for f in ROCK_FIELDS], dtype=np.float64))
     if not placed:
@@ -228,17 +253,17 @@ def _make_rocks(
 def _facets(rng: np.random.Generator, spec: ArchetypeSpec) -> dict[str, float]:
     """Flat cuts of the superquadric (in its normalised coordinates): facets and edges."""
     count = int(rng.integers(spec.facets[0], spec.facets[1] + 1))
-    values = dict.fromkeys(
-        (f"p{i}_{k}" for i in range(MAX_PLANES) for k in ("nx", "ny", "nz", "d")), 0.0
-    )
+    values = dict.fromkeys(_PLANE_FIELDS, 0.0)
     values["n_planes"] = float(count)
+    u = rng.random(3 * count).tolist()  # as the scalar draws plane by plane (see _scale)
     for i in range(count):
-        az = rng.uniform(0, 2 * math.pi)
-        el = math.radians(rng.uniform(-20.0, 70.0))
-        values[f"p{i}_nx"] = math.cos(el) * math.cos(az)
-        values[f"p{i}_ny"] = math.cos(el) * math.sin(az)
-        values[f"p{i}_nz"] = math.sin(el)
-        values[f"p{i}_d"] = _uniform(rng, spec.facet_depth)
+        az = _scale((0, 2 * math.pi), u[3 * i])
+        el = math.radians(_scale((-20.0, 70.0), u[3 * i + 1]))
+        nx, ny, nz, d = _PLANE_FIELDS[4 * i : 4 * i + 4]
+        values[nx] = math.cos(el) * math.cos(az)
+        values[ny] = math.cos(el) * math.sin(az)
+        values[nz] = math.sin(el)
+        values[d] = _scale(spec.facet_depth, u[3 * i + 2])
     return values
 
 

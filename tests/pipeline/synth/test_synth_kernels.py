@@ -109,9 +109,105 @@ def test_clear_start_from_the_ray_below_never_passes_the_ground(name):
         dirs = _pixel_rays(camera, rows, np.full(SIZE, col))
         below = np.full(4, np.inf)
         for d in dirs:
-            t_hit = K._ground_first_hit(scene.ground, scene.perm, *origin, *d, 0.0, 1e3, False)
-            t0 = K._ground_clear_until(scene.ground, below, *d)
+            t_hit = K._ground_first_hit(
+                scene.ground, scene.perm, *origin, *d, 0.0, 1e3, False, 0.0, False
+            )
+            t0, gap = K._ground_clear_until(scene.ground, below, *d)
             assert t0 <= t_hit
-            seeded += t0 > 0
+            # and the height it vouches for at t0 (the seeded march's first step) is there
+            p = origin + t0 * d
+            assert p[2] - K.ground_height(scene.ground, scene.perm, p[0], p[1], 0.0) >= gap
+            assert K._ground_first_hit(
+                scene.ground, scene.perm, *origin, *d, t0, 1e3, False, gap, False
+            ) == pytest.approx(t_hit, abs=1e-4)
+            seeded += gap > 0
             below[:] = (t_hit, *d)
     assert seeded > 0.9 * 3 * SIZE
+
+
+@pytest.mark.parametrize("name", ["dunes", "lava"])
+def test_any_hit_ground_march_answers_as_the_refined_one(name):
+    # shadow and occlusion rays skip the refinement of a ground hit: they must find a
+    # hit exactly when the refined march does, at a point below the ground
+    scene, _ = _scene(name)
+    rng = np.random.default_rng(2)
+    hits = 0
+    for _ in range(400):
+        x, y = rng.uniform(-2.0, 2.0), rng.uniform(0.5, 6.0)
+        z = K.ground_height(scene.ground, scene.perm, x, y, 0.0) + 5e-4
+        el = math.radians(rng.uniform(0.5, 12.0))
+        az = rng.uniform(0.0, 2.0 * math.pi)
+        d = (math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el))
+        args = (scene.ground, scene.perm, x, y, z, *d, 1e-6, 5.0, False, 0.0)
+        exact = K._ground_first_hit(*args, False)
+        fast = K._ground_first_hit(*args, True)
+        assert (fast < math.inf) == (exact < math.inf)
+        if fast < math.inf:
+            hits += 1
+            assert fast >= exact
+            p = np.array([x, y, z]) + fast * np.array(d)
+            assert p[2] <= K.ground_height(scene.ground, scene.perm, p[0], p[1], 0.0)
+    assert hits > 40  # low rays over rough ground do meet it: the comparison is not vacuous
+
+
+@pytest.mark.parametrize("name", ["lab", "lava"])
+def test_rock_step_bound_along_a_ray_bounds_the_field_slope(name):
+    # shadow and occlusion rays step by F / (slope bound along their direction): the
+    # bound must hold for the rock function's actual slope along the ray
+    scene, _ = _scene(name)
+    rng = np.random.default_rng(5)
+    worst = 0.0
+    for k in rng.integers(0, len(scene.rocks), 20):
+        rock = scene.rocks[k]
+        centre = rock[[K.R_CX, K.R_CY, K.R_CZ]]
+        radius = rock[K.R_RADIUS]
+        for _ in range(10):
+            d = rng.normal(size=3)
+            d /= np.linalg.norm(d)
+            lip = K._rock_lipschitz_along(rock, *d)
+            assert lip <= rock[K.R_LIP]
+            ts = np.linspace(-radius, radius, 300)
+            h = ts[1] - ts[0]
+            start = centre + rng.uniform(-0.5, 0.5, 3) * radius
+            f = [K.rock_field(rock, scene.perm, *(start + t * d)) for t in ts]
+            worst = max(worst, float(np.max(np.abs(np.diff(f)))) / h / lip)
+    assert 0.2 < worst <= 1.0  # the bound holds, and is not vacuous
+
+
+@pytest.mark.parametrize(("name", "wavelength_field"), [("mojave", "pebble"), ("dunes", "ripple")])
+def test_albedo_skips_only_detail_that_has_faded_out(name, wavelength_field):
+    # pebbles and striations skip their noise once the footprint fades them out entirely:
+    # the albedo there must be the limit of the faded-in albedo (continuous at the cut)
+    scene, _ = _scene(name)
+    g = scene.ground
+    if wavelength_field == "pebble":
+        cut = 0.5 / g[K.G_PEB_F]
+    else:
+        cut = 0.5 * g[K.G_RIP_LAMBDA]
+    rng = np.random.default_rng(6)
+    for _ in range(200):
+        x, y = rng.uniform(-3.0, 3.0), rng.uniform(0.5, 9.0)
+        skipped = K.ground_albedo(g, scene.perm, x, y, 0.0, cut)
+        faded = K.ground_albedo(g, scene.perm, x, y, 0.0, cut * (1.0 - 1e-9))
+        assert skipped == pytest.approx(faded, abs=1e-6)
+
+
+@pytest.mark.parametrize("name", ["dunes", "lava"])
+def test_offset_clearance_is_below_the_true_height(name):
+    # shadow and occlusion rays from a ground hit start their march from this bound
+    scene, _ = _scene(name)
+    g, perm = scene.ground, scene.perm
+    rng = np.random.default_rng(7)
+    used = 0
+    for _ in range(500):
+        x, y = rng.uniform(-3.0, 3.0), rng.uniform(0.5, 9.0)
+        # a hit lies within the refinement tolerance of the surface (here: just below it)
+        z = K.ground_height(g, perm, x, y, 0.0) - 1e-6
+        n = rng.normal(size=3)
+        n[2] = abs(n[2]) + 1.0
+        n /= np.linalg.norm(n)
+        bound = K._offset_clearance(g, *n)
+        s = np.array([x, y, z]) + K._NORMAL_OFFSET * n
+        assert s[2] - K.ground_height(g, perm, s[0], s[1], 0.0) >= bound
+        used += bound > 0.0
+    assert used > 100
