@@ -93,15 +93,25 @@ def speed(repeats: int, size: int) -> None:
 
 
 def stage_speed(
-    archetypes, frames: int, size: int, repeats: int, stages=("segment", "describe")
+    archetypes,
+    frames: int,
+    size: int,
+    repeats: int,
+    stages=("segment", "describe"),
+    profile: int = 0,
 ) -> None:
     """CPU ms per frame of the segment and describe stages as the engine runs them.
 
     Each frame is rendered, run through the depth stage once, then ``segment`` (on the depth
     products) and ``describe`` (on segment's labels) are timed with ``time.process_time``
     (CPU time of this process: other agents on the machine do not count, library threads
-    do), best of ``repeats``, OpenCV single-threaded.
+    do), best of ``repeats``, OpenCV single-threaded. ``profile`` > 0 also runs each stage
+    once more per frame under cProfile and prints its ``profile`` costliest functions (own
+    time), over all frames: where a stage's time goes.
     """
+    import cProfile
+    import pstats
+
     from pipeline.stage import FrameContext
     from stages import depth as depth_stage
     from stages import describe as describe_stage
@@ -109,6 +119,7 @@ def stage_speed(
 
     cv2.setNumThreads(1)
     chosen = {"segment": segment_stage.STAGE, "describe": describe_stage.STAGE}
+    profilers = {name: cProfile.Profile() for name in stages}
     print(f"stage CPU time per {size}x{size} frame (process_time, best of {repeats}):")
     print(f"{'archetype':9s} {'seed':>4s} " + " ".join(f"{name:>10s}" for name in stages))
     for archetype in archetypes:
@@ -135,10 +146,15 @@ def stage_speed(
                     stage.run(inputs, frame=frame, params=stage.defaults())
                     best = min(best, time.process_time() - start)
                 per_stage[name].append(1e3 * best)
+                if profile:
+                    profilers[name].runcall(stage.run, inputs, frame=frame, params=stage.defaults())
             row = " ".join(f"{per_stage[name][-1]:8.1f}ms" for name in stages)
             print(f"{archetype:9s} {seed:4d} {row}")
         mean = " ".join(f"{np.mean(per_stage[name]):8.1f}ms" for name in stages)
         print(f"{archetype:9s} mean {mean}")
+    for name in stages if profile else ():
+        print(f"\n{name}: the {profile} functions with the most own time, all frames")
+        pstats.Stats(profilers[name]).sort_stats("tottime").print_stats(profile)
 
 
 def _depth_inputs(kind: str, left, right, truth, camera, noise_px: float, rng):
@@ -280,12 +296,17 @@ def main() -> None:
         help="only: segment finished run directories again (their depth products) and score",
     )
     parser.add_argument("--verbose", action="store_true", help="--rundir: per-frame counts")
+    parser.add_argument(
+        "--profile", type=int, default=0, metavar="N", help="--stage-speed: top N functions"
+    )
     args = parser.parse_args()
     if args.rundir:
         rundir_scores(args.rundir, _parse_overrides(args.set), args.verbose)
         return
     if args.stage_speed:
-        stage_speed(args.archetypes, args.frames, args.size, min(args.repeats, 3))
+        stage_speed(
+            args.archetypes, args.frames, args.size, min(args.repeats, 3), profile=args.profile
+        )
         return
     if not args.scores_only:
         speed(args.repeats, args.size)
