@@ -26,6 +26,7 @@ class RunStatus:
     failures: dict[str, str]
     damaged: list[str] = field(default_factory=list)  # what --verify found (and reset)
     verified: bool = False
+    products: str = ""  # products root when not the run directory
 
 
 def status(rundir: str | os.PathLike[str], *, verify: bool = False) -> RunStatus:
@@ -74,6 +75,7 @@ def status(rundir: str | os.PathLike[str], *, verify: bool = False) -> RunStatus
         failures={f: e for f, (_s, e) in failed.items()},
         damaged=damaged,
         verified=verify,
+        products=str(meta.get("products") or ""),
     )
 
 
@@ -121,7 +123,7 @@ def _verify(
 def format_status(st: RunStatus) -> str:
     lines = [
         f"run {st.run_id} of archive {st.archive} in {st.rundir}: {st.run_state}, "
-        f"{st.frames} frames",
+        f"{st.frames} frames" + (f", products at {st.products}" if st.products else ""),
         f"{'stage':<12}{'done':>8}{'failed':>8}{'pending':>9}",
     ]
     for stage, row in st.per_stage.items():

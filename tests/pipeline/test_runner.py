@@ -18,7 +18,7 @@ from pipeline.lock import RunLock
 from pipeline.plan import RunPlan
 from pipeline.query import frame_dataset
 from pipeline.runner import run
-from pipeline.status import status
+from pipeline.status import format_status, status
 
 FAKE = "arroyo_fake_stages"
 
@@ -191,6 +191,7 @@ def test_products_on_s3_equal_a_local_run_and_every_reader_finds_them(
     np.testing.assert_array_equal(frame.blend.values, expected)
     verified = status(out, verify=True)
     assert verified.damaged == [] and verified.per_stage["tally"]["done"] == 4
+    assert f"products at {s3_products}" in format_status(verified)
     assert pq.read_table(out / "tallies.parquet").num_rows == 12
     # a resumed run with changed parameters rewrites the frames in the bucket
     _run(archive, out, overrides=["blend.weight=0.25"])
