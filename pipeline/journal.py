@@ -13,14 +13,8 @@ import pyarrow as pa
 
 from .plan import RunPlan
 from .state import PartRecord, RunState, StageRecord
-from .store import (
-    FRAMES_NAME,
-    is_url,
-    publish_table,
-    sync_filesystem,
-    write_parquet_atomic,
-    write_part,
-)
+from .store import is_url, sync_filesystem
+from .tables import FRAMES_NAME, publish_table, write_parquet_atomic, write_part
 from .worker import FrameOutcome
 
 __all__ = ["Journal", "table_schema", "write_frames_table", "publish", "stage_attrs"]

@@ -59,14 +59,8 @@ import pyarrow.parquet as pq
 
 from .errors import ParamError, RunDirError
 from .lock import lock_holder
-from .store import (
-    FRAMES_NAME,
-    atomic_write_bytes,
-    open_products_group,
-    products_root,
-    published_path,
-    zarr_location,
-)
+from .store import atomic_write_bytes, open_products_group, products_root, zarr_location
+from .tables import FRAMES_NAME, published_path
 
 __all__ = [
     "VIEWS",

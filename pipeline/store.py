@@ -1,4 +1,5 @@
-"""Product stores of a run directory: ``products.zarr`` and the Parquet tables.
+"""Product stores of a run directory: ``products.zarr`` and loose product files (the Parquet
+tables are in :mod:`pipeline.tables`).
 
 Layout under RUNDIR::
 
@@ -32,18 +33,14 @@ import hashlib
 import itertools
 import math
 import os
-import shutil
 import uuid
 import warnings
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numcodecs
 import numpy as np
-import pyarrow as pa
-import pyarrow.compute as pc
-import pyarrow.parquet as pq
 import zarr
 from zarr.codecs import BloscCodec, ZstdCodec
 from zarr.core.metadata import ArrayV3Metadata
@@ -53,6 +50,7 @@ from .stage import Product
 
 __all__ = [
     "ZARR_NAME",
+    "TMP_MARK",
     "is_url",
     "coerce_products_root",
     "products_root",
@@ -60,7 +58,6 @@ __all__ = [
     "open_products_group",
     "write_product_file",
     "read_product_file",
-    "FRAMES_NAME",
     "tile_chunks",
     "compressor_for",
     "atomic_write_bytes",
@@ -68,10 +65,6 @@ __all__ = [
     "write_frame_array",
     "read_frame_array",
     "frame_checksum",
-    "write_part",
-    "publish_table",
-    "published_path",
-    "write_parquet_atomic",
     "remove_orphan_temp_files",
     "is_disk_full",
     "file_sha256",
@@ -80,10 +73,7 @@ __all__ = [
 ]
 
 ZARR_NAME = "products.zarr"
-FRAMES_NAME = "frames.parquet"
-STAGING = ".staging"
-PUBLISHED = ".published"
-_TMP_MARK = ".tmp-"
+TMP_MARK = ".tmp-"
 _MAX_TILE = 256
 _DISK_FULL = {errno.ENOSPC, errno.EDQUOT, errno.EROFS}
 
@@ -134,7 +124,7 @@ def atomic_write_bytes(path: Path, data: bytes, *, durable: bool = True) -> None
     complete, as for the frame's zarr chunks, so one flush per batch replaces one per file.
     """
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}{_TMP_MARK}{uuid.uuid4().hex[:8]}")
+    tmp = path.with_name(f".{path.name}{TMP_MARK}{uuid.uuid4().hex[:8]}")
     try:
         with open(tmp, "wb") as fh:
             fh.write(data)
@@ -147,19 +137,10 @@ def atomic_write_bytes(path: Path, data: bytes, *, durable: bool = True) -> None
         raise
 
 
-def write_parquet_atomic(table: pa.Table, path: Path) -> str:
-    """Write a Parquet file atomically; return its sha256."""
-    sink = pa.BufferOutputStream()
-    pq.write_table(table, sink, compression="zstd")
-    data = sink.getvalue().to_pybytes()
-    atomic_write_bytes(path, data)
-    return hashlib.sha256(data).hexdigest()
-
-
 def remove_orphan_temp_files(rundir: Path) -> int:
     """Delete temporary files left by a killed run; returns how many."""
     removed = 0
-    for pattern in (f"*{_TMP_MARK}*", "*.partial"):  # ours, and zarr's chunk temporaries
+    for pattern in (f"*{TMP_MARK}*", "*.partial"):  # ours, and zarr's chunk temporaries
         for path in Path(rundir).rglob(pattern):
             if path.is_file():
                 path.unlink(missing_ok=True)
@@ -555,139 +536,6 @@ def _libc() -> Any:
     except (OSError, AttributeError):
         return None
     return libc
-
-
-# -- tables -------------------------------------------------------------------------------
-def write_part(rundir: Path, product: str, table: pa.Table) -> tuple[str, str, str]:
-    """Stage a batch of rows as one Parquet part; return (part_id, relative path, sha256)."""
-    part_id = uuid.uuid4().hex
-    rel = Path(STAGING) / product / f"{part_id}.parquet"
-    sha = write_parquet_atomic(table, Path(rundir) / rel)
-    return part_id, str(rel), sha
-
-
-def published_path(rundir: Path, product: str) -> Path:
-    return Path(rundir) / f"{product}.parquet"
-
-
-def publish_table(
-    rundir: Path,
-    product: str,
-    archive: str,
-    live: Mapping[str, str],
-    parts: Iterable[tuple[str, str]],
-    schema: pa.Schema,
-    frame_order: Mapping[str, int],
-    *,
-    provenance: Mapping[str, str] | None = None,
-    max_rows_per_file: int = 1_000_000,
-) -> Path:
-    """Compact the live rows of a table product into a new published generation.
-
-    Parameters
-    ----------
-    live : mapping of str to str
-        frame_id -> the part holding that frame's current rows.
-    parts : iterable of (part_id, relative path)
-        Every staged part that may hold live rows.
-    schema : pyarrow.Schema
-        Full schema of the published table (archive, run_id, frame_id first).
-    provenance : mapping of str to str, optional
-        Recorded in each file's key-value metadata (stage, version, params).
-    """
-    rundir = Path(rundir)
-    frames_of: dict[str, list[str]] = {}
-    for frame_id, part_id in live.items():
-        frames_of.setdefault(part_id, []).append(frame_id)
-    order_ids = pa.array(list(frame_order), pa.string())
-    order_pos = np.fromiter(frame_order.values(), dtype=np.int64, count=len(frame_order))
-    wanted = [(part_id, rel) for part_id, rel in parts if part_id in frames_of]
-    # parts in catalog order of their first frame, rows sorted inside each part: one part in
-    # memory at a time, however large the archive
-    wanted.sort(key=lambda item: min(frame_order.get(f, 0) for f in frames_of[item[0]]))
-    body_schema = (
-        schema.remove(schema.get_field_index("archive")) if "archive" in schema.names else schema
-    )
-    # the archive lives in the directory name only (hive style): a column of the same name in
-    # the files would clash with the partition field in pyarrow's readers
-    if provenance:
-        body_schema = body_schema.with_metadata({**(body_schema.metadata or {}), **provenance})
-    generation = uuid.uuid4().hex[:12]
-    target = rundir / PUBLISHED / f"{product}-{generation}" / f"archive={archive}"
-    target.mkdir(parents=True, exist_ok=True)
-    files = _RollingWriter(target, body_schema, max_rows_per_file)
-    try:
-        for part_id, rel in wanted:
-            table = pq.read_table(rundir / rel)
-            keep = pa.array(frames_of[part_id], pa.string())
-            table = table.filter(pc.is_in(table["frame_id"], value_set=keep)).cast(schema)
-            positions = order_pos[
-                pc.index_in(table["frame_id"], value_set=order_ids).to_numpy(zero_copy_only=False)
-            ]
-            id_cols = [c for c in ("object_id", "subject_id") if c in table.column_names]
-            keys = [table[c].to_numpy() for c in reversed(id_cols)] + [positions]
-            table = table.take(pa.array(np.lexsort(keys)))
-            if "archive" in table.column_names:
-                table = table.drop_columns(["archive"])
-            files.write(table.cast(body_schema))
-    finally:
-        files.close()
-    link = published_path(rundir, product)
-    tmp_link = link.with_name(f".{link.name}{_TMP_MARK}{generation}")
-    os.symlink(Path(PUBLISHED) / f"{product}-{generation}", tmp_link)
-    previous = os.readlink(link) if link.is_symlink() else None
-    os.replace(tmp_link, link)
-    # keep the previous generation for readers that listed it a moment ago; drop older ones
-    keep = {f"{product}-{generation}"} | ({Path(previous).name} if previous else set())
-    for old in (rundir / PUBLISHED).glob(f"{product}-*"):
-        if old.name not in keep:
-            shutil.rmtree(old, ignore_errors=True)
-    return link
-
-
-class _RollingWriter:
-    """Parquet files of at most ``max_rows`` rows, ``part-0.parquet``, ``part-1.parquet``...,
-    each fsynced when closed; at least one file (possibly empty) is written."""
-
-    def __init__(self, target: Path, schema: pa.Schema, max_rows: int) -> None:
-        self.target, self.schema, self.max_rows = target, schema, max_rows
-        self.index, self.rows = 0, 0
-        self.writer: pq.ParquetWriter | None = None
-
-    def _path(self) -> Path:
-        return self.target / f"part-{self.index}.parquet"
-
-    def _open(self) -> pq.ParquetWriter:
-        if self.writer is None:
-            self.writer = pq.ParquetWriter(self._path(), self.schema, compression="zstd")
-        return self.writer
-
-    def write(self, table: pa.Table) -> None:
-        start = 0
-        while start < table.num_rows:
-            room = self.max_rows - self.rows
-            piece = table.slice(start, room)
-            self._open().write_table(piece)
-            self.rows += piece.num_rows
-            start += piece.num_rows
-            if self.rows >= self.max_rows:
-                self._finish()
-                self.index, self.rows = self.index + 1, 0
-
-    def _finish(self) -> None:
-        if self.writer is not None:
-            self.writer.close()
-            self.writer = None
-            fd = os.open(self._path(), os.O_RDONLY)
-            try:
-                os.fsync(fd)
-            finally:
-                os.close(fd)
-
-    def close(self) -> None:
-        if self.writer is None and self.index == 0:
-            self._open()  # an empty table still publishes one typed file
-        self._finish()
 
 
 def disk_full_error(exc: OSError, what: Path | str) -> StoreError:

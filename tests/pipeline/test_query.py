@@ -1,7 +1,7 @@
 """arroyo query: views over several runs, output formats, notebook API, error cases.
 
 ``make_run`` builds a run directory in the engine's exact layout (products.zarr, frames.parquet,
-published hive-partitioned descriptors/relations through ``pipeline.store.publish_table``,
+published hive-partitioned descriptors/relations through ``pipeline.tables.publish_table``,
 quicklooks) from a small synthetic scene, so these tests do not depend on the stereo stages;
 ``test_report.py`` reuses it.
 """
@@ -34,7 +34,8 @@ from pipeline.query import (
     query_runs,
 )
 from pipeline.stage import Product
-from pipeline.store import ensure_zarr, publish_table, write_frame_array, write_part
+from pipeline.store import ensure_zarr, write_frame_array
+from pipeline.tables import publish_table, write_part
 from stages.describe import DESCRIPTOR_SCHEMA, RELATION_SCHEMA
 from stages.quicklook import encode_png, objects_image
 
