@@ -1,18 +1,14 @@
 """Product stores of a run directory: ``products.zarr`` and loose product files (the Parquet
 tables are in :mod:`pipeline.tables`).
 
-Layout under RUNDIR::
+Layout under the products root (by default RUNDIR)::
 
     products.zarr/                 zarr v3 group; one array per array product, dims
                                    (frame, ...); chunks: one frame x tiles; coordinate `frame`
     quicklooks/<frame_id>/*.png    loose files of ``files`` products
-    .staging/<product>/<part>.parquet   table rows as frames finish (internal)
-    <product>.parquet -> .published/<product>-<generation>/   published, hive-partitioned by
-                                   archive; swapped atomically (symlink) at the end of a run
-    frames.parquet                 one row per frame
 
-Every file is written to a temporary name in its final directory, fsynced, then renamed, so
-a reader never sees half a file. Zarr arrays are created once by the driver; workers only
+Every file is written to a temporary name in its final directory, then renamed, so a reader
+never sees half a file (the driver flushes the filesystem before it records a frame). Zarr arrays are created once by the driver; workers only
 write whole chunk-aligned frame slabs of existing arrays.
 
 The array products and loose files (what workers write) may live elsewhere than the run
