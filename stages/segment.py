@@ -15,7 +15,9 @@ R4-R6 in :mod:`stages._regions`):
 raised pixels are object even when their gray equals the ground's, flat intensity objects
 (shadows, stains, texture blotches) are background, touching objects split at disparity
 jumps, streaks (ripple troughs) are dropped and so are, in a field of parallel streaks,
-objects that do not stand out of the ripple texture around them, and the intensity decision
+objects that do not stand out of the ripple texture around them, objects whose other half
+lies just inside the thresholds grow into it when that makes them more compact (R7), and
+the intensity decision
 stands where depth is invalid -- for the whole frame when fewer than
 ``min_depth_valid_fraction`` of its heights are valid. How much the height rules trust
 single pixels depends on the measured height noise of the ground (precise, noisy and
@@ -55,6 +57,7 @@ from ._regions import (
     depth_edges,
     drop_ripple_pieces,
     drop_streaks,
+    grow_weak_halves,
     label_objects,
     threshold_mask,
     trim_attached_shadows,
@@ -146,6 +149,8 @@ def segment_image(
     max_elongation: float = 3.0,
     ripple_texture_ratio: float = 1.5,
     min_depth_valid_fraction: float = 0.5,
+    weak_bands: float = 0.7,
+    weak_growth_px: int = 12,
 ) -> Segmentation:
     """Segment one reference image into background and numbered objects.
 
@@ -184,6 +189,11 @@ def segment_image(
         Depth method only, ``>= 0``: in a field of ripples an object must stand this many
         times beyond the gray-level texture around it (rule R5c of :mod:`stages._regions`);
         0 disables.
+    weak_bands, weak_growth_px : float, int
+        Depth method only: objects grow up to ``weak_growth_px`` pixels into pixels past
+        neither threshold but at least ``weak_bands`` threshold bands from the ground on their
+        own side, when that leaves them at least as solid (rule R7 of :mod:`stages._regions`);
+        either 0 disables.
 
     Returns
     -------
@@ -212,6 +222,11 @@ def segment_image(
         )
     if split_disparity_px < 0:
         raise ValueError(f"split_disparity_px must be >= 0 (0 disables), got {split_disparity_px}")
+    if not weak_bands >= 0 or weak_growth_px < 0:
+        raise ValueError(
+            "weak_bands and weak_growth_px must be >= 0 (0 disables), got "
+            f"{weak_bands} and {weak_growth_px}"
+        )
     shape = image.shape
     if histograms is None:
         histograms = sector_histograms(image, sectors=sectors)
@@ -232,6 +247,7 @@ def segment_image(
     low = interpolate_sector_grid(analysis.low, shape)
     high = interpolate_sector_grid(analysis.high, shape)
     mask = threshold_mask(image, low, high)
+    strong = mask  # past a threshold (R7 grows into the other pixels only)
 
     notes: list[str] = []
     depth_stats = None
@@ -303,6 +319,13 @@ def segment_image(
         )
         if ripples:
             notes.append(f"{ripples} object(s) not standing out of the ripples around dropped")
+    if contrast is not None and weak_bands > 0 and weak_growth_px > 0:
+        # R7, last: only the objects every other rule kept are completed
+        labels, grown = grow_weak_halves(
+            labels, contrast, between=~strong, min_contrast=weak_bands, max_steps=weak_growth_px
+        )
+        if grown:
+            notes.append(f"{grown} px of weak halves joined to their objects")
     return Segmentation(
         labels=labels, sectors=analysis, depth=depth_stats, streaks_dropped=streaks, notes=notes
     )
@@ -447,7 +470,7 @@ def _sector_product(name: str, dtype: str, long_name: str, units: str = "") -> P
 
 STAGE = Stage(
     name="segment",
-    version="16",
+    version="17",
     inputs=("left", "right", "disparity", "height"),
     outputs=(
         Product(
@@ -528,6 +551,17 @@ STAGE = Stage(
             "depth: in a ripple field objects stand out of its texture this much; 0 = off",
             None,
             0,
+        ),
+        Param(
+            "weak_bands",
+            float,
+            0.7,
+            "depth: objects grow into pixels this many bands out on their side; 0 = off",
+            None,
+            0,
+        ),
+        Param(
+            "weak_growth_px", int, 12, "depth: farthest growth into weak pixels", None, 0, 100
         ),
         Param(
             "tile_px",

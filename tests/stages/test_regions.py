@@ -1,4 +1,4 @@
-"""Tests of stages/_regions.py: masks, holes, components, split (R4) and streaks (R5)."""
+"""Tests of stages/_regions.py: masks, holes, components, split (R4), streaks (R5), R6, R7."""
 
 from __future__ import annotations
 
@@ -6,7 +6,13 @@ import cv2
 import numpy as np
 import pytest
 
-from stages._regions import depth_edges, fill_holes, label_objects, threshold_mask
+from stages._regions import (
+    depth_edges,
+    fill_holes,
+    grow_weak_halves,
+    label_objects,
+    threshold_mask,
+)
 
 
 def disk(shape, cy, cx, r):
@@ -256,3 +262,80 @@ def test_drop_ripple_pieces_sees_ripples_too_faint_to_leave_streaks_in_the_gradi
         labels, texture=no_streaks, image=image, min_gradient_coherence=1.0
     )
     assert dropped == 0
+
+
+def half_rock(shape=(40, 40), *, weak=-0.8):
+    """A disk whose left half is past the low threshold (contrast -2, labelled 1) and whose
+    right half has contrast ``weak`` (between the thresholds) on flat ground (contrast 0)."""
+    rock = disk(shape, 20, 20, 10)
+    left = rock & (np.arange(shape[1])[None, :] < 20)
+    contrast = np.zeros(shape, np.float32)
+    contrast[left] = -2.0
+    contrast[rock & ~left] = weak
+    return rock, left, contrast
+
+
+def test_grow_weak_halves_completes_a_rock_whose_other_half_is_just_inside_the_threshold():
+    rock, left, contrast = half_rock()
+    labels = left.astype(np.int32)
+    grown, count = grow_weak_halves(labels, contrast, between=np.abs(contrast) < 1)
+    assert np.array_equal(grown > 0, rock) and set(np.unique(grown)) == {0, 1}
+    assert count == np.count_nonzero(rock & ~left)
+    # the same for a light rock
+    grown, _ = grow_weak_halves(labels, -contrast, between=np.abs(contrast) < 1)
+    assert np.array_equal(grown > 0, rock)
+
+
+def test_grow_weak_halves_takes_only_weak_pixels_of_the_objects_own_side():
+    rock, left, contrast = half_rock(weak=0.8)  # the other half is lighter: not this rock's
+    labels = left.astype(np.int32)
+    grown, count = grow_weak_halves(labels, contrast, between=np.abs(contrast) < 1)
+    assert count == 0 and np.array_equal(grown, labels)
+    rock, left, contrast = half_rock(weak=-0.5)  # too close to the ground
+    grown, count = grow_weak_halves(labels, contrast, between=np.abs(contrast) < 1)
+    assert count == 0
+
+
+def test_grow_weak_halves_leaves_pixels_a_rule_removed():
+    """A trimmed shadow (past the threshold, removed by R6) is not grown back."""
+    rock, left, contrast = half_rock(weak=-1.5)
+    labels = left.astype(np.int32)
+    grown, count = grow_weak_halves(labels, contrast, between=np.abs(contrast) < 1)
+    assert count == 0 and np.array_equal(grown, labels)
+
+
+def test_grow_weak_halves_keeps_growth_only_when_the_object_stays_as_solid():
+    # a compact rock next to a weak streak of texture: growing along it would make it ragged
+    shape = (40, 60)
+    rock = disk(shape, 20, 15, 8)
+    contrast = np.where(rock, np.float32(-2.0), np.float32(0.0))
+    contrast[19:21, 23:58] = -0.8
+    labels = rock.astype(np.int32)
+    grown, count = grow_weak_halves(labels, contrast, between=np.abs(contrast) < 1)
+    assert count == 0 and np.array_equal(grown, labels)
+    # ... or a few steps along it
+    grown, count = grow_weak_halves(labels, contrast, between=np.abs(contrast) < 1, max_steps=3)
+    assert count == 0
+    # a slack as large as any drop keeps the growth
+    grown, count = grow_weak_halves(
+        labels, contrast, between=np.abs(contrast) < 1, max_steps=60, solidity_slack=1.0
+    )
+    assert count == np.count_nonzero((contrast == np.float32(-0.8)) & (labels == 0))
+
+
+def test_grow_weak_halves_steps_limit_the_growth_and_bad_arguments_raise():
+    rock, left, contrast = half_rock()
+    labels = left.astype(np.int32)
+    between = np.abs(contrast) < 1
+    grown, _ = grow_weak_halves(labels, contrast, between=between, max_steps=3)
+    assert (grown > 0).sum() < rock.sum() and grown[20, 22] == 1 and grown[20, 28] == 0
+    grown, count = grow_weak_halves(labels, contrast, between=between, max_steps=0)
+    assert count == 0 and np.array_equal(grown, labels)
+    with pytest.raises(ValueError, match="solidity_slack >= 0"):
+        grow_weak_halves(labels, contrast, between=between, solidity_slack=-0.1)
+    with pytest.raises(ValueError, match="min_contrast > 0"):
+        grow_weak_halves(labels, contrast, between=between, min_contrast=0)
+    with pytest.raises(ValueError, match="one shape"):
+        grow_weak_halves(labels, contrast[:10], between=between)
+    with pytest.raises(TypeError, match="bool"):
+        grow_weak_halves(labels, contrast, between=between.astype(np.uint8))
