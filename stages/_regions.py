@@ -87,6 +87,22 @@ Depth rules R0-R3 (height above ground: local ground, raised, flat, no depth) ar
   20 equal 12.
   Mojave's half-found rocks are mostly lit rocks whose shaded half has the ground's gray:
   no threshold band reaches them.
+* **R7b opposite halves** -- a rock lit from one side can be found as two objects: its lit
+  face lighter than the ground, its shaded face darker, a few pixels of ground-gray
+  (the terminator) between them. Each is half the rock: two false positives, or one and a
+  miss. A lighter and a darker object whose pixels come within ``join_gap_px`` (5) of
+  each other, facing over at least ``sqrt(area)`` of the smaller one's pixels, are joined
+  -- with the background between them (a closing of that radius) -- when the union is at
+  most 0.05 less solid than the more solid half (:func:`join_opposite_halves`): two
+  halves make one compact blob, a rock and a neighbour beside it do not. A lit rock and
+  its cast shadow pass that test too; on the catalog frames the joins still removed far
+  more false positives than true rocks. With ``--set join_gap_px=0`` for the old rules
+  (R7 on in both), object F1 on the catalog frames: mojave 0.894 -> 0.897, lava 0.757 ->
+  0.771 (4 more true rocks, 17 fewer false ones; 13 pairs joined), lab and dunes unchanged
+  (no pair); seed 2: lab 0.899 unchanged, mojave 0.903 -> 0.910, lava 0.744 -> 0.750;
+  seed 3: lab 0.914 unchanged, mojave 0.875 -> 0.878, lava 0.760 -> 0.769; dunes seeds 2,
+  3, 7 and 11 unchanged. Without R7 it gains less (lava 0.732 -> 0.747). A gap of 4 gave
+  lava 0.769 (seed 2 0.751), 6 lava seed 2 0.744; a slack of 0 joined 1-4 pairs.
 """
 
 from __future__ import annotations
@@ -121,6 +137,11 @@ _WEAK_STEPS = 12
 # ... and keep it when their solidity drops by no more than this: on pixels a straight cut
 # looks more solid than an arc (a digital disk of radius 10 scores 0.943, its half 0.958)
 _WEAK_SOLIDITY_SLACK = 0.02
+# R7b: objects of opposite sides this close (pixels) are candidate halves of one rock ...
+_JOIN_GAP_PX = 5
+# ... facing each other over at least sqrt(area of the smaller) pixels, joined when the
+# union (gap closed) is at most this much less solid than the more solid half.
+_JOIN_SOLIDITY_SLACK = 0.05
 
 __all__ = [
     "CLEAR_CONTRAST",
@@ -133,6 +154,7 @@ __all__ = [
     "drop_ripple_pieces",
     "trim_attached_shadows",
     "grow_weak_halves",
+    "join_opposite_halves",
 ]
 
 
@@ -794,6 +816,97 @@ def grow_weak_halves(
             undo &= grown[window]
             out[window][undo] = 0
     return out, int(np.count_nonzero(out)) - int(np.count_nonzero(labels))
+
+
+def join_opposite_halves(
+    labels: np.ndarray,
+    contrast: np.ndarray,
+    *,
+    gap_px: int = _JOIN_GAP_PX,
+    solidity_slack: float = _JOIN_SOLIDITY_SLACK,
+) -> tuple[np.ndarray, int]:
+    """Rule R7b: join a lighter and a darker object that together make one compact rock.
+
+    Parameters
+    ----------
+    labels : (M, N) ndarray of int32
+        0 background, 1..n objects.
+    contrast : (M, N) ndarray of float
+        Gray-level distance from the ground level in threshold bands; the sign of an
+        object's mean says whether it is lighter or darker than the ground.
+    gap_px : int
+        ``>= 0``; objects of opposite sides whose pixels come this close are candidates when
+        at least ``sqrt(area)`` of the smaller one's pixels lie that close to the other; 0
+        disables.
+    solidity_slack : float
+        ``>= 0``; a pair is joined (with the background between them, a morphological
+        closing of radius ``gap_px``) when the union's solidity is at most this much below
+        the more solid of the two.
+
+    Returns
+    -------
+    labels : (M, N) ndarray of int32
+        Renumbered 1..m.
+    joined : int
+        Pairs joined.
+    """
+    if labels.shape != contrast.shape:
+        raise ValueError(f"labels {labels.shape} and contrast {contrast.shape} must have one shape")
+    if gap_px < 0 or not solidity_slack >= 0:
+        raise ValueError(
+            f"need gap_px >= 0 and solidity_slack >= 0, got {gap_px} and {solidity_slack}"
+        )
+    count = int(labels.max())
+    if count < 2 or gap_px == 0:
+        return labels, 0
+    owners = labels.ravel()
+    inside = owners > 0
+    area = np.bincount(owners, minlength=count + 1)
+    lighter = np.bincount(owners[inside], contrast.ravel()[inside], minlength=count + 1) >= 0
+    spans = find_objects(labels)
+    kernel = _ring_kernel(gap_px)
+    rows, cols = labels.shape
+    parent = np.arange(count + 1)
+
+    def root(k: int) -> int:
+        while parent[k] != k:
+            k = parent[k]
+        return int(k)
+
+    out = labels.copy()
+    joined = 0
+    for k in range(1, count + 1):
+        sy, sx = spans[k - 1]
+        y0, x0 = max(0, sy.start - gap_px), max(0, sx.start - gap_px)
+        y1, x1 = min(rows, sy.stop + gap_px), min(cols, sx.stop + gap_px)
+        window = labels[y0:y1, x0:x1]
+        near = cv2.dilate((window == k).view(np.uint8), kernel).view(bool)
+        others, facing = np.unique(window[near], return_counts=True)
+        for j, n_facing in zip(others, facing, strict=True):
+            # each pair once (j > k), opposite sides, facing over a boundary of their size
+            if j <= k or lighter[j] == lighter[k]:
+                continue
+            if n_facing < np.sqrt(min(area[k], area[j])):
+                continue
+            oy, ox = spans[j - 1]
+            v0, v1 = max(0, min(sy.start, oy.start) - gap_px), max(sy.stop, oy.stop) + gap_px
+            u0, u1 = max(0, min(sx.start, ox.start) - gap_px), max(sx.stop, ox.stop) + gap_px
+            pair = labels[v0:v1, u0:u1]
+            one, two = pair == k, pair == j
+            union = cv2.morphologyEx((one | two).view(np.uint8), cv2.MORPH_CLOSE, kernel)
+            union = union.view(bool) & ((pair == 0) | one | two)
+            if _solidity(union) < max(_solidity(one), _solidity(two)) - solidity_slack:
+                continue
+            first, second = root(k), root(int(j))
+            if first == second:
+                continue
+            parent[second] = first
+            out[v0:v1, u0:u1][union & (pair == 0) & (out[v0:v1, u0:u1] == 0)] = first
+            joined += 1
+    if not joined:
+        return labels, 0
+    roots = np.array([root(k) for k in range(count + 1)])
+    return _renumber(roots[out], 1), joined
 
 
 def _solidity(mask: np.ndarray) -> float:

@@ -16,8 +16,8 @@ raised pixels are object even when their gray equals the ground's, flat intensit
 (shadows, stains, texture blotches) are background, touching objects split at disparity
 jumps, streaks (ripple troughs) are dropped and so are, in a field of parallel streaks,
 objects that do not stand out of the ripple texture around them, objects whose other half
-lies just inside the thresholds grow into it when that makes them more compact (R7), and
-the intensity decision
+lies just inside the thresholds grow into it when they stay compact (R7), a lighter and a
+darker half of one rock are joined (R7b), and the intensity decision
 stands where depth is invalid -- for the whole frame when fewer than
 ``min_depth_valid_fraction`` of its heights are valid. How much the height rules trust
 single pixels depends on the measured height noise of the ground (precise, noisy and
@@ -58,6 +58,7 @@ from ._regions import (
     drop_ripple_pieces,
     drop_streaks,
     grow_weak_halves,
+    join_opposite_halves,
     label_objects,
     threshold_mask,
     trim_attached_shadows,
@@ -151,6 +152,7 @@ def segment_image(
     min_depth_valid_fraction: float = 0.5,
     weak_bands: float = 0.7,
     weak_growth_px: int = 12,
+    join_gap_px: int = 5,
 ) -> Segmentation:
     """Segment one reference image into background and numbered objects.
 
@@ -194,6 +196,10 @@ def segment_image(
         neither threshold but at least ``weak_bands`` threshold bands from the ground on their
         own side, when that leaves them at least as solid (rule R7 of :mod:`stages._regions`);
         either 0 disables.
+    join_gap_px : int
+        Depth method only, ``>= 0``: a lighter and a darker object this close, facing each
+        other, are joined when their union is about as solid as either (rule R7b of
+        :mod:`stages._regions`); 0 disables.
 
     Returns
     -------
@@ -222,10 +228,10 @@ def segment_image(
         )
     if split_disparity_px < 0:
         raise ValueError(f"split_disparity_px must be >= 0 (0 disables), got {split_disparity_px}")
-    if not weak_bands >= 0 or weak_growth_px < 0:
+    if not weak_bands >= 0 or weak_growth_px < 0 or join_gap_px < 0:
         raise ValueError(
-            "weak_bands and weak_growth_px must be >= 0 (0 disables), got "
-            f"{weak_bands} and {weak_growth_px}"
+            "weak_bands, weak_growth_px and join_gap_px must be >= 0 (0 disables), got "
+            f"{weak_bands}, {weak_growth_px} and {join_gap_px}"
         )
     shape = image.shape
     if histograms is None:
@@ -326,6 +332,11 @@ def segment_image(
         )
         if grown:
             notes.append(f"{grown} px of weak halves joined to their objects")
+    if contrast is not None and join_gap_px > 0:
+        # R7b: a lit half and a shaded half of one rock, each found on its own
+        labels, joined = join_opposite_halves(labels, contrast, gap_px=join_gap_px)
+        if joined:
+            notes.append(f"{joined} pair(s) of a lighter and a darker half joined")
     return Segmentation(
         labels=labels, sectors=analysis, depth=depth_stats, streaks_dropped=streaks, notes=notes
     )
@@ -470,7 +481,7 @@ def _sector_product(name: str, dtype: str, long_name: str, units: str = "") -> P
 
 STAGE = Stage(
     name="segment",
-    version="17",
+    version="18",
     inputs=("left", "right", "disparity", "height"),
     outputs=(
         Product(
@@ -562,6 +573,15 @@ STAGE = Stage(
         ),
         Param(
             "weak_growth_px", int, 12, "depth: farthest growth into weak pixels", None, 0, 100
+        ),
+        Param(
+            "join_gap_px",
+            int,
+            5,
+            "depth: lighter and darker halves this close may join; 0 = off",
+            None,
+            0,
+            50,
         ),
         Param(
             "tile_px",

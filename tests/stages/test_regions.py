@@ -10,6 +10,7 @@ from stages._regions import (
     depth_edges,
     fill_holes,
     grow_weak_halves,
+    join_opposite_halves,
     label_objects,
     threshold_mask,
 )
@@ -339,3 +340,46 @@ def test_grow_weak_halves_steps_limit_the_growth_and_bad_arguments_raise():
         grow_weak_halves(labels, contrast[:10], between=between)
     with pytest.raises(TypeError, match="bool"):
         grow_weak_halves(labels, contrast, between=between.astype(np.uint8))
+
+
+def two_halves(shape=(40, 40), gap=2):
+    """A disk split into a lit left half (object 1) and a shaded right half (object 2),
+    ``gap`` ground-gray columns (the terminator) between them."""
+    rock = disk(shape, 20, 20, 10)
+    xx = np.arange(shape[1])[None, :]
+    lit, shaded = rock & (xx < 20 - gap // 2), rock & (xx >= 20 - gap // 2 + gap)
+    labels = lit.astype(np.int32) + 2 * shaded.astype(np.int32)
+    contrast = np.where(lit, np.float32(2.0), np.where(shaded, np.float32(-2.0), np.float32(0)))
+    return rock, labels, contrast
+
+
+def test_join_opposite_halves_makes_one_rock_of_a_lit_and_a_shaded_half():
+    rock, labels, contrast = two_halves()
+    joined, count = join_opposite_halves(labels, contrast)
+    assert count == 1 and set(np.unique(joined)) == {0, 1}
+    # the terminator between the halves is part of the rock (a closing: all but its ends)
+    assert not (joined[rock == 0] > 0).any() and np.count_nonzero(rock & (joined == 0)) <= 8
+    assert (joined[14:27, 19:21] == 1).all()
+
+
+def test_join_opposite_halves_leaves_same_side_far_or_ragged_pairs_alone():
+    rock, labels, contrast = two_halves()
+    # two darker halves: R4 or the thresholds separated them, not the light
+    joined, count = join_opposite_halves(labels, -np.abs(contrast))
+    assert count == 0 and np.array_equal(joined, labels)
+    # halves farther apart than the gap
+    rock, labels, contrast = two_halves(gap=8)
+    joined, count = join_opposite_halves(labels, contrast, gap_px=5)
+    assert count == 0
+    # a rock and a lighter neighbour beside it: their union is not one compact blob
+    shape = (40, 70)
+    labels = disk(shape, 20, 15, 10).astype(np.int32) + 2 * disk(shape, 20, 47, 10)
+    contrast = np.where(labels == 1, np.float32(-2.0), np.float32(2.0))
+    joined, count = join_opposite_halves(labels, contrast, gap_px=12)
+    assert count == 0 and np.array_equal(joined, labels)
+    joined, count = join_opposite_halves(labels, contrast, gap_px=0)
+    assert count == 0
+    with pytest.raises(ValueError, match="gap_px >= 0"):
+        join_opposite_halves(labels, contrast, gap_px=-1)
+    with pytest.raises(ValueError, match="one shape"):
+        join_opposite_halves(labels, contrast[:10])
