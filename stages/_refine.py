@@ -13,8 +13,21 @@ window's result lie within ``ground_band`` px of the plane (it *is* ground), oth
 the small window (a rock, or anything off the plane), otherwise it keeps its first-pass value.
 
 Status: opt-in (``depth.ground_refine``, default off). It lowers the ground's height noise
-about 2.5x on mojave, but the segment stage's height rules are tuned to the first pass's
-noise and misfire on the smoother map (see ``benchmarks/bench_depth_heights.py``).
+about 2.5x (``bench_depth_heights.py --frames 3 --set ground_refine=true``, depth v5:
+ground_sd mojave 0.82 -> 0.34 cm, lava 0.70 -> 0.41 cm, EPE 0.169 -> 0.122 px), but it
+pulls the tops of low rocks onto the plane (rock_top mojave 1.27 -> 1.85 cm, lava 0.78 ->
+1.31 cm: the small rocks of the built-in archives stand only about 0.25 px of disparity
+above their surroundings, within ``ground_band``), and segmentation collapses on mojave and
+lava (object F1 0.907 -> 0.10 and 0.673 -> 0.08 with ``bench_segment.py --depth stage``,
+4 frames, the depth defaults overridden). What misfires: the segment stage measures the
+ground's noise per frame (2.9 mm on mojave seed 0 instead of 8.3 mm), which puts the frame
+in its *precise* regime, where every pixel more than 4 sigma (11.5 mm) above its local
+ground is object (rule R1). The matcher's foreground fattening survives the refinement: the
+ground just above a rock in the image (farther, within 4 px) carries the rock's disparity,
++21 mm median (+39 mm without the refinement), so R1 adds a halo (6256 px on that frame)
+and the objects grow to 1.5-3x their true size (IoU < 0.5). With the true heights the same
+rules work (their halo is absent). Hence the refinement needs crisp depth edges, or rules
+that tolerate the halo, before it can be the default.
 
 How. For each ``delta`` in ``[-reach, reach]`` (``step`` apart) the other image is resampled
 (linear interpolation, ``cv2.remap``) and the ZNCC of every pixel's window is computed from

@@ -32,6 +32,11 @@ texture (mojave, lava: about a quarter of StereoSGBM's bad-2 rate, see
 propagates matches across weak texture; ``prefilter = 15`` (a high-pass, see
 :mod:`stages._stereo`) helps ``sgm`` on dunes (bad-2 23.1 -> 20.9 %).
 
+Subpixel. The ``adaptive`` method's peaks are refined by the mean of a parabola's vertex
+and a V's apex through the ZNCC at the best disparity and its neighbours (``subpixel =
+"blend"``, version 5), which removes most of the parabola's pull towards whole pixels
+(:mod:`stages._stereo`, "Subpixel"); ``subpixel = "parabola"`` gives version 4's results.
+
 Residual. The right (reference) image is forward-warped by its disparity into the left
 image's geometry (the "pseudo-left" image); ``residual = left - pseudo_left`` lives in the
 left image's geometry, NaN where no right pixel lands. (With ``reference = "left"`` the roles
@@ -103,6 +108,14 @@ PARAMS: tuple[Param, ...] = (
         str,
         _stereo.DEFAULT_WINDOWS,
         "adaptive ZNCC windows, odd px up to 255, increasing; 'RxC' = rows x columns",
+    ),
+    Param(
+        "subpixel",
+        str,
+        "blend",
+        "adaptive: peak subpixel estimator; 'blend' = parabola and V averaged (less pixel "
+        "locking), 'parabola' = depth stage versions before 5",
+        choices=_stereo.SUBPIXEL,
     ),
     Param("min_texture", float, 1.0, "least gray-level std of a matched window", minimum=0.0),
     Param("min_ncc", float, 0.1, "least ZNCC of an accepted peak", minimum=-1.0, maximum=1.0),
@@ -205,6 +218,7 @@ def resolve_disparity_range(
 _SETTING_KEYS = (
     "method", "windows", "min_texture", "min_ncc", "distinctness", "lr_tolerance",
     "speckle_size", "speckle_range", "sgm_window", "sgm_p1", "sgm_p2", "sgm_paths", "prefilter",
+    "subpixel",
 )  # fmt: skip
 
 
@@ -375,7 +389,7 @@ def run_depth(
 
 STAGE = Stage(
     name="depth",
-    version="4",
+    version="5",
     inputs=("left", "right"),
     outputs=OUTPUTS,
     params=PARAMS,

@@ -136,6 +136,7 @@ def test_derived_range_and_explicit_range():
         ({"windows": 5}, "expects str"),
         ({"min_ncc": 1.5}, "<= 1"),
         ({"sgm_paths": 6}, "must be one of"),
+        ({"subpixel": "cubic"}, "must be one of"),
     ],
 )
 def test_bad_params_are_rejected_by_the_declaration(overrides, words):
@@ -200,3 +201,15 @@ def test_default_band_keeps_the_ground_matches():
     both = valid & np.isfinite(floored)
     assert np.median(np.abs(floored[both] - truth[both])) < 0.2
     assert np.mean(floored[both] == whole[both]) > 0.98
+
+
+def test_subpixel_setting_changes_only_the_fraction():
+    left, right, truth = _ground_pair()
+    blend = _run(left, right).arrays["disparity"]
+    parabola = _run(left, right, subpixel="parabola").arrays["disparity"]
+    assert STAGE.defaults()["subpixel"] == "blend"
+    assert np.array_equal(np.isfinite(blend), np.isfinite(parabola))
+    ok = np.isfinite(blend)
+    # only the subpixel estimate differs (its accuracy: tests/stages/test_stereo.py)
+    assert 0 < np.max(np.abs(blend[ok] - parabola[ok])) <= 0.5
+    assert np.median(np.abs(blend[ok] - truth[ok])) < 0.1

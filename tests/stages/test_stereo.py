@@ -98,6 +98,82 @@ def test_subpixel_shift_is_recovered(shift):
     assert np.median(np.abs(values - shift)) < 0.1
 
 
+def _ramp_pair(seed, shape=(80, 140), d0=6.0, slope=0.0125):
+    """(right, left, truth): disparity rising 0.0125 px per row, every fraction of a pixel."""
+    h, w = shape
+    world = _texture((h, w + 30), seed)
+    ys, xs = np.indices(shape, dtype=float)
+    truth = d0 + slope * ys
+    right = ndimage.map_coordinates(world, [ys, xs + truth], order=3)  # right(x) = w(x + d)
+    return _u8(right), _u8(world[:, :w]), truth
+
+
+def _bias_by_fraction(disparity, truth):
+    """Median signed error where the true fraction is in [0.2, 0.4) and in [0.6, 0.8)."""
+    err = disparity - truth
+    frac = truth - np.floor(truth)
+    ok = np.isfinite(err)
+    return [float(np.median(err[ok & (frac >= a) & (frac < a + 0.2)])) for a in (0.2, 0.6)]
+
+
+def test_blend_subpixel_removes_the_parabolas_pixel_locking():
+    right, left, truth = _ramp_pair(seed=0)
+    runs = {
+        mode: match_disparity(
+            right, left, min_disparity=0, max_disparity=16, subpixel=mode, **SMALL
+        ).disparity
+        for mode in ("parabola", "blend")
+    }
+    # the parabola pulls estimates towards the nearest integer ...
+    low, high = _bias_by_fraction(runs["parabola"], truth)
+    assert low < -0.02 and high > 0.02
+    # ... the mean of parabola and V does not, and is closer to the truth overall
+    low, high = _bias_by_fraction(runs["blend"], truth)
+    assert abs(low) < 0.01 and abs(high) < 0.01
+    errors = {mode: np.nanmedian(np.abs(d - truth)) for mode, d in runs.items()}
+    assert errors["blend"] < 0.75 * errors["parabola"]
+    # only the subpixel estimate differs: the same pixels match, to the same whole pixel
+    assert np.array_equal(np.isfinite(runs["blend"]), np.isfinite(runs["parabola"]))
+    assert np.nanmax(np.abs(runs["blend"] - runs["parabola"])) <= 0.5
+
+
+@pytest.mark.parametrize(
+    ("samples", "parabola", "vee"),
+    [
+        ((0.5, 0.9, 0.5), 0.0, 0.0),  # symmetric: the peak is on the sample
+        ((0.4, 0.8, 0.8), 0.5, 0.5),  # equal top samples: halfway between them
+        ((0.6, 0.9, 0.8), 0.25, 0.5 * 0.2 / 0.3),  # towards the larger neighbour
+        ((0.7, 0.7, 0.7), 0.0, 0.0),  # flat: no offset
+    ],
+)
+def test_subpixel_offset_of_three_samples(samples, parabola, vee):
+    assert _ncc.subpixel_offset(*samples, False) == pytest.approx(parabola)
+    assert _ncc.subpixel_offset(*samples, True) == pytest.approx(0.5 * (parabola + vee))
+    # mirrored samples, mirrored offsets
+    assert _ncc.subpixel_offset(*samples[::-1], True) == pytest.approx(-0.5 * (parabola + vee))
+
+
+def test_subpixel_offsets_are_exact_for_their_own_peak_shapes():
+    # samples at -1, 0, 1 of a parabola and of a V with their top at 0.3: each estimator
+    # is exact for its own shape and the blend lies between the two
+    top = 0.3
+    parabola = [1.0 - 0.2 * (x - top) ** 2 for x in (-1, 0, 1)]
+    vee = [1.0 - 0.2 * abs(x - top) for x in (-1, 0, 1)]
+    assert _ncc.subpixel_offset(*parabola, False) == pytest.approx(top)
+    assert 0.5 * (top + _ncc._equiangular_offset(*parabola)) == pytest.approx(
+        _ncc.subpixel_offset(*parabola, True)
+    )
+    assert _ncc._equiangular_offset(*vee) == pytest.approx(top)
+    assert _ncc._equiangular_offset(*parabola) > top  # the V overshoots a round peak
+    assert _ncc._parabola_offset(*vee) < top  # the parabola undershoots a sharp one
+
+
+def test_unknown_subpixel_estimator_is_rejected():
+    right, left = _shifted_pair((32, 48), 3, seed=0)
+    with pytest.raises(ValueError, match="subpixel must be one of"):
+        match_disparity(right, left, min_disparity=0, max_disparity=8, subpixel="cubic")
+
+
 def test_occluded_pixels_are_invalid_after_the_lr_check():
     right, left, truth, occluded = _occlusion_scene()
     m = match_disparity(right, left, min_disparity=0, max_disparity=20, speckle_size=0, **SMALL)
@@ -370,7 +446,7 @@ def _kernel(right, left, lo, hi, row_start, row_end=None, windows="5,9"):
     os_, oi, _ = _ncc.window_stats(o32, hys, hxs)
     return _ncc.adaptive_match(
         r32, o32, lo, hi - lo + 1, row_start, row_end, hys, hxs, rs, ri, rsd, os_, oi,
-        1.0, 0.1, _stereo._margins(s), 1.0,
+        1.0, 0.1, _stereo._margins(s), 1.0, True,
     )  # fmt: skip
 
 
