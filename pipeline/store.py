@@ -8,8 +8,9 @@ Layout under the products root (by default RUNDIR)::
     quicklooks/<frame_id>/*.png    loose files of ``files`` products
 
 Every file is written to a temporary name in its final directory, then renamed, so a reader
-never sees half a file (the driver flushes the filesystem before it records a frame). Zarr arrays are created once by the driver; workers only
-write whole chunk-aligned frame slabs of existing arrays.
+never sees half a file (the driver flushes the filesystem before it records a frame). Zarr
+arrays are created once by the driver; workers only write whole chunk-aligned frame slabs of
+existing arrays.
 
 The array products and loose files (what workers write) may live elsewhere than the run
 directory: a *products root* is either a local directory (a shared filesystem) or an fsspec
