@@ -472,11 +472,13 @@ def write_frame_array(
     object store zarr PUTs each chunk. ``token`` (the run id) keys the cached handles of
     remote arrays, whose metadata cannot be checked for changes as cheaply as a local file's.
     """
+    writer: _SlabWriter | None = None
     if is_url(root):
         array = _remote_array(f"{zarr_location(root)}/{name}", token)
     else:
         path = _zarr_path(root) / name
         array = _open_array(path, "r+")
+        writer = _slab_writer(path)
     if tuple(array.shape[1:]) != data.shape or array.dtype != data.dtype:
         raise ValueError(
             f"product {name!r} expects per-frame shape {tuple(array.shape[1:])} and dtype "
@@ -484,7 +486,6 @@ def write_frame_array(
         )
     if not 0 <= index < array.shape[0]:
         raise IndexError(f"frame index {index} outside product {name!r} of {array.shape[0]}")
-    writer = None if is_url(root) else _slab_writer(path)
     if writer is not None:
         writer.write(index, data)
     else:

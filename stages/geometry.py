@@ -459,14 +459,11 @@ def derive_row_floor(
             f"margin must be in [0, 1] and slack_px >= 0, got margin={margin}, "
             f"slack_px={slack_px}"
         )
-    if not cam.has_pose:
+    rows = _pose_ground_by_row(cam, shape)
+    if rows is None:
         return None
-    assert cam.height_m is not None and cam.pitch_deg is not None
-    plane = plane_from_pose(height_m=cam.height_m, pitch_deg=cam.pitch_deg)
-    alpha, beta, gamma = plane_disparity_coefficients(plane, camera=cam, shape=shape)
-    # the lowest ground disparity along the row (the pose has no roll: alpha = 0)
-    ground = beta * np.arange(shape[0]) + gamma + min(0.0, alpha * (shape[1] - 1))
-    return np.floor((1.0 - margin) * ground - slack_px).astype(np.int64)
+    lowest, _highest = rows
+    return np.floor((1.0 - margin) * lowest - slack_px).astype(np.int64)
 
 
 def derive_row_ceiling(
@@ -506,10 +503,23 @@ def derive_row_ceiling(
         raise ValueError(
             f"ratio must be >= 1 and slack_px >= 0, got ratio={ratio}, slack_px={slack_px}"
         )
+    rows = _pose_ground_by_row(cam, shape)
+    if rows is None:
+        return None
+    _lowest, highest = rows
+    return np.ceil(ratio * np.maximum(highest, 0.0) + slack_px).astype(np.int64)
+
+
+def _pose_ground_by_row(
+    cam: Camera, shape: tuple[int, int]
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """The pose plane's least and largest disparity along each image row; None without a
+    pose. (With the pose's zero roll the column term ``alpha`` is 0 and both are equal.)"""
     if not cam.has_pose:
         return None
     assert cam.height_m is not None and cam.pitch_deg is not None
     plane = plane_from_pose(height_m=cam.height_m, pitch_deg=cam.pitch_deg)
     alpha, beta, gamma = plane_disparity_coefficients(plane, camera=cam, shape=shape)
-    ground = beta * np.arange(shape[0]) + gamma + max(0.0, alpha * (shape[1] - 1))
-    return np.ceil(ratio * np.maximum(ground, 0.0) + slack_px).astype(np.int64)
+    base = beta * np.arange(shape[0]) + gamma
+    across = alpha * (shape[1] - 1)
+    return base + min(0.0, across), base + max(0.0, across)
