@@ -29,7 +29,26 @@ from .graph import (
 from .state import RunState
 from .store import file_sha256
 
-__all__ = ["RunPlan", "plan_run", "frame_keys", "format_plan", "validate_request", "default_rundir"]
+__all__ = [
+    "RunPlan",
+    "RunRequest",
+    "plan_run",
+    "frame_keys",
+    "format_plan",
+    "validate_request",
+    "default_rundir",
+]
+
+
+@dataclass(frozen=True)
+class RunRequest:
+    """A validated request: the catalog, stage graph, effective params and selected frames."""
+
+    catalog: Catalog
+    graph: StageGraph
+    params: dict[str, dict[str, Any]]
+    frames: list[FrameRecord]
+    stage_package: str
 
 
 @dataclass
@@ -149,10 +168,11 @@ def validate_request(
     overrides: Iterable[str],
     frames: str | None,
     stage_package: str | None,
-) -> tuple[Catalog, StageGraph, dict[str, dict[str, Any]], list[FrameRecord]]:
+) -> RunRequest:
     """Catalog, graph, effective params and selected frames; raises before any work."""
     catalog = load_catalog(catalog_path)
-    graph = build_graph(discover_stages(stage_package_name(stage_package)))
+    package = stage_package_name(stage_package)
+    graph = build_graph(discover_stages(package))
     params = resolve_stage_params(graph, catalog.params, parse_set_overrides(graph, overrides))
     selected = [f for f in catalog.frames if frames is None or fnmatch.fnmatch(f.frame_id, frames)]
     if not selected:
@@ -160,27 +180,27 @@ def validate_request(
             f"--frames {frames!r} matches none of the {len(catalog.frames)} frames of "
             f"{catalog.source}; frame ids look like {catalog.frames[0].frame_id!r}"
         )
-    return catalog, graph, params, selected
+    return RunRequest(catalog, graph, params, selected, package)
 
 
 def plan_run(
-    catalog_path: str | os.PathLike[str],
+    request: RunRequest,
     out: str | os.PathLike[str] | None = None,
     *,
-    overrides: Iterable[str] = (),
-    frames: str | None = None,
-    stage_package: str | None = None,
     state: RunState | None = None,
     products: str = "",
 ) -> RunPlan:
-    """Validate everything and work out what must run.
+    """Work out what a validated request (:func:`validate_request`) must run.
 
     With ``state`` (the run's writable journal) newly computed input hashes are remembered;
     without it the run directory is only read. ``products`` is the canonical products root
     when it is not the run directory (see :func:`pipeline.store.coerce_products_root`).
     """
-    catalog, graph, params, selected = validate_request(
-        catalog_path, overrides, frames, stage_package
+    catalog, graph, params, selected = (
+        request.catalog,
+        request.graph,
+        request.params,
+        request.frames,
     )
     rundir = Path(out) if out is not None else default_rundir(catalog)
     reader = state
@@ -222,7 +242,7 @@ def plan_run(
         reasons=reasons,
         image_shape=image_shape,
         input_hashes=hashes,
-        stage_package=stage_package_name(stage_package),
+        stage_package=request.stage_package,
         products=products,
     )
 

@@ -73,20 +73,11 @@ def run(
     directory already uses, RunLockedError when another run holds the directory, StoreError
     when products cannot be written.
     """
-    catalog, *_ = validate_request(
-        catalog_path, overrides, frames, stage_package
-    )  # before touching disk
-    rundir = Path(out) if out is not None else default_rundir(catalog)
+    request = validate_request(catalog_path, overrides, frames, stage_package)  # before disk
+    rundir = Path(out) if out is not None else default_rundir(request.catalog)
     root = _resolve_products(rundir, products)
     if dry_run:
-        return plan_run(
-            catalog_path,
-            rundir,
-            overrides=overrides,
-            frames=frames,
-            stage_package=stage_package,
-            products=root,
-        )
+        return plan_run(request, rundir, products=root)
     rundir.mkdir(parents=True, exist_ok=True)
     with RunLock(rundir):
         remove_orphan_temp_files(rundir)
@@ -94,15 +85,7 @@ def run(
             remove_orphan_temp_files(Path(root))
         state = RunState(rundir)
         try:
-            plan = plan_run(
-                catalog_path,
-                rundir,
-                overrides=overrides,
-                frames=frames,
-                stage_package=stage_package,
-                state=state,
-                products=root,
-            )
+            plan = plan_run(request, rundir, state=state, products=root)
             return _execute(plan, state, workers=workers, scheduler=scheduler, progress=progress)
         finally:
             state.close()
