@@ -13,10 +13,11 @@ same operations for a pixel whatever the image or tile it sits in, so matching a
 bit-identical results to matching the whole frame.
 
 Per image row the kernel keeps, for every window (half-height ``hy``, half-width ``hw``) and
-every disparity index ``j`` (disparity ``d = d_min + j``), the column sums ``cs[x, j]`` of
-``R*L`` over the ``2 hy + 1`` window rows and the window sums ``hs[x, j]`` over ``2 hw + 1``
+every disparity index ``j`` (disparity ``d = d_min + j``), the column sums ``cs[j, x]`` of
+``R*L`` over the ``2 hy + 1`` window rows and the window sums ``hs[j, x]`` over ``2 hw + 1``
 columns: O(1) work per pixel, disparity and window whatever the window size (box
-filtering), no Python loop over pixels.
+filtering), no Python loop over pixels. Both matchers, :func:`adaptive_match` and the
+``sgm`` method's :func:`ncc_cost_volume`, share these disparity-major (D, W) sums.
 """
 
 from __future__ import annotations
@@ -76,65 +77,6 @@ def window_stats(image, hys, hxs):  # pragma: no cover - numba
 
 
 @njit(cache=True)
-def _update_column_sums(cs, ref, other, y_add, y_sub, d_min):  # pragma: no cover - numba
-    """Add product row ``y_add`` to ``cs`` and remove row ``y_sub`` (skipped when < 0)."""
-    # The inner loops run over row slices with a range index from 0: numba then needs no
-    # negative-index wraparound, and LLVM vectorises them (integer sums: same results).
-    w = ref.shape[1]
-    n_disp = cs.shape[1]
-    add_row = other[y_add]
-    sub_row = other[max(y_sub, 0)]
-    for x in range(w):
-        j0 = max(0, -x - d_min)
-        j1 = min(n_disp, w - x - d_min)
-        if j1 <= j0:
-            continue
-        ra = ref[y_add, x]
-        sums = cs[x, j0:j1]
-        added = add_row[x + d_min + j0 : x + d_min + j1]
-        if y_sub >= 0:
-            rs = ref[y_sub, x]
-            removed = sub_row[x + d_min + j0 : x + d_min + j1]
-            for j in range(j1 - j0):
-                sums[j] += ra * added[j] - rs * removed[j]
-        else:
-            for j in range(j1 - j0):
-                sums[j] += ra * added[j]
-
-
-@njit(cache=True)
-def _window_sums(hs, cs, hw):  # pragma: no cover - numba
-    """Slide the ``2 hw + 1`` wide horizontal window over the column sums."""
-    w, n_disp = cs.shape
-    if w < 2 * hw + 1:
-        return
-    for j in range(n_disp):
-        acc = np.int32(0)
-        for x in range(2 * hw + 1):
-            acc += cs[x, j]
-        hs[hw, j] = acc
-    for x in range(hw + 1, w - hw):
-        out = hs[x]
-        prev = hs[x - 1]
-        entering = cs[x + hw]
-        leaving = cs[x - hw - 1]
-        for j in range(n_disp):
-            out[j] = prev[j] + entering[j] - leaving[j]
-
-
-@njit(cache=True)
-def _refresh_row(cs, hs, ref, other, y, hy, hx, d_min):  # pragma: no cover - numba
-    """Bring the column and window sums of one window size to row ``y``."""
-    if y == hy:
-        cs[:, :] = 0
-        for yy in range(2 * hy + 1):
-            _update_column_sums(cs, ref, other, yy, -1, d_min)
-    else:
-        _update_column_sums(cs, ref, other, y + hy, y - hy - 1, d_min)
-    _window_sums(hs, cs, hx)
-
-
-@njit(cache=True)
 def _parabola_offset(c_minus, c_0, c_plus):  # pragma: no cover - numba
     """Vertex offset in [-0.5, 0.5] of the parabola through three equally spaced samples."""
     curvature = c_minus - 2.0 * c_0 + c_plus
@@ -171,10 +113,10 @@ def subpixel_offset(c_minus, c_0, c_plus, blend):  # pragma: no cover - numba
     return 0.5 * (parabola + _equiangular_offset(c_minus, c_0, c_plus))
 
 
-# ------------------------------------------------------------ adaptive matching, (D, W) layout
+# ------------------------------------------------------------------ row sums, (D, W) layout
 #
-# The adaptive matcher keeps its per-row sums and curves disparity-major, ``a[j, x]``: the
-# work that dominates (the ZNCC of every column, its peak and runner-up, the left-reference
+# The matchers keep their per-row sums and curves disparity-major, ``a[j, x]``: the work
+# that dominates (the ZNCC of every column, its peak and runner-up, the left-reference
 # argmax) then runs over contiguous columns for one disparity at a time, so every column is
 # an independent SIMD lane instead of a short serial search per pixel. Only the sliding
 # window sum along the row is serial (one running sum per disparity).
@@ -691,6 +633,33 @@ def adaptive_match(
 
 
 @njit(cache=True)
+def _row_costs(costs, hs, n, hw, rs_row, ri_row, os_row, oi_row, d_min):  # pragma: no cover
+    """Cost ``(1 - ZNCC) / 2`` of every disparity and column of the current row, (D, W);
+    0.5 where the window does not fit.
+
+    The float operations are those of :func:`_row_curves` up to the ZNCC, then the cost's,
+    all in float64 and rounded to float32 once.
+    """
+    n_disp, w = costs.shape
+    costs[:, :] = 0.5
+    for j in range(n_disp):
+        d = d_min + j
+        x0 = max(hw, hw - d)
+        x1 = min(w - hw, w - hw - d)
+        if x1 <= x0:
+            continue
+        out = costs[j, x0:x1]
+        sums = hs[j, x0:x1]
+        r_sums = rs_row[x0:x1]
+        r_inv = ri_row[x0:x1]
+        o_sums = os_row[x0 + d : x1 + d]
+        o_inv = oi_row[x0 + d : x1 + d]
+        for i in range(x1 - x0):
+            num = n * np.float64(sums[i]) - np.float64(r_sums[i]) * np.float64(o_sums[i])
+            out[i] = np.float32(0.5 - 0.5 * num * np.float64(r_inv[i]) * o_inv[i])
+
+
+@njit(cache=True)
 def ncc_cost_volume(
     ref, other, d_min, n_disp, hw, ref_sums, ref_inv, other_sums, other_inv
 ):  # pragma: no cover - numba
@@ -698,24 +667,25 @@ def ncc_cost_volume(
 
     Where the window does not fit (image border, disparity beyond the other image) the cost
     is 0.5, the cost of an uncorrelated match, so semi-global aggregation fills it from the
-    neighbours; the caller invalidates such pixels afterwards.
-    """  # pragma: no cover - numba
+    neighbours; the caller invalidates such pixels afterwards. The sums and each row's
+    costs are disparity-major, as for :func:`adaptive_match`; only the copy into the
+    (H, W, D) volume that aggregation reads is transposed.
+    """
     h, w = ref.shape
     cost = np.full((h, w, n_disp), 0.5, np.float32)
-    cs = np.zeros((w, n_disp), np.int32)
-    hs = np.zeros((w, n_disp), np.int32)
+    cs = np.zeros((n_disp, w), np.int32)
+    hs = np.zeros((n_disp, w), np.int32)
+    costs = np.empty((n_disp, w), np.float32)
     n = (2 * hw + 1) * (2 * hw + 1)
     for y in range(hw, h - hw):
-        _refresh_row(cs, hs, ref, other, y, hw, hw, d_min)
+        _advance_column_sums_t(cs, ref, other, y, hw, d_min)
+        _window_sums_t(hs, cs, hw)
+        _row_costs(costs, hs, n, hw, ref_sums[y], ref_inv[y], other_sums[y], other_inv[y], d_min)
+        out = cost[y]
         for x in range(hw, w - hw):
-            j0 = max(0, hw - x - d_min)
-            j1 = min(n_disp, w - hw - x - d_min)
-            s_ref = np.float64(ref_sums[y, x])
-            i_ref = np.float64(ref_inv[y, x])
-            for j in range(j0, j1):
-                xo = x + d_min + j
-                num = n * np.float64(hs[x, j]) - s_ref * np.float64(other_sums[y, xo])
-                cost[y, x, j] = np.float32(0.5 - 0.5 * num * i_ref * other_inv[y, xo])
+            column = out[x]
+            for j in range(n_disp):
+                column[j] = costs[j, x]
     return cost
 
 

@@ -411,6 +411,30 @@ def test_window_sums_are_box_sums_of_the_products():
             np.testing.assert_array_equal(hs[j, hw : 25 - hw], expected)
 
 
+@pytest.mark.parametrize("d_min", [-5, 0, 4])
+def test_cost_volume_is_half_one_minus_the_zncc(d_min):
+    # sgm's cost (1 - ZNCC) / 2 from the (D, W) row sums, against ZNCC computed window by
+    # window; 0.5 (uncorrelated) wherever the window leaves either image
+    right, left = _shifted_pair((21, 40), 3, seed=4)
+    ref, oth = _stereo._centred(right), _stereo._centred(left)
+    n_disp, hw = 9, 2
+    hws = np.array([hw], np.int64)
+    rs, ri, _ = _ncc.window_stats(ref, hws, hws)
+    os_, oi, _ = _ncc.window_stats(oth, hws, hws)
+    cost = _ncc.ncc_cost_volume(ref, oth, d_min, n_disp, hw, rs[0], ri[0], os_[0], oi[0])
+    assert cost.shape == (21, 40, n_disp) and cost.dtype == np.float32
+    h, w = ref.shape
+    for y, x, j in np.ndindex(cost.shape):
+        xo = x + d_min + j
+        if not (hw <= y < h - hw and hw <= x < w - hw and hw <= xo < w - hw):
+            assert cost[y, x, j] == 0.5
+            continue
+        a = ref[y - hw : y + hw + 1, x - hw : x + hw + 1].astype(np.float64).ravel()
+        b = oth[y - hw : y + hw + 1, xo - hw : xo + hw + 1].astype(np.float64).ravel()
+        zncc = np.corrcoef(a, b)[0, 1]
+        assert cost[y, x, j] == pytest.approx(0.5 * (1.0 - zncc), abs=1e-6)
+
+
 @pytest.mark.parametrize("d_min", [-4, 0, 3])
 def test_border_curves_read_the_shifted_windows(d_min):
     # a window that does not fit is moved to the nearest centre where it does, at most hw
