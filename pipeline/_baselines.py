@@ -34,7 +34,7 @@ def sgbm_disparity(
 ) -> np.ndarray:
     """OpenCV StereoSGBM disparity in the geometry of the reference image.
 
-    The depth stage's own ``opencv-sgbm`` option (:func:`stages._stereo.sgbm_disparity`,
+    The depth stage's own ``opencv-sgbm`` option (:func:`stages._stereo_filters.sgbm_disparity`,
     right image as reference, OpenCV's usual settings), so the baseline is exactly what a
     user gets with ``--set depth.method=opencv-sgbm``. For ``reference='left'`` both images
     are mirrored and swapped, as the depth stage does.
@@ -56,7 +56,7 @@ def sgbm_disparity(
     disparity : (M, N) ndarray of float32
         Disparity in pixels (1/16 px steps), NaN where SGBM found no valid match.
     """
-    from stages._stereo import sgbm_disparity as _stage_sgbm
+    from stages._stereo_filters import sgbm_disparity as _stage_sgbm
 
     lft, rgt = _coerce_gray("left", left), _coerce_gray("right", right)
     if lft.shape != rgt.shape:

@@ -103,28 +103,14 @@ Methods
     aggregated volume. Fills weakly textured areas (dunes) the adaptive method leaves empty.
 
 ``opencv-sgbm``
-    OpenCV's StereoSGBM as a reference (:func:`sgbm_disparity`).
+    OpenCV's StereoSGBM as a reference (:func:`stages._stereo_filters.sgbm_disparity`).
 
-Prefilter (opt-in). With ``prefilter`` > 0, ``adaptive`` and ``sgm`` match high-passed
-images: each image minus its ``prefilter`` x ``prefilter`` box mean, times 2, rounded to
-integer gray levels around 128 (:func:`prefilter_image`). Why: ZNCC removes a window's mean
-but not a brightness *gradient* across it; under lamps the slow shading of a nearly uniform
-floor can dominate a window's variance, so the curve is a broad hump and the peak is not
-distinct although fine texture is there. Measured on the 12-frame catalogs: ``sgm`` on
-dunes bad-2 23.1 -> 20.9 % with 15 px; lab 25.3 -> 21.7 % with the old 51x63 windows but
-no gain with the wide 63x255 window (EPE 0.45 -> 0.49); mojave and lava bad-2 within
-0.1 % but segmentation F1 about 0.7 points lower. Hence off by default. The arithmetic is
-exact integer, so tiles still match the whole frame bit for bit.
-
-All methods finish by removing speckles: 4-connected regions of at most ``speckle_size``
-pixels whose neighbouring disparities differ by at most ``speckle_range`` px are isolated
-islands of (usually wrong) matches and are invalidated.
-
-Tiles: :func:`match_tiled` matches a large frame tile by tile with ``dask.array.map_overlap``;
-the overlap (:func:`tile_overlap`) covers everything a pixel's result depends on, so for the
-``adaptive`` method the result is bit-identical to whole-frame matching (window sums are
-exact integers). ``sgm`` and ``opencv-sgbm`` aggregate along paths across the whole frame, so
-their tiled results differ slightly near tile seams.
+Modules. This one holds the methods, the checks of their settings and
+:func:`match_disparity`; the numba kernels are in :mod:`stages._ncc` and :mod:`stages._sgm`.
+Before and after matching (:mod:`stages._stereo_filters`): with ``prefilter`` > 0,
+``adaptive`` and ``sgm`` match high-passed images (off by default), and every method ends
+by removing speckles (``speckle_size``, ``speckle_range``). Large frames are matched tile by
+tile by :mod:`stages._stereo_tiles`, bit-identical to whole-frame matching for ``adaptive``.
 """
 
 from __future__ import annotations
@@ -132,10 +118,18 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-import cv2
 import numpy as np
 
 from . import _ncc, _sgm
+from ._stereo_filters import (
+    _check_prefilter_size,
+    _coerce_pair,
+    _coerce_range,
+    _is_int,
+    prefilter_image,
+    remove_speckles,
+    sgbm_disparity,
+)
 
 __all__ = [
     "DEFAULT_WINDOWS",
@@ -147,12 +141,7 @@ __all__ = [
     "STATUS_SPECKLE",
     "Matching",
     "match_disparity",
-    "match_tiled",
-    "tile_overlap",
-    "remove_speckles",
     "check_settings",
-    "sgbm_disparity",
-    "prefilter_image",
 ]
 
 DEFAULT_WINDOWS = "9,15x41,31x63"
@@ -201,50 +190,6 @@ class Matching:
 # ----------------------------------------------------------------------------- validation
 
 
-def _coerce_image(image: Any, name: str) -> np.ndarray:
-    array = np.asarray(image)
-    if array.ndim != 2:
-        raise ValueError(f"{name} must be a 2-D gray image, got shape {array.shape}")
-    if array.dtype == np.uint8:
-        return array
-    if not np.issubdtype(array.dtype, np.integer):
-        raise TypeError(
-            f"{name} must be an integer gray image (uint8), got dtype {array.dtype}; "
-            "convert with np.clip(image, 0, 255).astype(np.uint8)"
-        )
-    if array.size and (array.min() < 0 or array.max() > 255):
-        raise ValueError(
-            f"{name} gray levels must be in [0, 255], got [{array.min()}, {array.max()}]"
-        )
-    return array.astype(np.uint8)
-
-
-def _coerce_pair(reference: Any, other: Any) -> tuple[np.ndarray, np.ndarray]:
-    ref = _coerce_image(reference, "reference")
-    oth = _coerce_image(other, "other")
-    if ref.shape != oth.shape:
-        raise ValueError(
-            f"reference and other images must have the same shape, got {ref.shape} and "
-            f"{oth.shape}; the pair must be rectified to a common size"
-        )
-    return ref, oth
-
-
-def _coerce_range(min_disparity: Any, max_disparity: Any) -> tuple[int, int]:
-    for name, value in (("min_disparity", min_disparity), ("max_disparity", max_disparity)):
-        if isinstance(value, bool) or not isinstance(value, int | np.integer):
-            raise TypeError(f"{name} must be an int, got {type(value).__name__} {value!r}")
-    lo, hi = int(min_disparity), int(max_disparity)
-    if hi - lo < 2:
-        raise ValueError(
-            f"max_disparity must exceed min_disparity by at least 2 (a peak needs two "
-            f"neighbours), got min_disparity={lo}, max_disparity={hi}"
-        )
-    if max(abs(lo), abs(hi)) > 2000:
-        raise ValueError(f"|disparity| must stay below 2000 px, got range [{lo}, {hi}]")
-    return lo, hi
-
-
 def _coerce_windows(windows: Any) -> tuple[tuple[int, int], ...]:
     """Windows as ``((rows, cols), ...)``; ``'5,9x21'`` or ``(5, (9, 21))`` forms accepted."""
     example = "'5,11,21,41' or '5,9x21,15x41' (rows x columns)"
@@ -290,6 +235,34 @@ def _check_positive(name: str, value: float, *, allow_zero: bool = True) -> floa
         bound = ">= 0" if allow_zero else "> 0"
         raise ValueError(f"{name} must be a finite number {bound}, got {value!r}")
     return float(value)
+
+
+def _coerce_band(
+    row_min_disparity: Any, row_max_disparity: Any, rows: int, lo: int, hi: int
+) -> np.ndarray | None:
+    """(2, M) int64 per-row least and largest disparity, or None when neither is given."""
+    if row_min_disparity is None and row_max_disparity is None:
+        return None
+    band = np.empty((2, rows), np.int64)
+    for i, (name, value, default) in enumerate(
+        (("row_min_disparity", row_min_disparity, lo), ("row_max_disparity", row_max_disparity, hi))
+    ):
+        if value is None:
+            band[i] = default
+            continue
+        array = np.asarray(value)
+        if array.shape != (rows,):
+            raise ValueError(
+                f"{name} must hold one disparity per image row, shape ({rows},), got shape "
+                f"{array.shape}"
+            )
+        if not np.issubdtype(array.dtype, np.integer):
+            raise TypeError(
+                f"{name} must be integers (px), got dtype {array.dtype}; round with "
+                "np.floor(values).astype(int) (np.ceil for row_max_disparity)"
+            )
+        band[i] = np.clip(array.astype(np.int64), lo, hi)
+    return band
 
 
 # ----------------------------------------------------------------------------- matching
@@ -509,7 +482,7 @@ def match_disparity(
         ``sgm`` method: ZNCC window, penalties (cost units, cost in [0, 1]), path count.
     prefilter : int
         Box size (odd px) of the high-pass applied before ``adaptive`` and ``sgm`` matching
-        (:func:`prefilter_image`); 0 matches the raw images.
+        (:func:`stages._stereo_filters.prefilter_image`); 0 matches the raw images.
     subpixel : {'blend', 'parabola'}
         ``adaptive`` only: the peak's subpixel estimator, see "Subpixel" in the module
         docstring.
@@ -532,249 +505,3 @@ def match_disparity(
     )  # fmt: skip
     band = _coerce_band(row_min_disparity, row_max_disparity, ref.shape[0], lo, hi)
     return _decode(_match_coded(ref, oth, lo, hi, settings, band))
-
-
-def _coerce_band(
-    row_min_disparity: Any, row_max_disparity: Any, rows: int, lo: int, hi: int
-) -> np.ndarray | None:
-    """(2, M) int64 per-row least and largest disparity, or None when neither is given."""
-    if row_min_disparity is None and row_max_disparity is None:
-        return None
-    band = np.empty((2, rows), np.int64)
-    for i, (name, value, default) in enumerate(
-        (("row_min_disparity", row_min_disparity, lo), ("row_max_disparity", row_max_disparity, hi))
-    ):
-        if value is None:
-            band[i] = default
-            continue
-        array = np.asarray(value)
-        if array.shape != (rows,):
-            raise ValueError(
-                f"{name} must hold one disparity per image row, shape ({rows},), got shape "
-                f"{array.shape}"
-            )
-        if not np.issubdtype(array.dtype, np.integer):
-            raise TypeError(
-                f"{name} must be integers (px), got dtype {array.dtype}; round with "
-                "np.floor(values).astype(int) (np.ceil for row_max_disparity)"
-            )
-        band[i] = np.clip(array.astype(np.int64), lo, hi)
-    return band
-
-
-def tile_overlap(
-    *,
-    min_disparity: int,
-    max_disparity: int,
-    largest_window: int,
-    speckle_size: int,
-    prefilter: int = 0,
-) -> tuple[int, int]:
-    """Tile overlap ``(rows, columns)`` that makes tiled matching equal whole-frame matching.
-
-    A pixel's disparity depends on reference columns within ``|d|max + (d_max - d_min)``
-    (left-right check), other-image columns within ``|d|max`` and half a window around it;
-    speckle removal then looks ``speckle_size`` px further, the prefilter ``prefilter // 2``.
-    """
-    span = max(abs(min_disparity), abs(max_disparity))
-    half = largest_window // 2 + prefilter // 2
-    columns = span + (max_disparity - min_disparity) + half + 2 + speckle_size
-    rows = half + 2 + speckle_size
-    return rows, columns
-
-
-def match_tiled(
-    reference: np.ndarray,
-    other: np.ndarray,
-    *,
-    tile_px: int,
-    min_disparity: int,
-    max_disparity: int,
-    row_min_disparity: Any = None,
-    row_max_disparity: Any = None,
-    **settings: Any,
-) -> Matching:
-    """:func:`match_disparity` tile by tile with ``dask.array.map_overlap``.
-
-    Parameters
-    ----------
-    reference, other : (M, N) ndarray of uint8
-        As for :func:`match_disparity`.
-    tile_px : int
-        Tile side in px (>= 16); the frame is cut into ``tile_px`` square chunks, each
-        matched with the overlap of :func:`tile_overlap` (dask enlarges chunks smaller
-        than the overlap).
-    row_min_disparity, row_max_disparity : (M,) array_like of int, optional
-        As for :func:`match_disparity`; each tile gets its rows' bands.
-    **settings
-        Any keyword of :func:`match_disparity`.
-
-    Returns
-    -------
-    Matching
-        Equal to whole-frame matching for ``adaptive``.
-    """
-    import dask.array as da
-
-    from pipeline.compute import compute
-
-    if isinstance(tile_px, bool) or not isinstance(tile_px, int) or tile_px < 16:
-        raise ValueError(f"tile_px must be an int >= 16, got {tile_px!r}")
-    ref, oth = _coerce_pair(reference, other)
-    lo, hi = _coerce_range(min_disparity, max_disparity)
-    s = check_settings(**settings)
-    largest = max(max(max(shape) for shape in s["windows"]), s["sgm_window"], 5)
-    rows, cols = tile_overlap(
-        min_disparity=lo, max_disparity=hi, largest_window=largest,
-        speckle_size=s["speckle_size"], prefilter=s["prefilter"],
-    )  # fmt: skip
-
-    band = _coerce_band(row_min_disparity, row_max_disparity, ref.shape[0], lo, hi)
-    # The bands travel as two more images (each row its floor, its ceiling), so the overlap
-    # hands every tile exactly its own rows' bands.
-    rows_band = np.array([[lo], [hi]], np.int64) + np.zeros(ref.shape[0], np.int64)
-    rows_band = rows_band if band is None else band
-    floor_d, ceiling_d = (
-        da.from_array(np.broadcast_to(b[:, None], ref.shape), chunks=tile_px) for b in rows_band
-    )
-
-    def tile(
-        ref_tile: np.ndarray, oth_tile: np.ndarray, floor_tile: np.ndarray, ceiling_tile: np.ndarray
-    ) -> np.ndarray:
-        tile_band = None if band is None else np.stack([floor_tile[:, 0], ceiling_tile[:, 0]])
-        return _match_coded(ref_tile, oth_tile, lo, hi, s, tile_band)
-
-    ref_d = da.from_array(ref, chunks=tile_px)
-    oth_d = da.from_array(oth, chunks=tile_px)
-    coded = da.map_overlap(
-        tile, ref_d, oth_d, floor_d, ceiling_d, depth={0: rows, 1: cols}, boundary="none",
-        trim=True, dtype=np.float32, meta=np.empty((0, 0), np.float32),
-    )  # fmt: skip
-    (result,) = compute(coded)
-    return _decode(np.asarray(result, dtype=np.float32))
-
-
-# ------------------------------------------------------------------- pre- and post-processing
-
-
-def prefilter_image(image: np.ndarray, *, size: int) -> np.ndarray:
-    """High-pass a gray image: ``128 + 2 (image - box mean)``, rounded, clipped to uint8.
-
-    Parameters
-    ----------
-    image : (M, N) ndarray of uint8
-        Gray image.
-    size : int
-        Odd box side in px, 3 to 63; the border is mirrored (``cv2.BORDER_REFLECT``).
-
-    Returns
-    -------
-    (M, N) ndarray of uint8
-        Integer arithmetic throughout (box sums from an int64 integral image, round half
-        up), so a pixel's value depends only on its ``size`` x ``size`` neighbourhood, bit
-        for bit, wherever the image is cut.
-    """
-    img = _coerce_image(image, "image")
-    _check_prefilter_size("size", size)
-    half = int(size) // 2
-    n = int(size) * int(size)
-    padded = np.pad(img.astype(np.int64), half, mode="symmetric")  # = cv2.BORDER_REFLECT
-    integral = np.zeros((padded.shape[0] + 1, padded.shape[1] + 1), np.int64)
-    np.cumsum(np.cumsum(padded, axis=0), axis=1, out=integral[1:, 1:])
-    k = int(size)
-    box = integral[k:, k:] - integral[:-k, k:] - integral[k:, :-k] + integral[:-k, :-k]
-    # 2 (I - S/n) rounded half up, in integers: floor((4 (n I - S) + n) / (2 n))
-    high = (4 * (n * img.astype(np.int64) - box) + n) // (2 * n)
-    return np.clip(high + 128, 0, 255).astype(np.uint8)
-
-
-def _is_int(value: Any) -> bool:
-    return not isinstance(value, bool) and isinstance(value, int | np.integer)
-
-
-def _check_prefilter_size(name: str, value: Any, *, off: str = "") -> None:
-    """The prefilter's box side: an odd int in [3, 63] (``off`` names the disabling value)."""
-    if not (_is_int(value) and 3 <= value <= 63 and value % 2 == 1):
-        raise ValueError(f"{name} must be {off}an odd int in [3, 63], got {value!r}")
-
-
-def remove_speckles(
-    disparity: np.ndarray, *, max_size: int, max_diff: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """Invalidate small connected islands of disparity.
-
-    Parameters
-    ----------
-    disparity : (M, N) ndarray of float32
-        Pixels, NaN invalid, ``|d| < 2000``.
-    max_size : int
-        Regions of at most this many pixels (4-connected) are removed.
-    max_diff : float
-        Neighbours whose disparities differ by at most this (px, resolved to 1/16) belong
-        to the same region.
-
-    Returns
-    -------
-    cleaned : (M, N) ndarray of float32
-        ``disparity`` with the speckles set to NaN.
-    removed : (M, N) ndarray of bool
-        The pixels that were removed.
-    """
-    d = np.asarray(disparity, dtype=np.float32)
-    if d.ndim != 2:
-        raise ValueError(f"disparity must be 2-D, got shape {d.shape}")
-    valid = np.isfinite(d)
-    invalid_code = np.int16(-32768)
-    fixed = np.full(d.shape, invalid_code, np.int16)
-    fixed[valid] = np.round(d[valid] * 16).astype(np.int16)
-    marked = fixed.copy()
-    cv2.filterSpeckles(marked, int(invalid_code), int(max_size), max(1, round(max_diff * 16)))
-    removed = valid & (marked == invalid_code)
-    cleaned = np.where(removed, np.nan, d).astype(np.float32)
-    return cleaned, removed
-
-
-def sgbm_disparity(
-    left: np.ndarray,
-    right: np.ndarray,
-    *,
-    min_disparity: int,
-    max_disparity: int,
-    block_size: int = 5,
-) -> np.ndarray:
-    """OpenCV StereoSGBM disparity with the *right* image as reference (the baseline).
-
-    OpenCV's matcher takes the left image as reference (left ``x`` matches right ``x - d``).
-    Mirroring both images turns the right image into a left-reference image with the same
-    positive disparities, so ``compute(flip(right), flip(left))`` flipped back is the
-    right-reference disparity (right ``x`` matches left ``x + d``).
-
-    Parameters
-    ----------
-    left, right : (M, N) ndarray of uint8
-        Rectified gray pair.
-    min_disparity, max_disparity : int
-        Search range; OpenCV searches a multiple of 16 disparities from ``min_disparity``.
-    block_size : int
-        Odd matching block size; penalties P1 = 8 b^2, P2 = 32 b^2 (OpenCV's usual choice).
-
-    Returns
-    -------
-    disparity : (M, N) ndarray of float32
-        Right-reference disparity in px (1/16 px steps), NaN where OpenCV gives none.
-    """
-    right_u8, left_u8 = _coerce_pair(right, left)
-    lo, hi = _coerce_range(min_disparity, max_disparity)
-    count = int(np.ceil((hi - lo + 1) / 16.0)) * 16
-    matcher = cv2.StereoSGBM_create(  # type: ignore[attr-defined]
-        minDisparity=lo, numDisparities=count, blockSize=block_size,
-        P1=8 * block_size**2, P2=32 * block_size**2, disp12MaxDiff=1,
-        uniquenessRatio=10, speckleWindowSize=100, speckleRange=2,
-        mode=cv2.STEREO_SGBM_MODE_SGBM,
-    )  # fmt: skip
-    raw = matcher.compute(
-        np.ascontiguousarray(right_u8[:, ::-1]), np.ascontiguousarray(left_u8[:, ::-1])
-    )[:, ::-1]
-    disparity = raw.astype(np.float32) / 16.0
-    disparity[raw < lo * 16] = np.nan
-    return np.ascontiguousarray(disparity)

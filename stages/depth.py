@@ -30,7 +30,7 @@ texture (mojave, lava: about a quarter of StereoSGBM's bad-2 rate, see
 ``benchmarks/bench_depth_accuracy.py``). On nearly textureless floors add a wide window
 (``windows = "9,15x41,31x63,63x255"``, lab) or use ``method = "sgm"`` (lab, dunes), which
 propagates matches across weak texture; ``prefilter = 15`` (a high-pass, see
-:mod:`stages._stereo`) helps ``sgm`` on dunes (bad-2 23.1 -> 20.9 %).
+:mod:`stages._stereo_filters`) helps ``sgm`` on dunes (bad-2 23.1 -> 20.9 %).
 
 Subpixel. The ``adaptive`` method's peaks are refined by the mean of a parabola's vertex
 and a V's apex through the ZNCC at the best disparity and its neighbours (``subpixel =
@@ -54,7 +54,7 @@ from pipeline.camera import Camera
 from pipeline.errors import ParamError
 from pipeline.stage import FrameContext, Param, Product, Stage, StageResult
 
-from . import _refine, _stereo
+from . import _refine, _stereo, _stereo_tiles
 from .geometry import (
     derive_max_disparity,
     derive_row_ceiling,
@@ -269,7 +269,7 @@ def _match(
     settings = _coerce_settings(params)
     tile_px = int(params["tile_px"])
     if tile_px and max(reference.shape) > tile_px:
-        return _stereo.match_tiled(
+        return _stereo_tiles.match_tiled(
             reference, other, tile_px=max(tile_px, 16), min_disparity=lo, max_disparity=hi,
             row_min_disparity=band[0], row_max_disparity=band[1], **settings,
         ), True  # fmt: skip
