@@ -42,11 +42,12 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import json
 import time
-from pathlib import Path
 
 import numpy as np
+
+# sibling module: benchmarks/ is on sys.path when one of its scripts runs
+from _rundir import open_run
 
 from pipeline.camera import Camera
 from pipeline.metrics import (
@@ -166,9 +167,6 @@ def _rundir_scores(
     describe stage's own rules); ``dump`` collects one dict per matched rock (the
     descriptor row, ``t_``-prefixed truth columns, the pair's IoU and pixel counts).
     """
-    import pyarrow.parquet as pq
-    import xarray as xr
-
     from pipeline.evaluate import (
         _PRED_COLUMNS,
         _TRUE_COLUMNS,
@@ -178,28 +176,20 @@ def _rundir_scores(
         _relation_scores,
     )
 
-    path = Path(rundir)
-    run = json.loads((path / "run.json").read_text())
-    truth_dir = Path(run["catalog"]["truth_dir"])
-    camera = Camera(**run["camera"])
-    rocks = pq.read_table(truth_dir / "rocks.parquet").to_pylist()
-    products = xr.open_zarr(path / "products.zarr", consolidated=False)
+    run = open_run(rundir)
+    camera = run.camera
     pairs: tuple[list, list] = ([], [])
     edges: dict[str, list] = {}
     n_rel, n_frames, cpu = 0, 0, 0.0
-    for frame_id in map(str, products["frame"].values):
-        frame = products.sel(frame=frame_id)
-        with np.load(truth_dir / f"{frame_id}.npz") as npz:
-            truth_labels = npz["labels"].astype(np.int32)
-            truth_range = npz["range"]
-            truth_depth = {k: npz[k] for k in ("disparity", "range", "height")}
-        labels = np.asarray(frame["labels"].values).astype(np.int32)
+    for frame in run.frames():
+        truth_labels = frame.truth["labels"]
+        labels = frame.product("labels").astype(np.int32)
         if labels_from == "truth":
             labels = truth_labels
         arrays = [
-            truth_depth[name]
-            if depth_from == "truth" and name in truth_depth
-            else np.asarray(frame[name].values)
+            frame.truth[name]
+            if depth_from == "truth" and name in ("disparity", "range", "height")
+            else frame.product(name)
             for name in (camera.reference, "disparity", "range", "height", "ground_plane")
         ]
         start = time.process_time()  # describe only: the products are read before
@@ -210,13 +200,13 @@ def _rundir_scores(
         n_rel += rel["subject_id"].size
         n_frames += 1
         # score with arroyo evaluate's own pairing and edge helpers, on the same row dicts
-        rocks_by_id = {int(r["rock_id"]): r for r in rocks if r["frame_id"] == frame_id}
+        rocks_by_id = {int(r["rock_id"]): r for r in frame.rocks}
         matches = match_objects(labels, truth_labels)
         p_rows, t_rows = _pair_columns(matches, _as_rows(desc), rocks_by_id)
         if dump is not None:
             _dump_rows(
                 dump,
-                (rundir, run["archive"], frame_id),
+                (rundir, run.archive, frame.frame_id),
                 matches,
                 desc,
                 rocks_by_id,
@@ -225,7 +215,7 @@ def _rundir_scores(
             )
         pairs[0].extend(p_rows)
         pairs[1].extend(t_rows)
-        occlusions = true_occlusions(truth_labels, truth_range)
+        occlusions = true_occlusions(truth_labels, frame.truth["range"])
         for key, values in _edges(_as_rows(rel), matches, rocks_by_id, occlusions).items():
             edges.setdefault(key, []).extend(values)
     p_cols = _columns(pairs[0], _PRED_COLUMNS)
@@ -236,7 +226,7 @@ def _rundir_scores(
         signed = p_cols["width_m"] / t_cols["width_m"] - 1
     near_rocks = t_cols["range_m"] <= near
     return {
-        "archive": run["archive"],
+        "archive": run.archive,
         "err": err,
         # the median |error| hides a bias: a width biased low and one biased high score alike
         "signed": float(np.nanmedian(signed[near_rocks])) if near_rocks.any() else np.nan,

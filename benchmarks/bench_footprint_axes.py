@@ -21,39 +21,26 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import json
-from pathlib import Path
 
 import numpy as np
+from _rundir import open_run  # sibling module (benchmarks/ is on sys.path)
 
-from pipeline.camera import Camera
 from stages._descriptors import _FOOTPRINT_QUADRATIC_PX
 from stages._ground import fit_disparity_surface, frame_ground, pixel_points
 
 
 def _axis_errors(rundir: str, depth: str, near: float) -> tuple[str, dict[str, list[float]]]:
-    import pyarrow.parquet as pq
-    import xarray as xr
-
-    path = Path(rundir)
-    run = json.loads((path / "run.json").read_text())
-    truth_dir = Path(run["catalog"]["truth_dir"])
-    camera = Camera(**run["camera"])
-    rocks = pq.read_table(truth_dir / "rocks.parquet").to_pylist()
-    products = xr.open_zarr(path / "products.zarr", consolidated=False)
+    run = open_run(rundir)
+    camera = run.camera
     out: dict[str, list[float]] = {}
-    for frame_id in map(str, products["frame"].values):
-        frame = products.sel(frame=frame_id)
-        with np.load(truth_dir / f"{frame_id}.npz") as npz:
-            labels = npz["labels"]
-            disparity = npz["disparity"] if depth == "truth" else None
-        if disparity is None:
-            disparity = np.asarray(frame["disparity"].values)
-        ground = frame_ground(camera, np.asarray(frame["ground_plane"].values))
+    for frame in run.frames():
+        labels = frame.truth["labels"]
+        disparity = frame.truth["disparity"] if depth == "truth" else frame.product("disparity")
+        ground = frame_ground(camera, frame.product("ground_plane"))
         if ground is None:
             continue
-        for rock in rocks:
-            if rock["frame_id"] != frame_id or rock["touches_border"] or rock["range_m"] > near:
+        for rock in frame.rocks:
+            if rock["touches_border"] or rock["range_m"] > near:
                 continue
             rows, cols = np.nonzero(labels == rock["rock_id"])
             d = disparity[rows, cols].astype(np.float64)
@@ -78,7 +65,7 @@ def _axis_errors(rundir: str, depth: str, near: float) -> tuple[str, dict[str, l
                     out.setdefault(key, []).append((spread + pixel_m) / truth - 1)
                     out.setdefault(f"{key}_no_px", []).append(spread / truth - 1)
             out.setdefault("size_px", []).append(rock["extent_x_m"] / pixel_m)
-    return run["archive"], out
+    return run.archive, out
 
 
 def main() -> None:

@@ -33,6 +33,9 @@ from collections.abc import Callable
 import cv2
 import numpy as np
 
+# sibling module: benchmarks/ is on sys.path when one of its scripts runs
+from _rundir import open_run
+
 from pipeline.camera import Camera
 from pipeline.metrics import pool_segmentation_scores, segmentation_scores
 from stages.segment import segment_image
@@ -216,44 +219,34 @@ def rundir_scores(rundirs: list[str], overrides: dict, verbose: bool = False) ->
     ``overrides`` (the current code, not the run's), and pools the object scores against
     the archive's truth labels, as ``arroyo evaluate`` does.
     """
-    import json
     import tomllib
     from pathlib import Path
-
-    import xarray as xr
 
     from stages import segment as segment_stage
 
     for rundir in rundirs:
-        path = Path(rundir)
-        run = json.loads((path / "run.json").read_text())
-        truth_dir = Path(run["catalog"]["truth_dir"])
-        reference = run["camera"].get("reference", "right")
+        run = open_run(rundir)
         # the current defaults and the catalog's current segment params, not the run's
-        catalog = tomllib.loads(Path(run["catalog"]["source"]).read_text())
+        catalog = tomllib.loads(Path(run.run["catalog"]["source"]).read_text())
         params = dict(segment_stage.STAGE.defaults())
         params.update(catalog.get("params", {}).get("segment", {}))
         params.pop("tile_px", None)
         params.update(overrides)
-        products = xr.open_zarr(path / "products.zarr", consolidated=False)
         results = []
-        for frame_id in map(str, products["frame"].values):
-            frame = products.sel(frame=frame_id)
-            with np.load(truth_dir / f"{frame_id}.npz") as npz:
-                true_labels = npz["labels"].astype(np.int32)
+        for frame in run.frames():
             labels = segment_image(
-                np.asarray(frame[reference].values),
-                height=np.asarray(frame["height"].values),
-                disparity=np.asarray(frame["disparity"].values),
+                frame.product(run.camera.reference),
+                height=frame.product("height"),
+                disparity=frame.product("disparity"),
                 **params,
             ).labels
-            results.append(segmentation_scores(labels, true_labels))
+            results.append(segmentation_scores(labels, frame.truth["labels"]))
             if verbose:
                 r = results[-1]
-                print(f"  {frame_id}: tp {r['tp']:.0f} fp {r['fp']:.0f} fn {r['fn']:.0f}")
+                print(f"  {frame.frame_id}: tp {r['tp']:.0f} fp {r['fp']:.0f} fn {r['fn']:.0f}")
         pooled = pool_segmentation_scores(results)
         print(
-            f"{run['archive']:9s} {params['method']:24s} {pooled['precision']:6.3f} "
+            f"{run.archive:9s} {params['method']:24s} {pooled['precision']:6.3f} "
             f"{pooled['recall']:6.3f} {pooled['f1']:6.3f} {pooled['mean_iou']:6.3f}"
             f"   (tp {pooled['tp']:.0f} fp {pooled['fp']:.0f} fn {pooled['fn']:.0f})  {rundir}"
         )
