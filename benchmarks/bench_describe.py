@@ -29,9 +29,18 @@ Renders pairs with ``pipeline.synth.pair.render_pair`` and runs
 Scores against the truth rocks with ``pipeline.metrics`` (rocks within ``--near`` m of the
 camera for the descriptor targets; relations between matched rocks).
 
+``--set STAGE.PARAM=VALUE`` (repeated) sets a parameter of a stage the mode runs, parsed and
+checked like ``arroyo run --set`` (an unknown one is an error that lists the stage's
+parameters; ``benchmarks/_overrides.py``): ``describe.*``, ``depth.*`` with
+``--inputs depth`` or ``pipeline``, ``segment.*`` with ``--inputs pipeline``; ``--rundir``
+keeps the run's depth and segment products, so it takes ``describe.*`` only, and
+``--stage-speed`` runs every stage with its defaults and takes none.
+
 Usage::
 
     PYTHONPATH=. .venv/bin/python benchmarks/bench_describe.py --frames 4 --inputs truth
+    PYTHONPATH=. .venv/bin/python benchmarks/bench_describe.py --inputs depth \
+        --set depth.subpixel=parabola --set describe.sample_max_m=0.12
     PYTHONPATH=. .venv/bin/python benchmarks/bench_describe.py --stage-speed  # CPU ms/frame
     PYTHONPATH=. .venv/bin/python benchmarks/bench_describe.py --rundir runs/lab runs/lava \
         --set describe.relation_radius_m=1e6
@@ -46,10 +55,12 @@ import time
 
 import numpy as np
 
-# sibling module: benchmarks/ is on sys.path when one of its scripts runs
+# sibling modules: benchmarks/ is on sys.path when one of its scripts runs
+from _overrides import depth_products, stage_overrides
 from _rundir import open_run
 
 from pipeline.camera import Camera
+from pipeline.errors import ParamError
 from pipeline.metrics import (
     descriptor_errors,
     match_objects,
@@ -61,19 +72,22 @@ from pipeline.synth.pair import render_pair
 from stages.describe import describe_frame
 
 
-def _frame(archetype: str, seed: int, size: int, inputs: str) -> dict:
+def _frame(archetype: str, seed: int, size: int, inputs: str, overrides: dict) -> dict:
+    """Describe one rendered frame; ``overrides``: stage name to its ``--set`` params."""
     left, right, truth, rocks, cam = render_pair(archetype, seed=seed, size=size)
     camera = Camera(**cam)
     labels = truth["labels"]
     depth = {k: truth[k] for k in ("disparity", "range", "height")}
     plane = None
     if inputs in ("depth", "pipeline"):
-        from stages import depth as depth_stage
-
-        frame = FrameContext(frame_id=f"{archetype}{seed}", archive=archetype, camera=camera)
-        out = depth_stage.STAGE.run(
-            {"left": left, "right": right}, frame=frame, params=depth_stage.STAGE.defaults()
-        ).arrays
+        out = depth_products(
+            left,
+            right,
+            camera=camera,
+            params=overrides.get("depth"),
+            frame_id=f"{archetype}{seed}",
+            archive=archetype,
+        )
         depth = {k: out[k] for k in ("disparity", "range", "height")}
         plane = out["ground_plane"]
     if inputs == "pipeline":
@@ -83,7 +97,7 @@ def _frame(archetype: str, seed: int, size: int, inputs: str) -> dict:
         labels = segment_stage.STAGE.run(
             {"right": right, "disparity": depth["disparity"], "height": depth["height"]},
             frame=frame,
-            params=segment_stage.STAGE.defaults(),
+            params=segment_stage.STAGE.resolve_params(overrides.get("segment", {})),
         ).arrays["labels"]
     start = time.perf_counter()
     desc, rel, figures = describe_frame(
@@ -94,6 +108,7 @@ def _frame(archetype: str, seed: int, size: int, inputs: str) -> dict:
         depth["height"],
         camera=camera,
         ground_plane=plane,
+        **overrides.get("describe", {}),
     )
     seconds = time.perf_counter() - start
     if inputs == "pipeline":
@@ -269,16 +284,13 @@ def _dump_rows(
 
 def _rundir_main(
     rundirs: list[str],
-    items: list[str],
+    overrides: dict,
     near: float,
     *,
     labels_from: str = "run",
     depth_from: str = "run",
     dump_path: str | None = None,
 ) -> None:
-    from pipeline.graph import default_graph, parse_set_overrides
-
-    overrides = parse_set_overrides(default_graph(), items).get("describe", {})
     print(
         f"{'archive':9} {'rocks':>5} {'near':>5} {'dw/w':>6} {'class':>6} {'|dh| m':>7} "
         f"{'dr/r':>6} {'all dw/w':>8} {'all cls':>7} {'rel':>6} {'rows/fr':>8} {'cpu ms':>7} "
@@ -316,7 +328,7 @@ _COMBOS = (("run", "run"), ("truth", "run"), ("run", "truth"), ("truth", "truth"
 """(labels, depth) sources of ``--decompose``: the pipeline, then each input made perfect."""
 
 
-def _decompose_main(rundirs: list[str], items: list[str], near: float) -> None:
+def _decompose_main(rundirs: list[str], overrides: dict, near: float) -> None:
     """Width error and class accuracy of the same rocks with each input swapped for truth.
 
     The rocks are those the run's own objects match (IoU >= 0.5) within ``near`` m and not
@@ -324,9 +336,6 @@ def _decompose_main(rundirs: list[str], items: list[str], near: float) -> None:
     the depth products for the truth's splits the error between segmentation, depth and the
     describe stage's own rules (truth labels and truth depth).
     """
-    from pipeline.graph import default_graph, parse_set_overrides
-
-    overrides = parse_set_overrides(default_graph(), items).get("describe", {})
     limit = float(overrides.get("sample_max_m", 0.10))
     dumps: dict[tuple[str, str], list] = {combo: [] for combo in _COMBOS}
     for labels_from, depth_from in _COMBOS:
@@ -392,7 +401,14 @@ def main() -> None:
     )
     parser.add_argument("--rundir", nargs="+", help="re-describe finished run directories")
     parser.add_argument(
-        "--set", action="append", default=[], metavar="describe.PARAM=VALUE", dest="overrides"
+        "--set",
+        action="append",
+        default=[],
+        metavar="STAGE.PARAM=VALUE",
+        dest="overrides",
+        help="a stage parameter, checked like arroyo run --set; repeat for more: describe.*, "
+        "depth.* with --inputs depth or pipeline, segment.* with --inputs pipeline; none "
+        "with --stage-speed",
     )
     parser.add_argument(
         "--labels",
@@ -413,13 +429,34 @@ def main() -> None:
         help="with --rundir: the same rocks with labels and/or depth from the truth",
     )
     args = parser.parse_args()
+    if args.rundir:
+        mode, runs = "--rundir (the run's depth and segment products)", ("describe",)
+    elif args.stage_speed:
+        mode, runs = "--stage-speed (the stages' defaults)", ()
+    else:
+        mode, runs = f"--inputs {args.inputs}", _INPUT_STAGES[args.inputs]
+    try:
+        _run(args, stage_overrides(args.overrides, runs=runs, mode=mode))
+    except ParamError as error:
+        parser.error(str(error))
+
+
+_INPUT_STAGES = {
+    "truth": ("describe",),
+    "depth": ("depth", "describe"),
+    "pipeline": ("depth", "segment", "describe"),
+}
+"""The stages ``--inputs`` runs on a rendered pair, whose parameters ``--set`` may change."""
+
+
+def _run(args: argparse.Namespace, overrides: dict) -> None:
     if args.rundir and args.decompose:
-        _decompose_main(args.rundir, args.overrides, args.near)
+        _decompose_main(args.rundir, overrides.get("describe", {}), args.near)
         return
     if args.rundir:
         _rundir_main(
             args.rundir,
-            args.overrides,
+            overrides.get("describe", {}),
             args.near,
             labels_from=args.labels,
             depth_from=args.depth,
@@ -436,7 +473,10 @@ def main() -> None:
         f"{'dw/w':>6} {'dw/wx':>6} {'dr/r':>6} {'class':>6} {'rel':>6} {'occl':>6} {'ms':>6}"
     )
     for archetype in args.archetypes.split(","):
-        frames = [_frame(archetype, seed, args.size, args.inputs) for seed in range(args.frames)]
+        frames = [
+            _frame(archetype, seed, args.size, args.inputs, overrides)
+            for seed in range(args.frames)
+        ]
         desc = _cat(frames, "desc")
         truth = _cat(frames, "truth")
         err = descriptor_errors(desc, truth, near_range_m=args.near)

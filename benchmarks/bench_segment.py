@@ -5,6 +5,8 @@ Usage (from the repository root)::
     PYTHONPATH=. .venv/bin/python benchmarks/bench_segment.py              # speed + scores
     PYTHONPATH=. .venv/bin/python benchmarks/bench_segment.py --frames 4 --archetypes lab lava
     PYTHONPATH=. .venv/bin/python benchmarks/bench_segment.py --depth stage   # depth stage input
+    PYTHONPATH=. .venv/bin/python benchmarks/bench_segment.py --depth stage --scores-only \
+        --set depth.subpixel=parabola min_area_px=20  # depth param, segment_image keyword
     PYTHONPATH=. .venv/bin/python benchmarks/bench_segment.py --speed-only
     PYTHONPATH=. .venv/bin/python benchmarks/bench_segment.py --stage-speed  # + describe
 
@@ -22,6 +24,11 @@ each archetype rendered by ``pipeline.synth.render_pair``, for the faithful meth
 method and the global Otsu baseline. ``--depth truth`` feeds the true height and disparity
 (plus ``--depth-noise`` px of Gaussian disparity noise) to isolate the segmentation from the
 depth stage; ``--depth stage`` runs ``stages.depth`` first.
+
+``--set`` takes ``segment_image`` keywords as ``KEY=VALUE`` (scores and ``--rundir``) and,
+with ``--depth stage``, depth stage parameters as ``depth.PARAM=VALUE``, parsed and checked
+like ``arroyo run --set`` (an unknown one is an error that lists the stage's parameters;
+``benchmarks/_overrides.py``).
 """
 
 from __future__ import annotations
@@ -33,10 +40,12 @@ from collections.abc import Callable
 import cv2
 import numpy as np
 
-# sibling module: benchmarks/ is on sys.path when one of its scripts runs
+# sibling modules: benchmarks/ is on sys.path when one of its scripts runs
+from _overrides import depth_products, stage_overrides
 from _rundir import open_run
 
 from pipeline.camera import Camera
+from pipeline.errors import ParamError
 from pipeline.metrics import pool_segmentation_scores, segmentation_scores
 from stages.segment import segment_image
 
@@ -116,7 +125,6 @@ def stage_speed(
     import pstats
 
     from pipeline.stage import FrameContext
-    from stages import depth as depth_stage
     from stages import describe as describe_stage
     from stages import segment as segment_stage
 
@@ -131,11 +139,7 @@ def stage_speed(
             left, right, _, camera = _render(archetype, seed, size)
             frame = FrameContext(frame_id="bench", archive="bench", camera=camera)
             inputs = {"left": left, "right": right}
-            inputs.update(
-                depth_stage.STAGE.run(
-                    inputs, frame=frame, params=depth_stage.STAGE.defaults()
-                ).arrays
-            )
+            inputs.update(depth_products(left, right, camera=camera))
             inputs.update(
                 segment_stage.STAGE.run(
                     inputs, frame=frame, params=segment_stage.STAGE.defaults()
@@ -160,7 +164,9 @@ def stage_speed(
         pstats.Stats(profilers[name]).sort_stats("tottime").print_stats(profile)
 
 
-def _depth_inputs(kind: str, left, right, truth, camera, noise_px: float, rng):
+def _depth_inputs(
+    kind: str, left, right, truth, camera, noise_px: float, rng, depth_params: dict
+):
     if kind == "truth":
         disparity = truth["disparity"].astype(np.float32)
         height = truth["height"].astype(np.float32)
@@ -172,22 +178,28 @@ def _depth_inputs(kind: str, left, right, truth, camera, noise_px: float, rng):
                 height = height + (range_m * error / disparity).astype(np.float32) * 0.5
             disparity = disparity + error
         return height, disparity
-    from stages import depth as depth_stage
-
-    params = depth_stage.STAGE.defaults()
-    from pipeline.stage import FrameContext
-
-    frame = FrameContext(frame_id="bench", archive="bench", camera=camera)
-    result = depth_stage.STAGE.run({"left": left, "right": right}, frame=frame, params=params)
-    return result.arrays.get("height"), result.arrays.get("disparity")
+    products = depth_products(left, right, camera=camera, params=depth_params)
+    return products["height"], products["disparity"]
 
 
-def scores(archetypes, frames: int, size: int, depth: str, noise_px: float, overrides) -> None:
+def scores(
+    archetypes,
+    frames: int,
+    size: int,
+    depth: str,
+    noise_px: float,
+    overrides: dict,
+    depth_params: dict | None = None,
+) -> None:
+    """Object scores per archetype; ``overrides`` go to ``segment_image``, ``depth_params``
+    (``--depth stage``) to the depth stage."""
     from pipeline._baselines import otsu_labels
 
     rng = np.random.default_rng(0)
+    depth_params = depth_params or {}
     header = f"{'archetype':9s} {'method':24s} {'prec':>6s} {'recall':>6s} {'F1':>6s} {'mIoU':>6s}"
-    print(f"object scores at IoU >= 0.5, {frames} frames each, depth input: {depth}")
+    settings = "".join(f", depth.{key}={value}" for key, value in depth_params.items())
+    print(f"object scores at IoU >= 0.5, {frames} frames each, depth input: {depth}{settings}")
     print(header)
     for archetype in archetypes:
         per_method: dict[str, list] = {"sector-histogram": [], "sector-histogram+depth": []}
@@ -195,7 +207,9 @@ def scores(archetypes, frames: int, size: int, depth: str, noise_px: float, over
         for seed in range(frames):
             left, right, truth, camera = _render(archetype, seed, size)
             true_labels = truth["labels"]
-            height, disparity = _depth_inputs(depth, left, right, truth, camera, noise_px, rng)
+            height, disparity = _depth_inputs(
+                depth, left, right, truth, camera, noise_px, rng, depth_params
+            )
             for method in ("sector-histogram", "sector-histogram+depth"):
                 labels = segment_image(
                     right, method=method, height=height, disparity=disparity, **overrides
@@ -277,7 +291,14 @@ def main() -> None:
     parser.add_argument("--depth-noise", type=float, default=0.0, help="px, truth depth only")
     parser.add_argument("--speed-only", action="store_true")
     parser.add_argument("--scores-only", action="store_true")
-    parser.add_argument("--set", nargs="*", default=[], help="segment_image overrides k=v")
+    parser.add_argument(
+        "--set",
+        nargs="*",
+        default=[],
+        metavar="KEY=VALUE|depth.PARAM=VALUE",
+        help="segment_image keywords (KEY=VALUE) and, with --depth stage, depth stage "
+        "parameters (depth.PARAM=VALUE, checked like arroyo run --set)",
+    )
     parser.add_argument(
         "--stage-speed",
         action="store_true",
@@ -293,8 +314,30 @@ def main() -> None:
         "--profile", type=int, default=0, metavar="N", help="--stage-speed: top N functions"
     )
     args = parser.parse_args()
+    # a dotted key names a stage parameter, a bare key a segment_image keyword
+    staged = [item for item in args.set if "." in item.partition("=")[0]]
+    overrides = _parse_overrides([item for item in args.set if item not in staged])
     if args.rundir:
-        rundir_scores(args.rundir, _parse_overrides(args.set), args.verbose)
+        mode = "--rundir (the run's depth products)"
+    elif args.stage_speed:
+        mode = "--stage-speed (the stages' defaults)"
+    elif args.speed_only:
+        mode = "--speed-only"
+    else:
+        mode = f"--depth {args.depth}"
+    runs = ("depth",) if mode == "--depth stage" else ()
+    try:
+        depth_params = stage_overrides(
+            staged, runs=runs, mode=mode, other="segment_image keywords as KEY=VALUE"
+        ).get("depth", {})
+        _run(args, overrides, depth_params)
+    except ParamError as error:
+        parser.error(str(error))
+
+
+def _run(args: argparse.Namespace, overrides: dict, depth_params: dict) -> None:
+    if args.rundir:
+        rundir_scores(args.rundir, overrides, args.verbose)
         return
     if args.stage_speed:
         stage_speed(
@@ -310,7 +353,8 @@ def main() -> None:
             args.size,
             args.depth,
             args.depth_noise,
-            _parse_overrides(args.set),
+            overrides,
+            depth_params,
         )
 
 
