@@ -69,6 +69,7 @@ from pipeline.metrics import (
 )
 from pipeline.stage import FrameContext
 from pipeline.synth.pair import render_pair
+from stages import describe as describe_stage
 from stages.describe import describe_frame
 
 
@@ -336,7 +337,8 @@ def _decompose_main(rundirs: list[str], overrides: dict, near: float) -> None:
     the depth products for the truth's splits the error between segmentation, depth and the
     describe stage's own rules (truth labels and truth depth).
     """
-    limit = float(overrides.get("sample_max_m", 0.10))
+    # the class limit the describe stage ran with: the override, else the stage's default
+    limit = float(overrides.get("sample_max_m", describe_stage.STAGE.defaults()["sample_max_m"]))
     dumps: dict[tuple[str, str], list] = {combo: [] for combo in _COMBOS}
     for labels_from, depth_from in _COMBOS:
         for rundir in rundirs:
