@@ -26,8 +26,15 @@ ground is object (rule R1). The matcher's foreground fattening survives the refi
 ground just above a rock in the image (farther, within 4 px) carries the rock's disparity,
 +21 mm median (+39 mm without the refinement), so R1 adds a halo (6256 px on that frame)
 and the objects grow to 1.5-3x their true size (IoU < 0.5). With the true heights the same
-rules work (their halo is absent). Hence the refinement needs crisp depth edges, or rules
-that tolerate the halo, before it can be the default.
+rules work (their halo is absent). Crisp edges alone are not enough, though: with the truth's
+disparity put in on the ground within 24 px of every rock (an oracle of a perfect edge
+filter; ``benchmarks/bench_depth_edges.py --segment --truth-near 24 RUNDIR`` on 12-frame
+catalog runs made with ``--set depth.ground_refine=true``) object F1 is mojave 0.119 ->
+0.658 and lava 0.172 -> 0.648, with the rocks' own pixels true as well (``--truth-rocks``)
+0.764 and 0.791, against 0.898 and 0.776 without the refinement: in the precise regime the
+rules also need the rocks' full heights (the refinement and the windows pull them down) and
+find false rocks far from any edge. The whole frame true gives 0.934 and 0.789, so the
+refinement needs rules for its precise-regime heights before it can be the default.
 
 How. For each ``delta`` in ``[-reach, reach]`` (``step`` apart) the other image is resampled
 (linear interpolation, ``cv2.remap``) and the ZNCC of every pixel's window is computed from
