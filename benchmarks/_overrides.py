@@ -22,8 +22,9 @@ from pipeline.camera import Camera
 from pipeline.errors import ParamError
 from pipeline.graph import default_graph, parse_set_overrides
 from pipeline.stage import FrameContext
+from stages.depth import STAGE as DEPTH
 
-__all__ = ["depth_products", "stage_overrides"]
+__all__ = ["depth_products", "matching_settings", "stage_overrides"]
 
 
 def stage_overrides(
@@ -106,3 +107,26 @@ def depth_products(
         {"left": left, "right": right}, frame=frame, params=stage.resolve_params(params or {})
     )
     return result.arrays
+
+
+def matching_settings(items: Iterable[str]) -> tuple[dict[str, Any], dict[str, Any]]:
+    """``match_disparity`` keywords and the depth stage's params from ``PARAM=VALUE`` items.
+
+    For the depth benchmarks that call the matcher directly (``bench_depth_speed.py``,
+    ``bench_depth_accuracy.py``): the items name depth stage parameters without the
+    ``depth.`` prefix and are parsed and checked by the engine's own ``--set`` parsing.
+
+    Returns
+    -------
+    settings : dict
+        Keywords of :func:`stages._stereo.match_disparity` (the overrides less the search
+        band's stage parameters).
+    stage_params : dict
+        The depth stage's defaults with the overrides, for
+        :func:`stages.depth.resolve_row_band`.
+    """
+    settings = parse_set_overrides(default_graph(), [f"depth.{i}" for i in items]).get("depth", {})
+    stage_params = {**DEPTH.defaults(), **settings}
+    for name in ("floor_margin", "ceiling_ratio"):  # the search band's, not the matcher's
+        settings.pop(name, None)
+    return settings, stage_params

@@ -20,13 +20,13 @@ from __future__ import annotations
 import argparse
 import time
 
+from _overrides import matching_settings  # sibling module (benchmarks/ is on sys.path)
+
 from pipeline._baselines import sgbm_disparity
 from pipeline.camera import Camera
-from pipeline.graph import default_graph, parse_set_overrides
 from pipeline.metrics import disparity_errors, pool_disparity_errors
 from pipeline.synth import render_pair
 from stages._stereo import match_disparity
-from stages.depth import STAGE as DEPTH
 from stages.depth import resolve_row_band
 from stages.geometry import derive_max_disparity
 
@@ -39,14 +39,7 @@ def main() -> None:
     parser.add_argument("--methods", default="adaptive,sgm")
     parser.add_argument("--set", nargs="*", default=[], help="match_disparity keyword=value")
     args = parser.parse_args()
-    # the engine's own --set parsing: typed and validated against the depth stage
-    settings = parse_set_overrides(default_graph(), [f"depth.{i}" for i in args.set]).get(
-        "depth", {}
-    )
-    # stage parameters that are not matching settings: the search band's
-    band_params = {**DEPTH.defaults(), **settings}
-    for name in ("floor_margin", "ceiling_ratio"):
-        settings.pop(name, None)
+    settings, band_params = matching_settings(args.set)
     methods = args.methods.split(",")
     print(
         f"{'archetype':<10}{'method':<12}{'bad1':>8}{'bad2':>8}{'epe':>8}{'density':>9}"

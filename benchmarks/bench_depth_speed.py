@@ -30,13 +30,12 @@ import statistics  # noqa: E402
 import time  # noqa: E402
 
 import cv2  # noqa: E402
+from _overrides import matching_settings  # noqa: E402  (benchmarks/ is on sys.path)
 
 from pipeline._baselines import sgbm_disparity  # noqa: E402
 from pipeline.camera import Camera  # noqa: E402
-from pipeline.graph import default_graph, parse_set_overrides  # noqa: E402
 from pipeline.synth import render_pair  # noqa: E402
 from stages._stereo import match_disparity  # noqa: E402
-from stages.depth import STAGE as DEPTH  # noqa: E402
 from stages.depth import resolve_row_band  # noqa: E402
 
 D_MAX = 63  # 64 disparities, 0..63
@@ -60,14 +59,7 @@ def main() -> None:
     parser.add_argument("--methods", default="adaptive,sgm")
     parser.add_argument("--set", nargs="*", default=[], help="match_disparity keyword=value")
     args = parser.parse_args()
-    # the engine's own --set parsing: typed and validated against the depth stage
-    settings = parse_set_overrides(default_graph(), [f"depth.{i}" for i in args.set]).get(
-        "depth", {}
-    )
-    # stage parameters that are not matching settings: the search band's
-    band_params = {**DEPTH.defaults(), **settings}
-    for name in ("floor_margin", "ceiling_ratio"):
-        settings.pop(name, None)
+    settings, band_params = matching_settings(args.set)
     cv2.setNumThreads(1)
     methods = args.methods.split(",")
     print(
