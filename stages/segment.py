@@ -481,7 +481,7 @@ def _sector_product(name: str, dtype: str, long_name: str, units: str = "") -> P
 
 STAGE = Stage(
     name="segment",
-    version="18",
+    version="19",
     inputs=("left", "right", "disparity", "height"),
     outputs=(
         Product(
