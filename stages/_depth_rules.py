@@ -83,7 +83,9 @@ frames: lava 0.776 -> 0.791 (16 more true rocks, 1 more false one), mojave 0.898
 unchanged. Without the floor of 2 on the bump itself a ripple's shading 2 bands dark on a
 weak swell (bump 1.6) became an invented rock on the dunes catalog frames. Scales of 1.5 or
 3 px and 5 or 8 px, and a score of 3 or 4, give lava 0.787-0.794 and the same elsewhere
-within 0.001. Seed 3: lava 0.775 -> 0.795, mojave 0.884 -> 0.892, lab unchanged. The
+within 0.001. Seed 3: lava 0.775 -> 0.795, mojave 0.884 -> 0.892, lab unchanged; seeds 4
+and 5: lava 0.781 -> 0.797 and 0.783 -> 0.801, mojave 0.865 -> 0.872 and 0.859 -> 0.860,
+dunes unchanged. The
 specks stay lost (before R2d, lava catalog): grown into pixels 0.7 bands out before the
 vote they brought 36 false rocks for 13 true ones (0.776 -> 0.767; 0.5 bands: 0.692), and
 as candidates of a bump rule (a speck near a bump of 3, grown) 26 for 15 (0.775): lava's
