@@ -57,6 +57,7 @@ from ._regions import (
     depth_edges,
     drop_ripple_pieces,
     drop_streaks,
+    grow_other_faces,
     grow_weak_halves,
     join_opposite_halves,
     label_objects,
@@ -153,6 +154,7 @@ def segment_image(
     weak_bands: float = 0.7,
     weak_growth_px: int = 12,
     join_gap_px: int = 5,
+    face_bands: float = 0.5,
 ) -> Segmentation:
     """Segment one reference image into background and numbered objects.
 
@@ -200,6 +202,10 @@ def segment_image(
         Depth method only, ``>= 0``: a lighter and a darker object this close, facing each
         other, are joined when their union is about as solid as either (rule R7b of
         :mod:`stages._regions`); 0 disables.
+    face_bands : float
+        Depth method only, ``>= 0``: objects grow up to ``weak_growth_px`` pixels into pixels
+        this many bands from the ground on the other side, when that leaves them about as
+        solid (rule R7c of :mod:`stages._regions`); 0 disables.
 
     Returns
     -------
@@ -228,10 +234,10 @@ def segment_image(
         )
     if split_disparity_px < 0:
         raise ValueError(f"split_disparity_px must be >= 0 (0 disables), got {split_disparity_px}")
-    if not weak_bands >= 0 or weak_growth_px < 0 or join_gap_px < 0:
+    if not weak_bands >= 0 or weak_growth_px < 0 or join_gap_px < 0 or not face_bands >= 0:
         raise ValueError(
-            "weak_bands, weak_growth_px and join_gap_px must be >= 0 (0 disables), got "
-            f"{weak_bands}, {weak_growth_px} and {join_gap_px}"
+            "weak_bands, weak_growth_px, join_gap_px and face_bands must be >= 0 (0 disables), "
+            f"got {weak_bands}, {weak_growth_px}, {join_gap_px} and {face_bands}"
         )
     shape = image.shape
     if histograms is None:
@@ -337,6 +343,13 @@ def segment_image(
         labels, joined = join_opposite_halves(labels, contrast, gap_px=join_gap_px)
         if joined:
             notes.append(f"{joined} pair(s) of a lighter and a darker half joined")
+    if contrast is not None and face_bands > 0 and weak_growth_px > 0:
+        # R7c: the other face of a rock, on the other side of the ground's gray level
+        labels, faced = grow_other_faces(
+            labels, contrast, min_contrast=face_bands, max_steps=weak_growth_px
+        )
+        if faced:
+            notes.append(f"{faced} px of other faces joined to their objects")
     return Segmentation(
         labels=labels, sectors=analysis, depth=depth_stats, streaks_dropped=streaks, notes=notes
     )
@@ -481,7 +494,7 @@ def _sector_product(name: str, dtype: str, long_name: str, units: str = "") -> P
 
 STAGE = Stage(
     name="segment",
-    version="18",
+    version="19",
     inputs=("left", "right", "disparity", "height"),
     outputs=(
         Product(
@@ -582,6 +595,14 @@ STAGE = Stage(
             None,
             0,
             50,
+        ),
+        Param(
+            "face_bands",
+            float,
+            0.5,
+            "depth: objects grow into pixels this many bands out on the other side; 0 = off",
+            None,
+            0,
         ),
         Param(
             "tile_px",

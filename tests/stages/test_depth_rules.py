@@ -8,6 +8,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 from scipy.ndimage import median_filter
 
+from stages import _depth_rules as depth_rules
 from stages._depth_rules import (
     _median_filter_nearest,
     _percentile_by_label,
@@ -15,6 +16,7 @@ from stages._depth_rules import (
     apply_depth_rules,
     drop_faint_depthless,
     gray_contrast,
+    local_ground,
     smooth_height,
 )
 
@@ -333,3 +335,58 @@ def test_percentiles_by_label_match_one_at_a_time():
     both = _percentiles_by_label(values, labels, 8, (90.0, 50.0))
     np.testing.assert_array_equal(both[0], _percentile_by_label(values, labels, 8, 90.0))
     np.testing.assert_array_equal(both[1], _percentile_by_label(values, labels, 8, 50.0))
+
+
+def _dome_and_blotch(seed, *, dome_m=0.014, rock_contrast=-1.2, blotch_contrast=-1.2):
+    """A rock read as a smooth low dome and a flat blotch, both small, on fine noise."""
+    shape = (120, 160)
+    height = _correlated_noise(shape, 0.012, block_px=2, seed=seed)
+    rock, blotch = disk(shape, 60, 40, 6), disk(shape, 60, 120, 6)
+    # the matching windows smooth both: their own noise is flattened, the rock's top too
+    height[rock | blotch] *= 0.2
+    yy, xx = np.mgrid[: shape[0], : shape[1]]
+    height += (dome_m * np.exp(-((yy - 60) ** 2 + (xx - 40) ** 2) / 32.0)).astype(np.float32)
+    contrast = np.zeros(shape, np.float32)
+    contrast[rock], contrast[blotch] = rock_contrast, blotch_contrast
+    return height, rock, blotch, contrast
+
+
+@pytest.mark.parametrize("seed", [1, 4, 5])
+def test_noisy_vote_keeps_a_faint_rock_that_stands_as_a_bump(seed, monkeypatch):
+    # rule R2d: on lava the vote removed small faint rocks whose upper heights the stereo
+    # windows pulled down to the noise; their smoothed heights still make a bump
+    height, rock, blotch, contrast = _dome_and_blotch(seed)
+    combined, stats = apply_depth_rules(rock | blotch, height, contrast=contrast)
+    assert "object vote" in stats.notes[0]
+    assert combined[rock].all()
+    assert not combined[blotch].any()
+    # the percentile vote alone calls the rock flat
+    monkeypatch.setattr(depth_rules, "_BUMP_SCORE", np.inf)
+    combined, _ = apply_depth_rules(rock | blotch, height, contrast=contrast)
+    assert not combined[rock].any()
+
+
+def test_noisy_vote_bump_needs_a_bump_not_just_a_clear_gray_level():
+    # regression: on a dunes frame a ripple's shading 2 bands dark at the bottom border, on
+    # a weak swell (bump 1.6 sigmas), was kept by bump plus contrast alone
+    height, rock, blotch, contrast = _dome_and_blotch(0, dome_m=0.0, blotch_contrast=-2.2)
+    bumps = depth_rules._height_bumps(height - local_ground(height), rock | blotch)
+    assert 1.0 < bumps[blotch].max() < depth_rules._BUMP_MIN_SIGMAS
+    assert bumps[blotch].max() + 2.2 >= depth_rules._BUMP_SCORE
+    combined, _ = apply_depth_rules(blotch, height, contrast=contrast)
+    assert not combined[blotch].any()
+
+
+def test_height_bumps_peak_on_a_window_sized_rock_not_on_a_swell():
+    shape = (160, 160)
+    yy, xx = np.mgrid[: shape[0], : shape[1]]
+    height = _correlated_noise(shape, 0.003, block_px=2, seed=7)
+    rock = 0.01 * np.exp(-((yy - 40) ** 2 + (xx - 40) ** 2) / 32.0)
+    swell = 0.01 * np.exp(-((yy - 110) ** 2 + (xx - 110) ** 2) / 800.0)
+    height = (height + rock + swell).astype(np.float32)
+    height[:, :3] = np.nan
+    bumps = depth_rules._height_bumps(height, np.zeros(shape, bool))
+    assert bumps.dtype == np.float32
+    assert bumps[40, 40] > 3 * bumps[110, 110]
+    assert bumps[40, 40] > depth_rules._BUMP_SCORE
+    assert (bumps[:, :3] == 0).all()  # no height, no evidence

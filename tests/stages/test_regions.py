@@ -9,6 +9,7 @@ import pytest
 from stages._regions import (
     depth_edges,
     fill_holes,
+    grow_other_faces,
     grow_weak_halves,
     join_opposite_halves,
     label_objects,
@@ -383,3 +384,57 @@ def test_join_opposite_halves_leaves_same_side_far_or_ragged_pairs_alone():
         join_opposite_halves(labels, contrast, gap_px=-1)
     with pytest.raises(ValueError, match="one shape"):
         join_opposite_halves(labels, contrast[:10])
+
+
+def test_grow_weak_halves_opposite_completes_the_other_face_of_a_rock():
+    # rule R7c: a lit rock on lava found by its shaded half only; its lit face, lighter than
+    # the ground, lies on the other side of the ground's gray level
+    rock, left, contrast = half_rock(weak=0.6)
+    labels = left.astype(np.int32)
+    grown, count = grow_weak_halves(labels, contrast, between=labels == 0)
+    assert count == 0  # R7 takes only the object's own side
+    grown, count = grow_weak_halves(
+        labels, contrast, between=labels == 0, min_contrast=0.5, opposite=True
+    )
+    assert np.array_equal(grown > 0, rock) and count == np.count_nonzero(rock & ~left)
+    # the same for a light rock whose shaded face is darker than the ground
+    grown, _ = grow_weak_halves(
+        labels, -contrast, between=labels == 0, min_contrast=0.5, opposite=True
+    )
+    assert np.array_equal(grown > 0, rock)
+    # a face too close to the ground's gray is not taken
+    grown, count = grow_weak_halves(
+        labels, contrast, between=labels == 0, min_contrast=0.7, opposite=True
+    )
+    assert count == 0
+
+
+def test_grow_weak_halves_opposite_leaves_a_neighbouring_light_blotch():
+    # a dark rock beside a long light streak of texture: taking it would make the rock ragged
+    shape = (40, 60)
+    rock = disk(shape, 20, 15, 8)
+    contrast = np.where(rock, np.float32(-2.0), np.float32(0.0))
+    contrast[19:21, 23:58] = 1.5
+    labels = rock.astype(np.int32)
+    grown, count = grow_weak_halves(
+        labels, contrast, between=labels == 0, min_contrast=0.5, opposite=True
+    )
+    assert count == 0 and np.array_equal(grown, labels)
+
+
+def test_grow_other_faces_takes_a_face_not_a_rim():
+    # R7c: the lit half of a rock is taken; a one-pixel rim of light pixels is not (a fifth)
+    rock, left, contrast = half_rock(weak=0.6)
+    labels = left.astype(np.int32)
+    grown, count = grow_other_faces(labels, contrast)
+    assert np.array_equal(grown > 0, rock) and count == np.count_nonzero(rock & ~left)
+    shape = (40, 40)
+    core = disk(shape, 20, 20, 9)
+    rim = disk(shape, 20, 20, 10) & ~core & (np.arange(40)[None, :] >= 20)
+    contrast = np.where(core, np.float32(-2.0), np.float32(0.0))
+    contrast[rim] = 1.0
+    labels = core.astype(np.int32)
+    grown, count = grow_other_faces(labels, contrast)
+    assert count == 0 and np.array_equal(grown, labels)
+    with pytest.raises(ValueError, match="min_gain >= 0"):
+        grow_weak_halves(labels, contrast, between=labels == 0, min_gain=-1.0)

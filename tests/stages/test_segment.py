@@ -89,8 +89,8 @@ def test_depth_mode_uses_height_faithful_mode_ignores_it():
 
 def test_depth_mode_without_depth_falls_back_on_intensity():
     image = scene(rocks=[(60, 70, 14, 40)])
-    # R7 and R7b (intensity rules of the depth method) may add a rim pixel: off here
-    result = segment_image(image, sectors=8, weak_bands=0, join_gap_px=0)
+    # R7, R7b and R7c (intensity rules of the depth method) may add a rim pixel: off here
+    result = segment_image(image, sectors=8, weak_bands=0, join_gap_px=0, face_bands=0)
     reference = segment_image(image, method="sector-histogram", sectors=8)
     np.testing.assert_array_equal(result.labels, reference.labels)
     assert any("intensity" in note for note in result.notes)
@@ -159,8 +159,10 @@ def test_bad_parameters_raise_clear_errors():
         segment_image(image, sectors=4, height=np.zeros((10, 10), np.float32))
     with pytest.raises(ValueError, match="ripple_texture_ratio"):
         segment_image(image, sectors=4, ripple_texture_ratio=-1.0)
-    with pytest.raises(ValueError, match="weak_bands, weak_growth_px and join_gap_px"):
+    with pytest.raises(ValueError, match="weak_bands, weak_growth_px, join_gap_px and face"):
         segment_image(image, sectors=4, weak_growth_px=-1)
+    with pytest.raises(ValueError, match="face_bands must be >= 0"):
+        segment_image(image, sectors=4, face_bands=-0.5)
 
 
 def test_depth_mode_completes_a_rock_whose_other_half_is_just_inside_the_threshold():
