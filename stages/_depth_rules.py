@@ -115,9 +115,10 @@ are noise at the scale of the rocks; the intensity decision stands everywhere.
 
 Rules R4 (split at disparity jumps), R5 (streaks, R5b: unless clear in gray level), R5c
 (ripple fields) and R6 (attached shadows) act on labelled objects and live in
-:mod:`stages._regions`.
+:mod:`stages._regions` (R4), :mod:`stages._texture_rules` (R5-R5c) and
+:mod:`stages._rock_parts` (R6).
 
-**R5c ripple fields** (:func:`stages._regions.drop_ripple_pieces`) is where most of the
+**R5c ripple fields** (:func:`stages._texture_rules.drop_ripple_pieces`) is where most of the
 dunes' invented rocks now go. Why: ripple crests near the camera have real relief (about 2
 sigmas: they pass the R2 vote and, in frames whose noise is under 5 mm, R1/R2), and ripple
 pieces in the blind border band pass R3b where the ripple shading is strong; neither their

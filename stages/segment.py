@@ -6,12 +6,13 @@ continuity with phantom peaks, thresholds at the valleys on both sides interpola
 sector centres (Chow and Kaneko), connected components, speck removal, hole filling. The math
 is in :mod:`stages._sectors` (histograms, modes, interpolation), :mod:`stages._continuity`
 (background by continuity, phantom peaks, thresholds), :mod:`stages._regions` (masks,
-components, split, streaks) and :mod:`stages._depth_rules` (height rules), all documented
-rule by rule.
+components, split), :mod:`stages._texture_rules` (streaks), :mod:`stages._rock_parts` (shadows,
+halves) and :mod:`stages._depth_rules` (height rules), all documented rule by rule.
 
 ``method = 'sector-histogram+depth'`` (default) adds the depth stage's ``height`` (metres
 above the fitted ground plane) and ``disparity`` (rules R0-R3 in :mod:`stages._depth_rules`,
-R4-R6 in :mod:`stages._regions`):
+R4 in :mod:`stages._regions`, R5-R5c in :mod:`stages._texture_rules`, R6-R7c in
+:mod:`stages._rock_parts`):
 raised pixels are object even when their gray equals the ground's, flat intensity objects
 (shadows, stains, texture blotches) are background, touching objects split at disparity
 jumps, streaks (ripple troughs) are dropped and so are, in a field of parallel streaks,
@@ -53,15 +54,11 @@ from ._depth_rules import (
     drop_faint_depthless,
     gray_contrast,
 )
-from ._regions import (
-    depth_edges,
-    drop_ripple_pieces,
-    drop_streaks,
+from ._regions import depth_edges, label_objects, threshold_mask
+from ._rock_parts import (
     grow_other_faces,
     grow_weak_halves,
     join_opposite_halves,
-    label_objects,
-    threshold_mask,
     trim_attached_shadows,
 )
 from ._sectors import (
@@ -71,6 +68,7 @@ from ._sectors import (
     sector_edges,
     sector_histograms,
 )
+from ._texture_rules import drop_ripple_pieces, drop_streaks
 
 __all__ = [
     "METHODS",
@@ -163,7 +161,8 @@ def segment_image(
     image : (M, N) ndarray of uint8
         Reference (right) gray image.
     method : {'sector-histogram', 'sector-histogram+depth'}
-        Faithful study method, or with the depth rules (:mod:`stages._regions`).
+        Faithful study method, or with the depth rules (:mod:`stages._depth_rules`,
+        :mod:`stages._regions`, :mod:`stages._texture_rules`, :mod:`stages._rock_parts`).
     height : (M, N) ndarray of float32, optional
         Metres above the ground plane, NaN invalid. Ignored by the faithful method.
     disparity : (M, N) ndarray of float32, optional
@@ -188,24 +187,24 @@ def segment_image(
         measured from it) is not trusted and the height rules are skipped.
     max_elongation : float
         Depth method only: objects longer than this times their width are streaks (rule R5
-        of :mod:`stages._regions`); 0 disables.
+        of :mod:`stages._texture_rules`); 0 disables.
     ripple_texture_ratio : float
         Depth method only, ``>= 0``: in a field of ripples an object must stand this many
-        times beyond the gray-level texture around it (rule R5c of :mod:`stages._regions`);
-        0 disables.
+        times beyond the gray-level texture around it (rule R5c of
+        :mod:`stages._texture_rules`); 0 disables.
     weak_bands, weak_growth_px : float, int
         Depth method only: objects grow up to ``weak_growth_px`` pixels into pixels past
         neither threshold but at least ``weak_bands`` threshold bands from the ground on their
-        own side, when that leaves them at least as solid (rule R7 of :mod:`stages._regions`);
-        either 0 disables.
+        own side, when that leaves them at least as solid (rule R7 of
+        :mod:`stages._rock_parts`); either 0 disables.
     join_gap_px : int
         Depth method only, ``>= 0``: a lighter and a darker object this close, facing each
         other, are joined when their union is about as solid as either (rule R7b of
-        :mod:`stages._regions`); 0 disables.
+        :mod:`stages._rock_parts`); 0 disables.
     face_bands : float
         Depth method only, ``>= 0``: objects grow up to ``weak_growth_px`` pixels into pixels
         this many bands from the ground on the other side, when that leaves them about as
-        solid (rule R7c of :mod:`stages._regions`); 0 disables.
+        solid (rule R7c of :mod:`stages._rock_parts`); 0 disables.
 
     Returns
     -------

@@ -1,0 +1,208 @@
+"""Tests of stages/_rock_parts.py: attached shadows (R6), weak halves (R7), opposite halves
+(R7b), other faces (R7c)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from object_masks import disk
+
+from stages._rock_parts import (
+    grow_other_faces,
+    grow_weak_halves,
+    join_opposite_halves,
+    trim_attached_shadows,
+)
+
+
+def test_trim_attached_shadows_removes_the_lighter_class_of_a_dark_rock_only():
+    yy, xx = np.mgrid[:80, :80]
+    image = np.full((80, 80), 160, np.uint8)
+    rock = (yy - 25) ** 2 + (xx - 25) ** 2 <= 64
+    shadow = ((yy - 25) ** 2 + (xx - 33) ** 2 <= 64) & ~rock
+    image[rock], image[shadow] = 40, 130
+    light_rock = (yy - 60) ** 2 + (xx - 60) ** 2 <= 64
+    light_shadow = ((yy - 60) ** 2 + (xx - 68) ** 2 <= 64) & ~light_rock
+    image[light_rock], image[light_shadow] = 230, 100
+    labels = np.zeros((80, 80), np.int32)
+    labels[rock | shadow] = 1
+    labels[light_rock | light_shadow] = 2
+    trimmed = trim_attached_shadows(labels, image)
+    np.testing.assert_array_equal(trimmed == 1, rock)
+    np.testing.assert_array_equal(trimmed == 2, light_rock | light_shadow)
+    with pytest.raises(ValueError, match="one shape"):
+        trim_attached_shadows(labels, image[:10])
+
+
+def half_rock(shape=(40, 40), *, weak=-0.8):
+    """A disk whose left half is past the low threshold (contrast -2, labelled 1) and whose
+    right half has contrast ``weak`` (between the thresholds) on flat ground (contrast 0)."""
+    rock = disk(shape, 20, 20, 10)
+    left = rock & (np.arange(shape[1])[None, :] < 20)
+    contrast = np.zeros(shape, np.float32)
+    contrast[left] = -2.0
+    contrast[rock & ~left] = weak
+    return rock, left, contrast
+
+
+def test_grow_weak_halves_completes_a_rock_whose_other_half_is_just_inside_the_threshold():
+    rock, left, contrast = half_rock()
+    labels = left.astype(np.int32)
+    grown, count = grow_weak_halves(labels, contrast, between=np.abs(contrast) < 1)
+    assert np.array_equal(grown > 0, rock) and set(np.unique(grown)) == {0, 1}
+    assert count == np.count_nonzero(rock & ~left)
+    # the same for a light rock
+    grown, _ = grow_weak_halves(labels, -contrast, between=np.abs(contrast) < 1)
+    assert np.array_equal(grown > 0, rock)
+
+
+def test_grow_weak_halves_takes_only_weak_pixels_of_the_objects_own_side():
+    rock, left, contrast = half_rock(weak=0.8)  # the other half is lighter: not this rock's
+    labels = left.astype(np.int32)
+    grown, count = grow_weak_halves(labels, contrast, between=np.abs(contrast) < 1)
+    assert count == 0 and np.array_equal(grown, labels)
+    rock, left, contrast = half_rock(weak=-0.5)  # too close to the ground
+    grown, count = grow_weak_halves(labels, contrast, between=np.abs(contrast) < 1)
+    assert count == 0
+
+
+def test_grow_weak_halves_leaves_pixels_a_rule_removed():
+    """A trimmed shadow (past the threshold, removed by R6) is not grown back."""
+    rock, left, contrast = half_rock(weak=-1.5)
+    labels = left.astype(np.int32)
+    grown, count = grow_weak_halves(labels, contrast, between=np.abs(contrast) < 1)
+    assert count == 0 and np.array_equal(grown, labels)
+
+
+def test_grow_weak_halves_keeps_growth_only_when_the_object_stays_as_solid():
+    # a compact rock next to a weak streak of texture: growing along it would make it ragged
+    shape = (40, 60)
+    rock = disk(shape, 20, 15, 8)
+    contrast = np.where(rock, np.float32(-2.0), np.float32(0.0))
+    contrast[19:21, 23:58] = -0.8
+    labels = rock.astype(np.int32)
+    grown, count = grow_weak_halves(labels, contrast, between=np.abs(contrast) < 1)
+    assert count == 0 and np.array_equal(grown, labels)
+    # ... or a few steps along it
+    grown, count = grow_weak_halves(labels, contrast, between=np.abs(contrast) < 1, max_steps=3)
+    assert count == 0
+    # a slack as large as any drop keeps the growth
+    grown, count = grow_weak_halves(
+        labels, contrast, between=np.abs(contrast) < 1, max_steps=60, solidity_slack=1.0
+    )
+    assert count == np.count_nonzero((contrast == np.float32(-0.8)) & (labels == 0))
+
+
+def test_grow_weak_halves_steps_limit_the_growth_and_bad_arguments_raise():
+    rock, left, contrast = half_rock()
+    labels = left.astype(np.int32)
+    between = np.abs(contrast) < 1
+    grown, _ = grow_weak_halves(labels, contrast, between=between, max_steps=3)
+    assert (grown > 0).sum() < rock.sum() and grown[20, 22] == 1 and grown[20, 28] == 0
+    grown, count = grow_weak_halves(labels, contrast, between=between, max_steps=0)
+    assert count == 0 and np.array_equal(grown, labels)
+    with pytest.raises(ValueError, match="solidity_slack >= 0"):
+        grow_weak_halves(labels, contrast, between=between, solidity_slack=-0.1)
+    with pytest.raises(ValueError, match="min_contrast > 0"):
+        grow_weak_halves(labels, contrast, between=between, min_contrast=0)
+    with pytest.raises(ValueError, match="one shape"):
+        grow_weak_halves(labels, contrast[:10], between=between)
+    with pytest.raises(TypeError, match="bool"):
+        grow_weak_halves(labels, contrast, between=between.astype(np.uint8))
+
+
+def two_halves(shape=(40, 40), gap=2):
+    """A disk split into a lit left half (object 1) and a shaded right half (object 2),
+    ``gap`` ground-gray columns (the terminator) between them."""
+    rock = disk(shape, 20, 20, 10)
+    xx = np.arange(shape[1])[None, :]
+    lit, shaded = rock & (xx < 20 - gap // 2), rock & (xx >= 20 - gap // 2 + gap)
+    labels = lit.astype(np.int32) + 2 * shaded.astype(np.int32)
+    contrast = np.where(lit, np.float32(2.0), np.where(shaded, np.float32(-2.0), np.float32(0)))
+    return rock, labels, contrast
+
+
+def test_join_opposite_halves_makes_one_rock_of_a_lit_and_a_shaded_half():
+    rock, labels, contrast = two_halves()
+    joined, count = join_opposite_halves(labels, contrast)
+    assert count == 1 and set(np.unique(joined)) == {0, 1}
+    # the terminator between the halves is part of the rock (a closing: all but its ends)
+    assert not (joined[rock == 0] > 0).any() and np.count_nonzero(rock & (joined == 0)) <= 8
+    assert (joined[14:27, 19:21] == 1).all()
+
+
+def test_join_opposite_halves_leaves_same_side_far_or_ragged_pairs_alone():
+    rock, labels, contrast = two_halves()
+    # two darker halves: R4 or the thresholds separated them, not the light
+    joined, count = join_opposite_halves(labels, -np.abs(contrast))
+    assert count == 0 and np.array_equal(joined, labels)
+    # halves farther apart than the gap
+    rock, labels, contrast = two_halves(gap=8)
+    joined, count = join_opposite_halves(labels, contrast, gap_px=5)
+    assert count == 0
+    # a rock and a lighter neighbour beside it: their union is not one compact blob
+    shape = (40, 70)
+    labels = disk(shape, 20, 15, 10).astype(np.int32) + 2 * disk(shape, 20, 47, 10)
+    contrast = np.where(labels == 1, np.float32(-2.0), np.float32(2.0))
+    joined, count = join_opposite_halves(labels, contrast, gap_px=12)
+    assert count == 0 and np.array_equal(joined, labels)
+    joined, count = join_opposite_halves(labels, contrast, gap_px=0)
+    assert count == 0
+    with pytest.raises(ValueError, match="gap_px >= 0"):
+        join_opposite_halves(labels, contrast, gap_px=-1)
+    with pytest.raises(ValueError, match="one shape"):
+        join_opposite_halves(labels, contrast[:10])
+
+
+def test_grow_weak_halves_opposite_completes_the_other_face_of_a_rock():
+    # rule R7c: a lit rock on lava found by its shaded half only; its lit face, lighter than
+    # the ground, lies on the other side of the ground's gray level
+    rock, left, contrast = half_rock(weak=0.6)
+    labels = left.astype(np.int32)
+    grown, count = grow_weak_halves(labels, contrast, between=labels == 0)
+    assert count == 0  # R7 takes only the object's own side
+    grown, count = grow_weak_halves(
+        labels, contrast, between=labels == 0, min_contrast=0.5, opposite=True
+    )
+    assert np.array_equal(grown > 0, rock) and count == np.count_nonzero(rock & ~left)
+    # the same for a light rock whose shaded face is darker than the ground
+    grown, _ = grow_weak_halves(
+        labels, -contrast, between=labels == 0, min_contrast=0.5, opposite=True
+    )
+    assert np.array_equal(grown > 0, rock)
+    # a face too close to the ground's gray is not taken
+    grown, count = grow_weak_halves(
+        labels, contrast, between=labels == 0, min_contrast=0.7, opposite=True
+    )
+    assert count == 0
+
+
+def test_grow_weak_halves_opposite_leaves_a_neighbouring_light_blotch():
+    # a dark rock beside a long light streak of texture: taking it would make the rock ragged
+    shape = (40, 60)
+    rock = disk(shape, 20, 15, 8)
+    contrast = np.where(rock, np.float32(-2.0), np.float32(0.0))
+    contrast[19:21, 23:58] = 1.5
+    labels = rock.astype(np.int32)
+    grown, count = grow_weak_halves(
+        labels, contrast, between=labels == 0, min_contrast=0.5, opposite=True
+    )
+    assert count == 0 and np.array_equal(grown, labels)
+
+
+def test_grow_other_faces_takes_a_face_not_a_rim():
+    # R7c: the lit half of a rock is taken; a one-pixel rim of light pixels is not (a fifth)
+    rock, left, contrast = half_rock(weak=0.6)
+    labels = left.astype(np.int32)
+    grown, count = grow_other_faces(labels, contrast)
+    assert np.array_equal(grown > 0, rock) and count == np.count_nonzero(rock & ~left)
+    shape = (40, 40)
+    core = disk(shape, 20, 20, 9)
+    rim = disk(shape, 20, 20, 10) & ~core & (np.arange(40)[None, :] >= 20)
+    contrast = np.where(core, np.float32(-2.0), np.float32(0.0))
+    contrast[rim] = 1.0
+    labels = core.astype(np.int32)
+    grown, count = grow_other_faces(labels, contrast)
+    assert count == 0 and np.array_equal(grown, labels)
+    with pytest.raises(ValueError, match="min_gain >= 0"):
+        grow_weak_halves(labels, contrast, between=labels == 0, min_gain=-1.0)
