@@ -85,6 +85,7 @@ def describe_frame(
     sfd_min_diameter_m: float = 0.0,
     fringe_height_m: float = 0.004,
     fringe_reach_px: int = 3,
+    fringe_smoothing_px: int = 7,
 ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict[str, Any]]:
     """Descriptors, relations and per-frame figures of one frame.
 
@@ -122,6 +123,9 @@ def describe_frame(
         shadow segmented with the rock: pixels lower than ``fringe_height_m`` (m, >= 0; 0
         keeps all) and more than ``fringe_reach_px`` pixels from the rock's raised part are
         left out (see :func:`stages._descriptors.ground_fringe_keep`).
+    fringe_smoothing_px : int
+        Odd, >= 1: the heights that decide it are first averaged over this box of the
+        object's pixels (1: each pixel alone).
 
     Returns
     -------
@@ -147,6 +151,7 @@ def describe_frame(
         background_jump_px=background_jump_px,
         fringe_height_m=fringe_height_m,
         fringe_reach_px=fringe_reach_px,
+        fringe_smoothing_px=fringe_smoothing_px,
     )
     disp = np.asarray(disparity, dtype=np.float64)
     rel = relate_objects(
@@ -240,7 +245,7 @@ def run_describe(
 
 STAGE = Stage(
     name="describe",
-    version="4",
+    version="5",
     inputs=("left", "right", "labels", "disparity", "range", "height", "ground_plane"),
     outputs=(
         Product(
@@ -325,6 +330,13 @@ STAGE = Stage(
             3,
             "... farther than this from a raised pixel (shadows beside a rock), px",
             minimum=0,
+        ),
+        Param(
+            "fringe_smoothing_px",
+            int,
+            7,
+            "... judged on heights averaged over this odd box of the object's pixels (1: off)",
+            minimum=1,
         ),
     ),
     run=run_describe,

@@ -341,3 +341,33 @@ def test_ground_fringe_keep_validates():
         ground_fringe_keep(mask, heights[:-1], min_height_m=0.004, reach_px=3)
     with pytest.raises(ValueError, match=">= 0"):
         ground_fringe_keep(mask, heights, min_height_m=-0.1, reach_px=3)
+
+
+def test_ground_fringe_keep_smoothing_drops_a_noisy_shadow():
+    # stereo heights scatter by ~8 mm on mojave's ground: one by one, about a third of a
+    # flat shadow's pixels stand above 4 mm and keep the shadow within reach of them
+    mask, heights = _rock_and_shadow()
+    cols = np.nonzero(mask)[1]
+    noisy = heights + np.random.default_rng(0).normal(0.0, 0.008, heights.size)
+    alone = ground_fringe_keep(mask, noisy, min_height_m=0.004, reach_px=3)
+    smoothed = ground_fringe_keep(mask, noisy, min_height_m=0.004, reach_px=3, smoothing_px=7)
+    assert alone[cols > 22].mean() > 0.5  # pixel by pixel the far shadow mostly stays
+    assert smoothed[cols <= 15].all()  # the rock stays
+    # the far shadow goes; within half a box of the rock the mean is raised, so a noisy
+    # pixel there may still stand (noise-free heights keep exactly reach_px, see below)
+    assert not smoothed[cols > 15 + 3 + 7 // 2].any()
+    assert np.array_equal(
+        ground_fringe_keep(mask, heights, min_height_m=0.004, reach_px=3, smoothing_px=7),
+        ground_fringe_keep(mask, heights, min_height_m=0.004, reach_px=3),
+    )
+    # unknown heights stay unknown (kept), and smoothing 1 is the pixel-by-pixel rule
+    with_nan = noisy.copy()
+    with_nan[cols > 27] = np.nan
+    assert ground_fringe_keep(mask, with_nan, min_height_m=0.004, reach_px=3, smoothing_px=7)[
+        cols > 27
+    ].all()
+    assert np.array_equal(
+        ground_fringe_keep(mask, noisy, min_height_m=0.004, reach_px=3, smoothing_px=1), alone
+    )
+    with pytest.raises(ValueError, match="odd number"):
+        ground_fringe_keep(mask, noisy, min_height_m=0.004, reach_px=3, smoothing_px=4)
