@@ -23,7 +23,8 @@ and runs of the catalogs with ``seed = 2..5``, depth v5, segment v19): lab 7.0 /
 -> 6.4 / 7.3 / 6.1 % (catalog, seeds 2, 3); mojave 11.3 / 10.9 / 11.2 / 12.2 / 12.5 ->
 8.7 / 10.5 / 10.5 / 13.7 / 11.5 %; lava 11.4 / 8.3 / 12.6 / 11.1 / 10.5 -> 10.5 / 8.1 /
 12.6 / 12.7 / 11.3 % (catalog, seeds 2-5). Class right: the same or better on 10 of the 13
-runs (lab 92.6 -> 94.4 and 97.8 -> 95.7 on seeds 2 and 3, lava 92.0 -> 91.0 on the catalog).
+runs; worse on lab seed 3 (97.8 -> 95.7 %), lava's catalog (92.0 -> 91.0) and lava seed 4
+(91.1 -> 88.9).
 The catalog frames gain more than the seeds: on average over the runs lab 7.7 -> 6.6 %,
 mojave 11.6 -> 11.0 %, lava 10.8 -> 11.0 %.
 """
