@@ -137,7 +137,8 @@ ripple_texture_ratio=0`` for the old rules, dunes seeds 1/2/3/7 (catalog with ``
 changed) went from 2/31/5/6 invented rocks to 0/0/2/1, and seed 11 (looked at afterwards;
 the gradient evidence was added for it) from 5 to 1, every true rock kept. The one left on
 seed 7 is a true rock matched at IoU 0.45; seed 3's two are ripple pieces cut by the bottom
-corners, whose ring lies on one side only; seed 11's is a true rock at IoU 0.36. Lab and
+corners, whose ring lies on one side only (since removed by R5c at range, which also compares
+an object with the streaks beside it at its range); seed 11's is a true rock at IoU 0.36. Lab and
 mojave (catalog and seed 2) are unchanged, lava has 1 and 2 fewer false positives. Ratios
 1.25-2 and coherences 0.7-0.9 give the same counts.
 """

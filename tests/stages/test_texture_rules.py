@@ -162,3 +162,30 @@ def test_drop_ripple_pieces_sees_ripples_too_faint_to_leave_streaks_in_the_gradi
         labels, texture=no_streaks, image=image, min_gradient_coherence=1.0
     )
     assert dropped == 0
+
+
+def test_drop_ripple_pieces_at_range_drops_a_blob_as_dark_as_the_streaks_beside_it():
+    # rule R5c at range: on a dunes frame of seed 5 six aliased ripple troughs near the
+    # horizon, black blobs on smooth sand (their ring has no texture: ratio 9-15), were kept
+    # as rocks beside dashes of the same gray; a rock darker than the dashes stays
+    shape = (160, 200)
+    image = np.full(shape, 150, np.uint8)
+    dashes = np.zeros(shape, bool)
+    for row in (40, 46, 52):
+        dashes[row : row + 3, 0:50] = dashes[row : row + 3, 150:200] = True
+    image[dashes] = 75
+    labels = np.zeros(shape, np.int32)
+    blob, rock = disk(shape, 47, 100, 4), disk(shape, 47, 75, 4)
+    image[blob], image[rock] = 75, 20
+    labels[rock], labels[blob] = 1, 2
+    texture = label_objects(dashes | blob | rock, min_area_px=20, fill=False)
+    kept, dropped = drop_ripple_pieces(labels, texture=texture, image=image)
+    assert dropped == 1
+    assert kept[rock].all() and not kept[blob].any()
+    # the same dashes 60 rows away (another range, another ripple shading): the blob stays
+    far = np.roll(dashes, 60, axis=0)
+    image = np.where(dashes, np.uint8(150), image)
+    image[far] = 75
+    texture = label_objects(far | blob | rock, min_area_px=20, fill=False)
+    _, dropped = drop_ripple_pieces(labels, texture=texture, image=image)
+    assert dropped == 0
