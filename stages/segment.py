@@ -493,7 +493,7 @@ def _sector_product(name: str, dtype: str, long_name: str, units: str = "") -> P
 
 STAGE = Stage(
     name="segment",
-    version="20",
+    version="21",
     inputs=("left", "right", "disparity", "height"),
     outputs=(
         Product(

@@ -290,6 +290,30 @@ def test_precise_depth_reads_far_rows_against_their_own_noise():
     assert not combined[:20].any()
 
 
+
+def test_precise_depth_does_not_read_the_heights_of_far_rows_whose_noise_is_unusable():
+    # rule R0b, regression: on a dunes frame of seed 4 a stereo error of +14-25 cm on the
+    # smooth far sand (band noise 36 mm) stood 4 band sigmas high and R1 made 2 rocks as gray
+    # as the sand of it, while R2 removed true rocks there whose heights read as flat
+    shape = (200, 120)
+    rng = np.random.default_rng(4)
+    height = rng.normal(0, 0.001, shape).astype(np.float32)
+    height[:60] = _correlated_noise((60, 120), 0.04, block_px=4, seed=5)  # the far rows
+    error = np.zeros(shape, bool)
+    error[20:30, 20:40] = True
+    height[error] = 0.4  # a matching error, 10 band sigmas high
+    mask = np.zeros(shape, bool)
+    far_rock = disk(shape, 45, 90, 5)
+    mask[far_rock] = True  # dark, its heights lost in the noise
+    height[far_rock] = -0.05
+    near_shadow = disk(shape, 150, 60, 8)
+    mask[near_shadow] = True  # on the ground near the camera: still flat
+    combined, stats = apply_depth_rules(mask, height)
+    assert stats.ground_sigma_m <= 0.005
+    assert not combined[error].any()
+    assert combined[far_rock].all()
+    assert not combined[near_shadow].any()
+
 def test_unusable_depth_keeps_the_intensity_decision():
     shape = (120, 120)
     height = _correlated_noise(shape, 0.03)
