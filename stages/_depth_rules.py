@@ -1,12 +1,12 @@
 """Depth rules R0-R3 of ``sector-histogram+depth``: height above ground against intensity.
 
-Each rule is explainable on its own (:func:`apply_depth_rules`). ``height`` is metres
-above the depth stage's fitted ground plane. It is first smoothed with a NaN-aware 5x5
-median, then made *relative* to the local ground (R0): a coarse median over
-``ground_window_px`` (72 px) removes dune swells and slopes the plane fit cannot follow. A
-pixel has *valid depth* where the smoothed height is finite. The ground's height noise
-``sigma`` is measured robustly (MAD) on valid pixels the intensity calls background, and
-decides between two regimes:
+Each rule is explainable on its own (:func:`apply_depth_rules`; the height maps they read are
+in :mod:`stages._heights`). ``height`` is metres above the depth stage's fitted ground plane.
+It is first smoothed with a NaN-aware 5x5 median, then made *relative* to the local ground
+(R0): a coarse median over ``ground_window_px`` (72 px) removes dune swells and slopes the
+plane fit cannot follow. A pixel has *valid depth* where the smoothed height is finite. The
+ground's height noise ``sigma`` is measured robustly (MAD) on valid pixels the intensity
+calls background, and decides between two regimes:
 
 Precise depth (``sigma <= 5 mm``):
 
@@ -42,65 +42,9 @@ Precise depth (``sigma <= 5 mm``):
   threshold lies on the ground and is removed whole.
 
 Noisy depth (``5 mm < sigma <= 15 mm``, typical of window-based stereo on real texture):
-pixels are not trusted one by one; no object is added from height alone (R1 off). **R2
-vote** -- each intensity object with at least 30 % (and 20) of its pixels valid votes with
-its unsmoothed relative heights: it lies flat (shadow, stain, texture blotch) and is
-removed whole when the 90th percentile of its heights stays within ``0.8 sigma`` of the
-median height of a 4-pixel band of ground around it (the ground it stands on; the coarse
-local ground where the band has fewer than 10 heights). 30 %, not half: a ripple or blotch
-cut by the frame's border rows, where the matcher has no heights, still votes. The upper
-percentile, not the median, because a rock's visible face rises from a foot at ground level
-and the stereo windows pull small rocks' heights down; measured on the built-in archives it
-keeps 87-97 % of the true rocks and removes 80 % of the texture objects. A large object (at
-least 4 independent samples, one per 15 x 15 pixels, the scale of the matching windows) is
-also flat when its 90th percentile stays below ``1.5 sigma`` and its median height plus one
-standard error (``1.25 sigma / sqrt(n / 225)``) stays below 11 mm: over many pixels the
-noise itself lifts the upper percentile.
-
-**R2c contrast** -- the vote weighs the height evidence against the gray-level evidence
-(:func:`gray_contrast`: an object's median distance from the ground level, in threshold
-bands). Ground texture that crosses a threshold (blotches, ripple troughs) barely crosses
-it: on the built-in archives the median texture object lies 1.4-1.6 bands from the ground,
-the median true rock 2-2.6. So the bar of the vote is ``0.8 sigma`` for an object 1.7 bands
-out and moves by ``0.8 sigma`` per band: a clear rock whose stereo heights the matching
-windows flattened stays, a faint blotch must stand higher to stay. On the catalog frames
-(with the R3b change below; ``benchmarks/bench_segment.py --rundir runs/eval/<archive>``)
-mojave kept 17 more true rocks for 4 more false ones, lava 34 more true rocks and 21 fewer
-false ones, dunes 2 fewer false ones, lab (unusable heights) is unchanged. A band counts
-as at least half the frame's median band (a sector whose ground peak is unusually narrow,
-smooth sand, is a poor unit); that made mojave's catalog frames lose 4 false positives,
-lava's 4 (and 2 true rocks), lab 1 true rock; seed 2 mojave 5 false positives, lava 5.
-
-**R2d bump** -- the upper percentile misses small faint rocks: the stereo windows spread a
-40-pixel rock's 2 cm over their 9-15 px and pull its upper heights into the noise, and its
-gray level is too faint for R2c. Of the 145 true rocks on lava's catalog frames that no
-object touched at all, the vote had removed 40 (median 51 px, 1.5 bands); 66 others were
-specks (threshold pixels on 39 % of the rock, in pieces under ``min_area_px``; their gray
-levels sit as far from the ground as the texture specks', 1.3 and 1.2 bands), 14 R3b, 12
-R5, 8 a split, 4 never crossed a threshold. What the windows leave of such a rock is a
-bump of their own scale, which a blotch lying on the ground does not make: the heights
-smoothed at 2 px minus smoothed at 6 px (NaN-aware Gaussians, :func:`_height_bumps`), in
-that map's robust noise on the ground. An object the vote calls flat stays when its
-highest bump is at least 2 and the bump plus its gray contrast (R2c's bands) at least 3.5.
-Of the objects of 30-400 px the vote removed on lava's catalog frames this kept 13 true
-rocks, 5 pieces of rocks, 1 object half on a rock and no texture object (seed 2: 25, 6, 1
-and 2; mojave 3 rocks and 3 pieces, seed 2: 2 and 2; a diagnostic on the vote's input,
-not in the repository). With ``benchmarks/bench_segment.py --rundir`` object F1 on the catalog
-frames: lava 0.776 -> 0.791 (16 more true rocks, 1 more false one), mojave 0.898 -> 0.905
-(5 more true rocks), lab and dunes unchanged; seed 2 (the catalogs with ``seed = 2``): lava
-0.754 -> 0.773 (25 more, 7 more false), mojave 0.911 -> 0.912; dunes seeds 2, 3, 7 and 11
-unchanged. Without the floor of 2 on the bump itself a ripple's shading 2 bands dark on a
-weak swell (bump 1.6) became an invented rock on the dunes catalog frames. Scales of 1.5 or
-3 px and 5 or 8 px, and a score of 3 or 4, give lava 0.787-0.794 and the same elsewhere
-within 0.001. Seed 3: lava 0.775 -> 0.795, mojave 0.884 -> 0.892, lab unchanged; seeds 4
-and 5: lava 0.781 -> 0.797 and 0.783 -> 0.801, mojave 0.865 -> 0.872 and 0.859 -> 0.860,
-dunes unchanged. The
-specks stay lost (before R2d, lava catalog): grown into pixels 0.7 bands out before the
-vote they brought 36 false rocks for 13 true ones (0.776 -> 0.767; 0.5 bands: 0.692), and
-as candidates of a bump rule (a speck near a bump of 3, grown) 26 for 15 (0.775): lava's
-ground holds many rocks under 30 px, and a bump finds them as readily. With R2d, a speck
-floor of 25 px (objects under 30 px dropped after R7) gained 0.002-0.006 on seeds 1 and 2
-and lost up to 0.006 on seed 3 (lab).
+pixels are not trusted one by one; no object is added from height alone (R1 off). Whole
+intensity objects vote with their heights instead: rules **R2 vote**, **R2c contrast** and
+**R2d bump**, in :mod:`stages._height_vote` (:func:`stages._height_vote.noisy_depth_rules`).
 
 Unusable depth (``sigma > 15 mm``, e.g. a uniform floor the matcher cannot texture): heights
 are noise at the scale of the rocks; the intensity decision stands everywhere.
@@ -154,50 +98,23 @@ mojave (catalog and seed 2) are unchanged, lava has 1 and 2 fewer false positive
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import cv2
 import numpy as np
-from scipy.ndimage import median_filter
 
+from ._height_vote import _VOTE_VALID_FRACTION, _VOTE_VALID_PX, noisy_depth_rules
+from ._heights import (
+    DepthRuleStats,
+    _percentile_by_label,
+    _robust_sigma,
+    local_ground,
+    smooth_height,
+)
 from ._regions import CLEAR_CONTRAST, _coerce_mask, _renumber
 
 # Ground height noise (MAD sigma, metres) above which single heights are not trusted.
 _NOISY_SIGMA_M = 0.005
 # Above this ground noise (metres) the heights are not used at all.
 _UNUSABLE_SIGMA_M = 0.015
-# Noisy regime: an object lies flat when the 90th percentile of its heights stays below this
-# many ground sigmas (tuned on the built-in archives with the depth stage).
-_VOTE_PERCENTILE = 90.0
-_VOTE_SIGMAS = 0.8
-# An object votes when this share of its pixels (and at least this many) have a height: a
-# ripple cut by the frame's bottom rows, where the matcher has no rows below, still votes.
-_VOTE_VALID_FRACTION = 0.3
-_VOTE_VALID_PX = 20
-# R2c: the vote's bar is _VOTE_SIGMAS for an object as clear as typical ground texture
-# (median gray level this many threshold bands from the ground) and moves by
-# _CONTRAST_SIGMAS ground sigmas per band of contrast.
-_TEXTURE_CONTRAST = 1.7
-_CONTRAST_SIGMAS = 0.8
-# Width of the band around an object whose median height is the object's own ground level.
-_RING_PX = 4
-# ... or when its median height plus one standard error stays below this (metres): large flat
-# objects, whose upper percentile is lifted by the noise itself. Stereo heights are
-# correlated over the matching window: one independent sample per 15 x 15 pixels.
-_NOISY_FLAT_M = 0.011
-_WIDE_VOTE_SIGMAS = 1.5
-_WIDE_SAMPLES = 4
-_CORRELATED_PX = 225.0
-# R2d bump: the height map smoothed at these two scales (Gaussian sigmas, px); their
-# difference peaks on a rock of the stereo windows' scale and is flat on blotches ...
-_BUMP_INNER_PX = 2.0
-_BUMP_OUTER_PX = 6.0
-# ... and an object the vote calls flat stays when its highest bump (in that map's own
-# ground noise) plus its gray contrast (threshold bands) reaches this.
-_BUMP_SCORE = 3.5
-# ... the bump alone at least this many (its noise's) sigmas: a weak swell under a clear
-# ripple shading is no bump.
-_BUMP_MIN_SIGMAS = 2.0
 # R0b: the height noise is also measured in this many horizontal bands of rows.
 _ROW_BANDS = 10
 # Precise regime: raised means higher than this many ground sigmas (and min_height_m).
@@ -209,26 +126,10 @@ _DEPTHLESS_CONTRAST = CLEAR_CONTRAST
 # ... in bands at least this fraction of the frame's median band.
 _DEPTHLESS_BAND_FRACTION = 0.5
 __all__ = [
-    "DepthRuleStats",
-    "smooth_height",
-    "local_ground",
     "apply_depth_rules",
     "drop_faint_depthless",
     "gray_contrast",
 ]
-
-
-@dataclass
-class DepthRuleStats:
-    """How many pixels each depth rule changed (for the per-frame figures)."""
-
-    raised_added_px: int = 0
-    flat_removed_px: int = 0
-    depth_valid_fraction: float = 0.0
-    raise_threshold_m: float = float("nan")
-    flat_threshold_m: float = float("nan")
-    ground_sigma_m: float = float("nan")
-    notes: list[str] = field(default_factory=list)
 
 
 def _coerce_float_map(values: np.ndarray, shape: tuple[int, int], name: str) -> np.ndarray:
@@ -241,84 +142,6 @@ def _coerce_float_map(values: np.ndarray, shape: tuple[int, int], name: str) -> 
     if values.dtype.kind != "f":
         raise TypeError(f"{name} must be a float array (NaN where invalid), got {values.dtype}")
     return values.astype(np.float32, copy=False)
-
-
-def smooth_height(height: np.ndarray, *, window: int = 5) -> np.ndarray:
-    """NaN-aware median of the height map.
-
-    Parameters
-    ----------
-    height : (M, N) ndarray of float32
-        Metres above ground, NaN where invalid.
-    window : {1, 3, 5}
-        Median window; 1 returns the input.
-
-    Returns
-    -------
-    smoothed : (M, N) ndarray of float32
-        NaN where the input is NaN; elsewhere the median of the window with invalid
-        neighbours counted as ground (0), which biases isolated spikes down, never up.
-    """
-    if window not in (1, 3, 5):
-        raise ValueError(f"window must be 1, 3 or 5 (OpenCV float median), got {window}")
-    height = np.asarray(height, dtype=np.float32)
-    if window == 1:
-        return height
-    valid = np.isfinite(height)
-    filled = np.where(valid, height, np.float32(0.0)).astype(np.float32)
-    smoothed = cv2.medianBlur(filled, window)
-    return np.where(valid, smoothed, np.float32(np.nan))
-
-
-def local_ground(height: np.ndarray, *, window_px: int = 72) -> np.ndarray:
-    """Large-scale ground level of a height map: a coarse NaN-aware median.
-
-    Parameters
-    ----------
-    height : (M, N) ndarray of float32
-        Metres above the fitted plane, NaN where invalid.
-    window_px : int
-        ``>= 9``; side of the median window in pixels. Objects narrower than half of it do
-        not lift the estimate.
-
-    Returns
-    -------
-    ground : (M, N) ndarray of float32
-        Finite everywhere (0, the plane, where no valid height is near).
-    """
-    if window_px < 9:
-        raise ValueError(f"window_px must be >= 9, got {window_px}")
-    rows, cols = height.shape
-    factor = max(1, window_px // 9)
-    small_shape = (max(1, rows // factor), max(1, cols // factor))
-    valid = np.isfinite(height)
-    filled = np.where(valid, height, np.float32(0.0)).astype(np.float32)
-    # invalid pixels vote for the plane itself: the fit already describes the ground
-    small = cv2.resize(filled, small_shape[::-1], interpolation=cv2.INTER_AREA)
-    coarse = _median_filter_nearest(small, size=min(9, *small_shape))
-    return cv2.resize(coarse, (cols, rows), interpolation=cv2.INTER_LINEAR)
-
-
-def _median_filter_nearest(image: np.ndarray, *, size: int) -> np.ndarray:
-    """``scipy.ndimage.median_filter(image, size, mode='nearest')``, faster for odd sizes.
-
-    A median picks one of the window's values, so selecting it with ``np.partition`` over
-    all windows at once gives the same array; scipy's rank filter is slow on floats.
-    """
-    if size % 2 == 0 or image.ndim != 2:
-        return median_filter(image, size=size, mode="nearest")
-    half = size // 2
-    padded = np.pad(image, half, mode="edge")
-    windows = np.lib.stride_tricks.sliding_window_view(padded, (size, size))
-    flat = windows.reshape(image.shape[0], image.shape[1], size * size)
-    middle = (size * size) // 2
-    return np.partition(flat, middle, axis=-1)[..., middle].astype(image.dtype, copy=False)
-
-
-def _robust_sigma(values: np.ndarray) -> float:
-    if values.size < 10:
-        return 0.0
-    return float(1.4826 * np.median(np.abs(values - np.median(values))))
 
 
 def apply_depth_rules(
@@ -392,7 +215,7 @@ def apply_depth_rules(
         # the vote reads single unsmoothed heights: measure their noise the same way
         raw_relative = height - local_ground(height, window_px=ground_window_px)
         raw_sigma = _robust_sigma(raw_relative[np.isfinite(raw_relative) & ~mask])
-        return _noisy_depth_rules(mask, raw_relative, raw_sigma, contrast=contrast)
+        return noisy_depth_rules(mask, raw_relative, raw_sigma, contrast=contrast)
     raise_m = max(min_height_m, _RAISE_SIGMAS * sigma)
     flat_m = min(max(flat_tol_m, 2.0 * sigma), 0.5 * raise_m)
     # R0b: far rows are noisier than the frame as a whole (height noise grows with range^2);
@@ -470,158 +293,6 @@ def _row_band_sigma(
         if heights.size >= 50:
             values[band] = _robust_sigma(heights)
     return np.interp(np.arange(rows), centres, values)
-
-
-def _noisy_depth_rules(
-    mask: np.ndarray, relative: np.ndarray, sigma: float, *, contrast: np.ndarray | None = None
-) -> tuple[np.ndarray, DepthRuleStats]:
-    """R2 vote: remove whole objects whose upper heights stay within the ground noise.
-
-    Heights are read relative to the median valid height of a ``_RING_PX`` band of ground
-    around the object (the coarse local ground where the band has fewer than 10 heights).
-    """
-    valid = np.isfinite(relative)
-    count, components = cv2.connectedComponents(mask.view(np.uint8), connectivity=8)
-    lying = np.zeros(count, dtype=bool)
-    if count > 1:
-        valid_components = np.where(valid, components, 0)
-        n_valid = np.bincount(valid_components.ravel(), minlength=count)[1:]
-        n_pixels = np.bincount(components.ravel(), minlength=count)[1:]
-        # only objects are voted on: leave the (large) background out of the sort
-        in_object = valid_components > 0
-        values, owners = relative[in_object], valid_components[in_object]
-        upper, middle = _percentiles_by_label(values, owners, count, (_VOTE_PERCENTILE, 50.0))[
-            :, 1:
-        ]
-        standard_error = 1.25 * sigma / np.sqrt(np.maximum(1.0, n_valid / _CORRELATED_PX))
-        wide_flat = (
-            (n_valid >= _WIDE_SAMPLES * _CORRELATED_PX)
-            & (upper < _WIDE_VOTE_SIGMAS * sigma)
-            & (middle + standard_error < _NOISY_FLAT_M)
-        )
-        # the upper heights are read against the ground right around the object, not the
-        # coarse local ground: a blotch on a swell the 72 px median does not follow is flat
-        ring_level = _ring_levels(components, count, relative, ring_px=_RING_PX)
-        above = upper - np.where(np.isfinite(ring_level), ring_level, 0.0)
-        bar = np.full(count - 1, _VOTE_SIGMAS)
-        clear = np.zeros(count - 1)
-        if contrast is not None:
-            # R2c: the clearer an object's gray level, the less height it needs to stay
-            inside = components > 0
-            clear = _percentile_by_label(
-                np.abs(contrast[inside]), components[inside], count, 50.0
-            )[1:]
-            bar = _VOTE_SIGMAS + _CONTRAST_SIGMAS * (_TEXTURE_CONTRAST - clear)
-        # R2d: a bump of the matching windows' scale is evidence the percentile misses
-        bump = _height_bumps(relative, mask)
-        peak = np.full(count, -np.inf)
-        np.maximum.at(peak, owners, bump[in_object])
-        standing = (peak[1:] >= _BUMP_MIN_SIGMAS) & (peak[1:] + clear >= _BUMP_SCORE)
-        flat = ((above < bar * sigma) & ~standing) | wide_flat
-        voting = (n_valid >= _VOTE_VALID_FRACTION * n_pixels) & (n_valid >= _VOTE_VALID_PX)
-        lying[1:] = voting & flat
-    removed = lying[components]
-    stats = DepthRuleStats(
-        flat_removed_px=int(np.count_nonzero(removed)),
-        depth_valid_fraction=float(valid.mean()),
-        flat_threshold_m=_VOTE_SIGMAS * sigma,
-        ground_sigma_m=sigma,
-        notes=[
-            f"height noise {100 * sigma:.1f} cm: object vote only ({int(lying.sum())} flat "
-            "object(s) removed), no raised rule"
-        ],
-    )
-    return mask & ~removed, stats
-
-
-def _height_bumps(relative: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """Rule R2d's map: fine minus coarse smoothed height, in its own noise on the ground.
-
-    Parameters
-    ----------
-    relative : (M, N) ndarray of float32
-        Heights relative to the local ground, NaN invalid.
-    mask : (M, N) ndarray of bool
-        Intensity objects; the other valid pixels measure the map's noise (MAD).
-
-    Returns
-    -------
-    bumps : (M, N) ndarray of float32
-        NaN-aware Gaussian smoothing at ``_BUMP_INNER_PX`` minus at ``_BUMP_OUTER_PX``,
-        divided by its robust sigma on the ground; 0 where the height is invalid.
-    """
-    valid = np.isfinite(relative)
-    weight = valid.astype(np.float32)
-    filled = np.where(valid, relative, np.float32(0.0)).astype(np.float32)
-    floor = np.float32(1e-3)
-    levels = []
-    for scale in (_BUMP_INNER_PX, _BUMP_OUTER_PX):
-        # kernels cut at 3 sigmas (OpenCV's default for floats is 4: twice the cost)
-        size = 2 * round(3 * scale) + 1
-        # normalised convolution: invalid heights neither count nor pull the level to 0
-        level = cv2.GaussianBlur(filled, (size, size), scale)
-        level /= np.maximum(cv2.GaussianBlur(weight, (size, size), scale), floor)
-        levels.append(level)
-    bumps = levels[0]
-    bumps -= levels[1]
-    # every other row and column: the map is smooth, a quarter of the values measure its noise
-    ground = (valid & ~mask)[::2, ::2]
-    noise = _robust_sigma(bumps[::2, ::2][ground])
-    if not noise > 0:
-        return np.zeros(relative.shape, np.float32)
-    bumps *= np.float32(1.0 / noise)
-    bumps[~valid] = 0.0
-    return bumps
-
-
-def _ring_levels(
-    components: np.ndarray, count: int, relative: np.ndarray, *, ring_px: int
-) -> np.ndarray:
-    """Median valid height in a ``ring_px`` band around each object (NaN if < 10 values)."""
-    size = 2 * ring_px + 1
-    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
-    # grey dilation of the ids: a ring pixel between two objects goes to the higher id
-    ids = components.astype(np.uint16 if count < 2**16 else np.float32)
-    grown = cv2.dilate(ids, kernel).astype(np.int64)
-    ring = (components == 0) & (grown > 0) & np.isfinite(relative)
-    owners = grown[ring]
-    levels = _percentile_by_label(relative[ring], owners, count, 50.0)[1:]
-    n_ring = np.bincount(owners, minlength=count)[1:]
-    return np.where(n_ring >= 10, levels, np.nan)
-
-
-def _percentile_by_label(
-    values: np.ndarray, labels: np.ndarray, count: int, percentile: float
-) -> np.ndarray:
-    """Nearest-rank (lower) ``percentile`` of ``values`` per label 0..count-1 (+inf if empty)."""
-    return _percentiles_by_label(values, labels, count, (percentile,))[0]
-
-
-def _percentiles_by_label(
-    values: np.ndarray, labels: np.ndarray, count: int, percentiles: tuple[float, ...]
-) -> np.ndarray:
-    """Nearest-rank percentiles per label, shape ``(len(percentiles), count)``; one sort."""
-    result = np.full((len(percentiles), count), np.inf)
-    if values.size == 0:
-        return result
-    values = np.asarray(values, dtype=np.float64)
-    low, high = float(values.min()), float(values.max())
-    if np.isfinite(low) and np.isfinite(high):
-        # one sort of a combined key (label, then value) instead of a lexsort: 7x faster;
-        # a label's keys span less than one unit, so labels never interleave
-        order = np.argsort(labels * (high - low + 1.0) + (values - low))
-    else:
-        order = np.lexsort((values, labels))
-    sorted_labels, sorted_values = labels[order], values[order]
-    starts = np.searchsorted(sorted_labels, np.arange(count), side="left")
-    stops = np.searchsorted(sorted_labels, np.arange(count), side="right")
-    sizes = stops - starts
-    present = sizes > 0
-    for row, percentile in zip(result, percentiles, strict=True):
-        # nearest-rank percentile: cheap and exact enough for a vote
-        rank = starts + np.floor((percentile / 100.0) * (sizes - 1)).astype(np.int64)
-        row[present] = sorted_values[rank[present]]
-    return result
 
 
 def _frame_bands(
@@ -739,7 +410,7 @@ def drop_faint_depthless(
     owners = labels.ravel()
     n_pixels = np.bincount(owners, minlength=count)
     n_valid = np.bincount(owners[np.isfinite(height).ravel()], minlength=count)
-    # every object the vote could not read (too few heights, see _noisy_depth_rules) is judged
+    # every object the vote could not read (too few heights, see stages._height_vote) is judged
     judged = (n_valid < max_valid_fraction * n_pixels) | (n_valid < _VOTE_VALID_PX)
     judged[0] = False
     if not judged.any():

@@ -6,9 +6,10 @@ pockets enclosed by object pixels), optionally splits components at depth discon
 drops specks smaller than ``min_area_px`` and numbers the objects ``1..n`` densely.
 
 Depth rules R0-R3 (height above ground: local ground, raised, flat, no depth) are in
-:mod:`stages._depth_rules`; the ones that act on objects are R4 here, R5-R5c (streaks,
-ripple fields) in :mod:`stages._texture_rules` and R6-R7c (attached shadows, halves and
-faces of rocks) in :mod:`stages._rock_parts`:
+:mod:`stages._depth_rules` (the noisy-height vote R2-R2d in :mod:`stages._height_vote`);
+the ones that act on objects are R4 here, R5-R5c (streaks, ripple fields) in
+:mod:`stages._texture_rules` and R6-R7c (attached shadows, halves and faces of rocks) in
+:mod:`stages._rock_parts`:
 
 * **R4 split** -- a pixel where the (median-smoothed) disparity drops by more than
   ``split_disparity_px`` towards a 4-neighbour is a depth edge: the surface behind an

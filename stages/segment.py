@@ -7,12 +7,13 @@ sector centres (Chow and Kaneko), connected components, speck removal, hole fill
 is in :mod:`stages._sectors` (histograms, modes, interpolation), :mod:`stages._continuity`
 (background by continuity, phantom peaks, thresholds), :mod:`stages._regions` (masks,
 components, split), :mod:`stages._texture_rules` (streaks), :mod:`stages._rock_parts` (shadows,
-halves) and :mod:`stages._depth_rules` (height rules), all documented rule by rule.
+halves), :mod:`stages._depth_rules` (height rules) and :mod:`stages._height_vote` (the
+noisy-height vote), all documented rule by rule.
 
 ``method = 'sector-histogram+depth'`` (default) adds the depth stage's ``height`` (metres
-above the fitted ground plane) and ``disparity`` (rules R0-R3 in :mod:`stages._depth_rules`,
-R4 in :mod:`stages._regions`, R5-R5c in :mod:`stages._texture_rules`, R6-R7c in
-:mod:`stages._rock_parts`):
+above the fitted ground plane) and ``disparity`` (rules R0-R3 in :mod:`stages._depth_rules`
+and :mod:`stages._height_vote`, R4 in :mod:`stages._regions`, R5-R5c in
+:mod:`stages._texture_rules`, R6-R7c in :mod:`stages._rock_parts`):
 raised pixels are object even when their gray equals the ground's, flat intensity objects
 (shadows, stains, texture blotches) are background, touching objects split at disparity
 jumps, streaks (ripple troughs) are dropped and so are, in a field of parallel streaks,
@@ -49,11 +50,11 @@ from pipeline.stage import FrameContext, Param, Product, Stage, StageResult
 from ._continuity import SectorAnalysis, analyse_sectors
 from ._depth_rules import _UNUSABLE_SIGMA_M as _USABLE_SIGMA_M
 from ._depth_rules import (
-    DepthRuleStats,
     apply_depth_rules,
     drop_faint_depthless,
     gray_contrast,
 )
+from ._heights import DepthRuleStats
 from ._regions import depth_edges, label_objects, threshold_mask
 from ._rock_parts import (
     grow_other_faces,

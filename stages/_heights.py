@@ -1,0 +1,148 @@
+"""Height maps for the depth rules: smoothing, local ground (R0), noise, per-object percentiles.
+
+What the rules of :mod:`stages._depth_rules` (regimes, R1/R2, R0b, R3b) and
+:mod:`stages._height_vote` (the noisy regime's vote, R2-R2d) share: the NaN-aware 5x5
+median of the heights (:func:`smooth_height`), the coarse local ground they are read
+against (:func:`local_ground`, rule R0), the robust (MAD) noise of a set of heights,
+nearest-rank percentiles per labelled object, and :class:`DepthRuleStats`, the per-frame
+record every regime fills.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+from scipy.ndimage import median_filter
+
+__all__ = [
+    "DepthRuleStats",
+    "smooth_height",
+    "local_ground",
+]
+
+
+@dataclass
+class DepthRuleStats:
+    """How many pixels each depth rule changed (for the per-frame figures)."""
+
+    raised_added_px: int = 0
+    flat_removed_px: int = 0
+    depth_valid_fraction: float = 0.0
+    raise_threshold_m: float = float("nan")
+    flat_threshold_m: float = float("nan")
+    ground_sigma_m: float = float("nan")
+    notes: list[str] = field(default_factory=list)
+
+
+def smooth_height(height: np.ndarray, *, window: int = 5) -> np.ndarray:
+    """NaN-aware median of the height map.
+
+    Parameters
+    ----------
+    height : (M, N) ndarray of float32
+        Metres above ground, NaN where invalid.
+    window : {1, 3, 5}
+        Median window; 1 returns the input.
+
+    Returns
+    -------
+    smoothed : (M, N) ndarray of float32
+        NaN where the input is NaN; elsewhere the median of the window with invalid
+        neighbours counted as ground (0), which biases isolated spikes down, never up.
+    """
+    if window not in (1, 3, 5):
+        raise ValueError(f"window must be 1, 3 or 5 (OpenCV float median), got {window}")
+    height = np.asarray(height, dtype=np.float32)
+    if window == 1:
+        return height
+    valid = np.isfinite(height)
+    filled = np.where(valid, height, np.float32(0.0)).astype(np.float32)
+    smoothed = cv2.medianBlur(filled, window)
+    return np.where(valid, smoothed, np.float32(np.nan))
+
+
+def local_ground(height: np.ndarray, *, window_px: int = 72) -> np.ndarray:
+    """Large-scale ground level of a height map: a coarse NaN-aware median.
+
+    Parameters
+    ----------
+    height : (M, N) ndarray of float32
+        Metres above the fitted plane, NaN where invalid.
+    window_px : int
+        ``>= 9``; side of the median window in pixels. Objects narrower than half of it do
+        not lift the estimate.
+
+    Returns
+    -------
+    ground : (M, N) ndarray of float32
+        Finite everywhere (0, the plane, where no valid height is near).
+    """
+    if window_px < 9:
+        raise ValueError(f"window_px must be >= 9, got {window_px}")
+    rows, cols = height.shape
+    factor = max(1, window_px // 9)
+    small_shape = (max(1, rows // factor), max(1, cols // factor))
+    valid = np.isfinite(height)
+    filled = np.where(valid, height, np.float32(0.0)).astype(np.float32)
+    # invalid pixels vote for the plane itself: the fit already describes the ground
+    small = cv2.resize(filled, small_shape[::-1], interpolation=cv2.INTER_AREA)
+    coarse = _median_filter_nearest(small, size=min(9, *small_shape))
+    return cv2.resize(coarse, (cols, rows), interpolation=cv2.INTER_LINEAR)
+
+
+def _median_filter_nearest(image: np.ndarray, *, size: int) -> np.ndarray:
+    """``scipy.ndimage.median_filter(image, size, mode='nearest')``, faster for odd sizes.
+
+    A median picks one of the window's values, so selecting it with ``np.partition`` over
+    all windows at once gives the same array; scipy's rank filter is slow on floats.
+    """
+    if size % 2 == 0 or image.ndim != 2:
+        return median_filter(image, size=size, mode="nearest")
+    half = size // 2
+    padded = np.pad(image, half, mode="edge")
+    windows = np.lib.stride_tricks.sliding_window_view(padded, (size, size))
+    flat = windows.reshape(image.shape[0], image.shape[1], size * size)
+    middle = (size * size) // 2
+    return np.partition(flat, middle, axis=-1)[..., middle].astype(image.dtype, copy=False)
+
+
+def _robust_sigma(values: np.ndarray) -> float:
+    if values.size < 10:
+        return 0.0
+    return float(1.4826 * np.median(np.abs(values - np.median(values))))
+
+
+def _percentile_by_label(
+    values: np.ndarray, labels: np.ndarray, count: int, percentile: float
+) -> np.ndarray:
+    """Nearest-rank (lower) ``percentile`` of ``values`` per label 0..count-1 (+inf if empty)."""
+    return _percentiles_by_label(values, labels, count, (percentile,))[0]
+
+
+def _percentiles_by_label(
+    values: np.ndarray, labels: np.ndarray, count: int, percentiles: tuple[float, ...]
+) -> np.ndarray:
+    """Nearest-rank percentiles per label, shape ``(len(percentiles), count)``; one sort."""
+    result = np.full((len(percentiles), count), np.inf)
+    if values.size == 0:
+        return result
+    values = np.asarray(values, dtype=np.float64)
+    low, high = float(values.min()), float(values.max())
+    if np.isfinite(low) and np.isfinite(high):
+        # one sort of a combined key (label, then value) instead of a lexsort: 7x faster;
+        # a label's keys span less than one unit, so labels never interleave
+        order = np.argsort(labels * (high - low + 1.0) + (values - low))
+    else:
+        order = np.lexsort((values, labels))
+    sorted_labels, sorted_values = labels[order], values[order]
+    starts = np.searchsorted(sorted_labels, np.arange(count), side="left")
+    stops = np.searchsorted(sorted_labels, np.arange(count), side="right")
+    sizes = stops - starts
+    present = sizes > 0
+    for row, percentile in zip(result, percentiles, strict=True):
+        # nearest-rank percentile: cheap and exact enough for a vote
+        rank = starts + np.floor((percentile / 100.0) * (sizes - 1)).astype(np.int64)
+        row[present] = sorted_values[rank[present]]
+    return result

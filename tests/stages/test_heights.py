@@ -1,0 +1,63 @@
+"""Tests of stages/_heights.py: height smoothing, local ground and per-label percentiles."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+from scipy.ndimage import median_filter
+
+from stages._heights import (
+    _median_filter_nearest,
+    _percentile_by_label,
+    _percentiles_by_label,
+    smooth_height,
+)
+
+
+def test_smooth_height_removes_isolated_spikes_and_keeps_nan():
+    height = np.zeros((20, 20), np.float32)
+    height[10, 10] = 0.5
+    height[3, 3] = np.nan
+    smoothed = smooth_height(height, window=5)
+    assert smoothed[10, 10] == 0.0
+    assert np.isnan(smoothed[3, 3])
+    with pytest.raises(ValueError, match="1, 3 or 5"):
+        smooth_height(height, window=7)
+
+
+@given(st.lists(st.tuples(st.integers(0, 4), st.floats(-1, 1, allow_nan=False)), max_size=60))
+def test_percentile_by_label_matches_numpy_nearest_rank(pairs):
+    labels = np.array([p[0] for p in pairs], dtype=np.int64)
+    values = np.array([p[1] for p in pairs], dtype=np.float64)
+    result = _percentile_by_label(values, labels, 5, 90.0)
+    for label in range(5):
+        chosen = values[labels == label]
+        if chosen.size == 0:
+            assert result[label] == np.inf
+        else:
+            expected = np.percentile(chosen, 90, method="lower")
+            assert result[label] == pytest.approx(expected)
+
+
+@given(
+    st.integers(1, 40),
+    st.integers(1, 40),
+    st.sampled_from([1, 2, 3, 5, 8, 9]),
+    st.integers(0, 2**31 - 1),
+)
+def test_median_filter_nearest_equals_scipy(rows, cols, size, seed):
+    rng = np.random.default_rng(seed)
+    image = np.round(rng.normal(0, 0.01, (rows, cols)) * 500).astype(np.float32) / 500
+    expected = median_filter(image, size=size, mode="nearest")
+    np.testing.assert_array_equal(_median_filter_nearest(image, size=size), expected)
+
+
+def test_percentiles_by_label_match_one_at_a_time():
+    rng = np.random.default_rng(3)
+    values = rng.normal(size=500)
+    labels = rng.integers(0, 7, 500)
+    both = _percentiles_by_label(values, labels, 8, (90.0, 50.0))
+    np.testing.assert_array_equal(both[0], _percentile_by_label(values, labels, 8, 90.0))
+    np.testing.assert_array_equal(both[1], _percentile_by_label(values, labels, 8, 50.0))
