@@ -5,7 +5,7 @@ points (pixels projected with a disparity surface fitted per object) projected o
 directions. This benchmark splits that measurement by axis on the truth labels of finished
 ``arroyo run`` directories: the spread of the footprint along the ground x axis (across the
 view) and y axis (along the view), one pixel added as in
-:func:`stages._descriptors.footprint_dimensions`, against the truth's ``extent_x_m`` and
+:func:`stages._footprint.footprint_dimensions`, against the truth's ``extent_x_m`` and
 ``extent_y_m``. Rocks within ``--near`` m, seen whole; the whole truth region (no fringe
 trimming, no outlier rule). Disparity per pixel from the truth or the run (``--depth``),
 either raw or on the describe stage's fitted surface (:func:`stages._ground.fit_disparity_surface`
@@ -25,7 +25,7 @@ import argparse
 import numpy as np
 from _rundir import open_run  # sibling module (benchmarks/ is on sys.path)
 
-from stages._descriptors import _FOOTPRINT_QUADRATIC_PX
+from stages._footprint import _FOOTPRINT_QUADRATIC_PX
 from stages._ground import fit_disparity_surface, frame_ground, pixel_points
 
 

@@ -122,7 +122,7 @@ def describe_frame(
         Footprint (``width_m``, ``length_m``) without ground-level fringes such as a sun
         shadow segmented with the rock: pixels lower than ``fringe_height_m`` (m, >= 0; 0
         keeps all) and more than ``fringe_reach_px`` pixels from the rock's raised part are
-        left out (see :func:`stages._descriptors.ground_fringe_keep`).
+        left out (see :func:`stages._footprint.ground_fringe_keep`).
     fringe_smoothing_px : int
         Odd, >= 1: the heights that decide it are first averaged over this box of the
         object's pixels (1: each pixel alone).

@@ -1,0 +1,133 @@
+"""Tests of the footprint measurements (hand-made arrays, known answers)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from stages._footprint import (
+    footprint_dimensions,
+    ground_fringe_keep,
+    robust_extent,
+    widest_row_width_m,
+)
+
+
+def test_robust_extent():
+    values = np.linspace(0.0, 1.0, 1001)
+    assert robust_extent(values) == pytest.approx(0.96)
+    assert robust_extent(values, low=0, high=100) == pytest.approx(1.0)
+    assert math.isnan(robust_extent(np.array([1.0, np.nan])))
+
+
+def test_widest_row_width():
+    mask = np.tri(9, 9, dtype=bool)  # row r spans r + 1 pixels
+    rows, cols = np.nonzero(mask)
+    depth = np.full(rows.shape, 2.0)
+    assert widest_row_width_m(rows, cols, depth, focal_px=100.0, fallback_z=2.0) == pytest.approx(
+        9 * 2.0 / 100.0
+    )
+    # a nearer widest row loses to a farther narrower row
+    depth = np.where(rows == 8, 1.0, 2.0)
+    expected = max(9 * 1.0, 8 * 2.0) / 100.0
+    assert widest_row_width_m(rows, cols, depth, focal_px=100.0, fallback_z=2.0) == pytest.approx(
+        expected
+    )
+    # rows without valid depth use the fallback depth
+    depth = np.where(rows == 8, np.nan, 1.0)
+    assert widest_row_width_m(rows, cols, depth, focal_px=100.0, fallback_z=3.0) == pytest.approx(
+        9 * 3.0 / 100.0
+    )
+
+
+def test_footprint_dimensions_of_a_rotated_rectangle():
+    # a filled 0.30 x 0.10 m rectangle of points, long side at 30 degrees
+    u, v = np.meshgrid(np.linspace(-0.15, 0.15, 61), np.linspace(-0.05, 0.05, 21))
+    angle = math.radians(30.0)
+    x = 1.0 + u * math.cos(angle) - v * math.sin(angle)
+    y = 2.0 + u * math.sin(angle) + v * math.cos(angle)
+    width, length = footprint_dimensions(x.ravel(), y.ravel(), pixel_m=0.005)
+    # the largest horizontal dimension of a rectangle is its diagonal (as in the synth truth);
+    # across it, the rectangle spans 2 * area / diagonal
+    diagonal = math.hypot(0.30, 0.10)
+    assert width == pytest.approx(diagonal + 0.005, rel=0.01)
+    assert length == pytest.approx(2 * 0.30 * 0.10 / diagonal + 0.005, rel=0.03)
+
+
+def test_footprint_dimensions_drop_far_outliers():
+    u, v = np.meshgrid(np.linspace(0, 0.1, 11), np.linspace(0, 0.1, 11))
+    x, y = u.ravel(), v.ravel()
+    clean = footprint_dimensions(x, y, pixel_m=0.01)
+    x_out, y_out = np.r_[x, 0.05], np.r_[y, 3.0]  # a ground point far behind the rock
+    assert footprint_dimensions(x_out, y_out, pixel_m=0.01) == pytest.approx(clean)
+    assert all(math.isnan(v) for v in footprint_dimensions([1.0], [2.0], pixel_m=0.01))
+
+
+def _rock_and_shadow(rock_h: float = 0.03):
+    """A 10x30 object: a raised rock in columns 0-14, a ground-level shadow in 15-29."""
+    mask = np.zeros((12, 32), dtype=bool)
+    mask[1:11, 1:31] = True
+    heights = np.zeros(mask.shape)
+    heights[1:11, 1:16] = rock_h
+    return mask, heights[mask]
+
+
+def test_ground_fringe_keep_drops_a_shadow_but_not_the_rim():
+    mask, heights = _rock_and_shadow()
+    keep = ground_fringe_keep(mask, heights, min_height_m=0.004, reach_px=3)
+    cols = np.nonzero(mask)[1]
+    # the rock (columns 1-15) and 3 px of the shadow next to it stay: the rock's own low
+    # rim would lie there; the far shadow goes
+    assert keep[cols <= 18].all() and not keep[cols > 18].any()
+    # unknown heights count as raised: nothing next to them is dropped
+    heights[cols > 18] = np.nan
+    assert ground_fringe_keep(mask, heights, min_height_m=0.004, reach_px=3).all()
+
+
+def test_ground_fringe_keep_keeps_all_when_heights_cannot_tell():
+    mask, heights = _rock_and_shadow(rock_h=0.002)  # nothing stands above 4 mm: flat
+    assert ground_fringe_keep(mask, heights, min_height_m=0.004, reach_px=3).all()
+    mask, heights = _rock_and_shadow()
+    heights[np.nonzero(mask)[1] < 12] = 0.0  # a 4-column raised strip: most would go
+    assert ground_fringe_keep(mask, heights, min_height_m=0.004, reach_px=0).all()
+    assert ground_fringe_keep(mask, heights, min_height_m=0.0, reach_px=3).all()  # off
+
+
+def test_ground_fringe_keep_validates():
+    mask, heights = _rock_and_shadow()
+    with pytest.raises(ValueError, match="one value per mask pixel"):
+        ground_fringe_keep(mask, heights[:-1], min_height_m=0.004, reach_px=3)
+    with pytest.raises(ValueError, match=">= 0"):
+        ground_fringe_keep(mask, heights, min_height_m=-0.1, reach_px=3)
+
+
+def test_ground_fringe_keep_smoothing_drops_a_noisy_shadow():
+    # stereo heights scatter by ~8 mm on mojave's ground: one by one, about a third of a
+    # flat shadow's pixels stand above 4 mm and keep the shadow within reach of them
+    mask, heights = _rock_and_shadow()
+    cols = np.nonzero(mask)[1]
+    noisy = heights + np.random.default_rng(0).normal(0.0, 0.008, heights.size)
+    alone = ground_fringe_keep(mask, noisy, min_height_m=0.004, reach_px=3)
+    smoothed = ground_fringe_keep(mask, noisy, min_height_m=0.004, reach_px=3, smoothing_px=7)
+    assert alone[cols > 22].mean() > 0.5  # pixel by pixel the far shadow mostly stays
+    assert smoothed[cols <= 15].all()  # the rock stays
+    # the far shadow goes; within half a box of the rock the mean is raised, so a noisy
+    # pixel there may still stand (noise-free heights keep exactly reach_px, see below)
+    assert not smoothed[cols > 15 + 3 + 7 // 2].any()
+    assert np.array_equal(
+        ground_fringe_keep(mask, heights, min_height_m=0.004, reach_px=3, smoothing_px=7),
+        ground_fringe_keep(mask, heights, min_height_m=0.004, reach_px=3),
+    )
+    # unknown heights stay unknown (kept), and smoothing 1 is the pixel-by-pixel rule
+    with_nan = noisy.copy()
+    with_nan[cols > 27] = np.nan
+    assert ground_fringe_keep(mask, with_nan, min_height_m=0.004, reach_px=3, smoothing_px=7)[
+        cols > 27
+    ].all()
+    assert np.array_equal(
+        ground_fringe_keep(mask, noisy, min_height_m=0.004, reach_px=3, smoothing_px=1), alone
+    )
+    with pytest.raises(ValueError, match="odd number"):
+        ground_fringe_keep(mask, noisy, min_height_m=0.004, reach_px=3, smoothing_px=4)
