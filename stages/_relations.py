@@ -59,6 +59,7 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
+from ._footprint import _dilate_diamond
 from ._ground import _median
 
 __all__ = [
@@ -170,13 +171,6 @@ def _dilate_square(mask: np.ndarray, radius: int) -> np.ndarray:
     """Chessboard dilation by ``radius`` pixels: ``radius`` 3x3 dilations in one pass."""
     size = 2 * radius + 1
     kernel = np.ones((size, size), dtype=np.uint8)
-    return cv2.dilate(np.ascontiguousarray(mask).view(np.uint8), kernel).view(bool)
-
-
-def _dilate_diamond(mask: np.ndarray, radius: int) -> np.ndarray:
-    """City-block dilation by ``radius`` pixels: ``radius`` 4-connected dilations at once."""
-    steps = np.abs(np.arange(-radius, radius + 1))
-    kernel = (steps[:, None] + steps[None, :] <= radius).astype(np.uint8)
     return cv2.dilate(np.ascontiguousarray(mask).view(np.uint8), kernel).view(bool)
 
 
