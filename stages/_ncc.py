@@ -195,21 +195,24 @@ def _ncc(hs, n, rs_row, ri_row, os_row, oi_row, x, j, d_min):  # pragma: no cove
 
 
 @njit(cache=True)
-def _row_curves(curves, hs, n, hw, rs_row, ri_row, os_row, oi_row, d_min):  # pragma: no cover
-    """ZNCC of every disparity and column of the current row, (D, W); -2 where undefined.
+def _row_scores(out, hs, n, hw, rs_row, ri_row, os_row, oi_row, d_min, as_cost):  # pragma: no cover
+    """ZNCC (or, ``as_cost``, the cost ``(1 - ZNCC) / 2``) of every disparity and column of
+    the current row, (D, W); -2 (cost: 0.5) where the window does not fit.
 
     ``n`` is the window's pixel count, ``hw`` its half-width. The float operations are the
-    same, in the same order, as in :func:`_ncc`, so both give identical values.
+    same, in the same order, as in :func:`_ncc`, so both give identical values; the cost is
+    formed from the ZNCC in float64 and rounded to float32 once (halving is exact, so it
+    equals ``0.5 - 0.5 * num * ...`` bit for bit).
     """
-    n_disp, w = curves.shape
-    curves[:, :] = -2.0
+    n_disp, w = out.shape
+    out[:, :] = 0.5 if as_cost else -2.0
     for j in range(n_disp):
         d = d_min + j
         x0 = max(hw, hw - d)
         x1 = min(w - hw, w - hw - d)
         if x1 <= x0:
             continue
-        out = curves[j, x0:x1]
+        row = out[j, x0:x1]
         sums = hs[j, x0:x1]
         r_sums = rs_row[x0:x1]
         r_inv = ri_row[x0:x1]
@@ -217,7 +220,8 @@ def _row_curves(curves, hs, n, hw, rs_row, ri_row, os_row, oi_row, d_min):  # pr
         o_inv = oi_row[x0 + d : x1 + d]
         for i in range(x1 - x0):
             num = n * np.float64(sums[i]) - np.float64(r_sums[i]) * np.float64(o_sums[i])
-            out[i] = np.float32(num * np.float64(r_inv[i]) * o_inv[i])
+            score = num * np.float64(r_inv[i]) * o_inv[i]
+            row[i] = np.float32(0.5 - 0.5 * score) if as_cost else np.float32(score)
 
 
 @njit(cache=True)
@@ -519,7 +523,7 @@ def adaptive_match(
             use_row = 4 * textured > w - 2 * hw
             left_ready = False  # the left-reference argmax is found on first need
             if use_row:
-                _row_curves(curves, hs_k, n, hw, rs_row, ri_row, os_row, oi_row, d_min)
+                _row_scores(curves, hs_k, n, hw, rs_row, ri_row, os_row, oi_row, d_min, False)
                 # interior columns [xa, xb): the window fits at every disparity; the others
                 # get their shifted windows' curves, and all their peaks come from row passes
                 xa = max(hw, hw - d_min)
@@ -633,33 +637,6 @@ def adaptive_match(
 
 
 @njit(cache=True)
-def _row_costs(costs, hs, n, hw, rs_row, ri_row, os_row, oi_row, d_min):  # pragma: no cover
-    """Cost ``(1 - ZNCC) / 2`` of every disparity and column of the current row, (D, W);
-    0.5 where the window does not fit.
-
-    The float operations are those of :func:`_row_curves` up to the ZNCC, then the cost's,
-    all in float64 and rounded to float32 once.
-    """
-    n_disp, w = costs.shape
-    costs[:, :] = 0.5
-    for j in range(n_disp):
-        d = d_min + j
-        x0 = max(hw, hw - d)
-        x1 = min(w - hw, w - hw - d)
-        if x1 <= x0:
-            continue
-        out = costs[j, x0:x1]
-        sums = hs[j, x0:x1]
-        r_sums = rs_row[x0:x1]
-        r_inv = ri_row[x0:x1]
-        o_sums = os_row[x0 + d : x1 + d]
-        o_inv = oi_row[x0 + d : x1 + d]
-        for i in range(x1 - x0):
-            num = n * np.float64(sums[i]) - np.float64(r_sums[i]) * np.float64(o_sums[i])
-            out[i] = np.float32(0.5 - 0.5 * num * np.float64(r_inv[i]) * o_inv[i])
-
-
-@njit(cache=True)
 def ncc_cost_volume(
     ref, other, d_min, n_disp, hw, ref_sums, ref_inv, other_sums, other_inv
 ):  # pragma: no cover - numba
@@ -680,7 +657,9 @@ def ncc_cost_volume(
     for y in range(hw, h - hw):
         _advance_column_sums_t(cs, ref, other, y, hw, d_min)
         _window_sums_t(hs, cs, hw)
-        _row_costs(costs, hs, n, hw, ref_sums[y], ref_inv[y], other_sums[y], other_inv[y], d_min)
+        _row_scores(
+            costs, hs, n, hw, ref_sums[y], ref_inv[y], other_sums[y], other_inv[y], d_min, True
+        )
         out = cost[y]
         for x in range(hw, w - hw):
             column = out[x]
