@@ -3,8 +3,7 @@
 Pure functions, arrays in, numbers out, used by :func:`stages._descriptors.describe_objects`:
 :func:`footprint_dimensions` (width and length of the ground points),
 :func:`ground_fringe_keep` (which pixels count: not the ground-level fringes),
-:func:`widest_row_width_m` (the width when there is no ground frame) and
-:func:`robust_extent` (a spread without outliers).
+:func:`widest_row_width_m` (the width when there is no ground frame).
 
 ``width_m`` and ``length_m`` are the largest horizontal dimension of the object's visible
 footprint and its dimension across that (:func:`footprint_dimensions`), measured on the
@@ -39,28 +38,10 @@ import numpy as np
 from ._ground import _median
 
 __all__ = [
-    "robust_extent",
     "widest_row_width_m",
     "footprint_dimensions",
     "ground_fringe_keep",
 ]
-
-
-def robust_extent(values: np.ndarray, *, low: float = 2.0, high: float = 98.0) -> float:
-    """Spread between two percentiles of the finite values (NaN when fewer than two).
-
-    Parameters
-    ----------
-    values : (K,) ndarray of float
-    low, high : float
-        Percentiles in [0, 100], ``low < high``; the defaults ignore a 2 % tail of outliers.
-    """
-    v = np.asarray(values, dtype=np.float64)
-    v = v[np.isfinite(v)]
-    if v.size < 2:
-        return math.nan
-    lo, hi = np.percentile(v, [low, high])
-    return float(hi - lo)
 
 
 def widest_row_width_m(

@@ -10,16 +10,8 @@ import pytest
 from stages._footprint import (
     footprint_dimensions,
     ground_fringe_keep,
-    robust_extent,
     widest_row_width_m,
 )
-
-
-def test_robust_extent():
-    values = np.linspace(0.0, 1.0, 1001)
-    assert robust_extent(values) == pytest.approx(0.96)
-    assert robust_extent(values, low=0, high=100) == pytest.approx(1.0)
-    assert math.isnan(robust_extent(np.array([1.0, np.nan])))
 
 
 def test_widest_row_width():
