@@ -283,12 +283,12 @@ def drop_ripple_pieces(
     area = np.maximum(np.bincount(ids, minlength=count + 1), 1).astype(np.float64)[1:]
     cy = (np.bincount(ids, ys, minlength=count + 1)[1:]) / area
     cx = (np.bincount(ids, xs, minlength=count + 1)[1:]) / area
+    streaks = _streaks(texture, max_elongation=max_elongation)
     in_field = _streak_field(
-        texture,
+        streaks,
         area,
         cy,
         cx,
-        max_elongation=max_elongation,
         radius_px=radius_px,
         min_streaks=min_streaks,
         min_coherence=min_coherence,
@@ -302,9 +302,10 @@ def drop_ripple_pieces(
         return labels, 0
     boxes = find_objects(labels)
     rows, cols = labels.shape
-    streaks, t_boxes, _, _ = _streaks(
-        texture, max_elongation=max(max_elongation, _CLEAR_ELONGATION)
-    )
+    # R5c at range counts only streaks longer than any rock: a subset of the field's
+    streak_ids, t_boxes, _, _, t_ratio = streaks
+    longer = t_ratio > _CLEAR_ELONGATION
+    streak_ids, t_boxes = streak_ids[longer], t_boxes[longer]
     gap_y, gap_x = _box_gaps(t_boxes, cy[in_field - 1], cx[in_field - 1])
     # the streaks at each object's range: ripple shading changes with it (broad troughs near
     # the camera, aliased dashes near the horizon)
@@ -322,7 +323,7 @@ def drop_ripple_pieces(
             # alone) or an aliased far trough (its ring is smooth sand) stands out of its
             # ring but not of the streaks beside it, which are as dark as it is
             is_streak[:] = False
-            is_streak[streaks[at_range[row]]] = True
+            is_streak[streak_ids[at_range[row]]] = True
             pixels = is_streak[texture] & (labels != k)
             ratio = min(ratio, _streak_ratio(image, pixels, gray_level, level))
         ripple[k] = ratio < min_texture_ratio
@@ -336,14 +337,15 @@ def drop_ripple_pieces(
 
 def _streaks(
     texture: np.ndarray, *, max_elongation: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """R5c's evidence: ids, inclusive (y0, y1, x0, x1) boxes, areas and axis angles of streaks.
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """R5c's evidence: ids, inclusive (y0, y1, x0, x1) boxes, areas, axis angles and
+    elongations of streaks.
 
     A streak is a texture object more than ``max_elongation`` times longer than wide.
     """
     if not texture.any():
         empty = np.zeros(0)
-        return empty.astype(np.int64), np.zeros((0, 4)), empty, empty
+        return empty.astype(np.int64), np.zeros((0, 4)), empty, empty, empty
     t_area, _, _, t_ratio, t_angle = _moments(texture)
     streaks = np.flatnonzero(t_ratio > max_elongation)
     # find_objects is C, _object_boxes is not
@@ -355,7 +357,7 @@ def _streaks(
         ],
         dtype=np.float64,
     ).reshape(-1, 4)
-    return streaks, boxes, t_area[streaks], t_angle[streaks]
+    return streaks, boxes, t_area[streaks], t_angle[streaks], t_ratio[streaks]
 
 
 def _box_gaps(
@@ -368,19 +370,19 @@ def _box_gaps(
 
 
 def _streak_field(
-    texture: np.ndarray,
+    streaks: tuple[np.ndarray, ...],
     area: np.ndarray,
     cy: np.ndarray,
     cx: np.ndarray,
     *,
-    max_elongation: float,
     radius_px: float,
     min_streaks: int,
     min_coherence: float,
 ) -> np.ndarray:
-    """R5c: which objects (area and centroid of each) have a field of parallel streaks around."""
+    """R5c: which objects (area and centroid of each) have a field of parallel streaks
+    (:func:`_streaks`) around."""
     in_field = np.zeros(area.size, dtype=bool)
-    streaks, t_boxes, t_weights, t_angles = _streaks(texture, max_elongation=max_elongation)
+    streaks, t_boxes, t_weights, t_angles, _ = streaks
     if streaks.size < min_streaks:
         return in_field
     # doubled angles: an axis at 89 degrees and one at -89 degrees are parallel
