@@ -99,12 +99,9 @@ def depth_products(
     ParamError
         When a parameter or a combination of them is refused.
     """
-    from stages import depth as depth_stage
-
-    stage = depth_stage.STAGE
     frame = FrameContext(frame_id=frame_id, archive=archive, camera=camera)
-    result = stage.run(
-        {"left": left, "right": right}, frame=frame, params=stage.resolve_params(params or {})
+    result = DEPTH.run(
+        {"left": left, "right": right}, frame=frame, params=DEPTH.resolve_params(params or {})
     )
     return result.arrays
 
