@@ -80,6 +80,20 @@ class FinishedRun:
     rocks: list[dict[str, Any]]
     products: Any
 
+    def segment_params(self) -> dict[str, Any]:
+        """:func:`stages.segment.segment_image` keywords to segment this run again: the
+        current code's defaults with the catalog's current ``[params.segment]`` (not the
+        run's recorded ones, so a rule change is measured on old depth products)."""
+        import tomllib
+
+        from stages import segment as segment_stage
+
+        catalog = tomllib.loads(Path(self.run["catalog"]["source"]).read_text())
+        params = dict(segment_stage.STAGE.defaults())
+        params.update(catalog.get("params", {}).get("segment", {}))
+        params.pop("tile_px", None)  # the stage's own tiling, not a segment_image keyword
+        return params
+
     def frames(self) -> Iterator[RunFrame]:
         """The run's frames in the order of ``products.zarr``, each with its truth loaded."""
         for frame_id in map(str, self.products["frame"].values):

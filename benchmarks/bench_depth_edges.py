@@ -28,8 +28,6 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import tomllib
-from pathlib import Path
 
 import numpy as np
 from _rundir import open_run  # sibling module (benchmarks/ is on sys.path)
@@ -120,10 +118,7 @@ def _oracle(frame, camera, truth_near: float, truth_rocks: bool):
 
 def segment_scores(rundir: str, frames: int, truth_near: float, truth_rocks: bool) -> None:
     run = open_run(rundir)
-    catalog = tomllib.loads(Path(run.run["catalog"]["source"]).read_text())
-    params = dict(segment_stage.STAGE.defaults())
-    params.update(catalog.get("params", {}).get("segment", {}))
-    params.pop("tile_px", None)
+    params = run.segment_params()
     results, sigmas = [], []
     for n, frame in enumerate(run.frames()):
         if n == frames:

@@ -233,18 +233,9 @@ def rundir_scores(rundirs: list[str], overrides: dict, verbose: bool = False) ->
     ``overrides`` (the current code, not the run's), and pools the object scores against
     the archive's truth labels, as ``arroyo evaluate`` does.
     """
-    import tomllib
-    from pathlib import Path
-
-    from stages import segment as segment_stage
-
     for rundir in rundirs:
         run = open_run(rundir)
-        # the current defaults and the catalog's current segment params, not the run's
-        catalog = tomllib.loads(Path(run.run["catalog"]["source"]).read_text())
-        params = dict(segment_stage.STAGE.defaults())
-        params.update(catalog.get("params", {}).get("segment", {}))
-        params.pop("tile_px", None)
+        params = run.segment_params()
         params.update(overrides)
         results = []
         for frame in run.frames():
