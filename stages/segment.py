@@ -48,12 +48,13 @@ from pipeline.compute import compute
 from pipeline.stage import FrameContext, Param, Product, Stage, StageResult
 
 from ._continuity import SectorAnalysis, analyse_sectors
-from ._depth_rules import _UNUSABLE_SIGMA_M as _USABLE_SIGMA_M
 from ._depth_rules import (
+    _NOISY_SIGMA_M,
     apply_depth_rules,
     drop_faint_depthless,
     gray_contrast,
 )
+from ._depth_rules import _UNUSABLE_SIGMA_M as _USABLE_SIGMA_M
 from ._heights import DepthRuleStats
 from ._regions import depth_edges, label_objects, threshold_mask
 from ._rock_parts import (
@@ -308,7 +309,7 @@ def segment_image(
         if faint:
             notes.append(f"{faint} faint object(s) without heights dropped")
     streaks = 0
-    heights_precise = depth_stats is not None and depth_stats.ground_sigma_m <= 0.005
+    heights_precise = depth_stats is not None and depth_stats.ground_sigma_m <= _NOISY_SIGMA_M
     if method == "sector-histogram+depth" and not heights_precise:
         # R6: precise heights already removed shadows (R2); otherwise gray levels do
         trimmed = trim_attached_shadows(labels, image)
