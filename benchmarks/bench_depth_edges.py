@@ -35,6 +35,7 @@ from scipy.ndimage import distance_transform_edt
 
 from pipeline.metrics import pool_segmentation_scores, segmentation_scores
 from stages import segment as segment_stage
+from stages._depth_rules import _NOISY_SIGMA_M
 from stages.geometry import height_above_plane
 
 GROUND_BANDS = ((1, 2), (3, 4), (5, 8), (9, 12), (13, 16), (17, 24), (25, 40))
@@ -137,7 +138,8 @@ def segment_scores(rundir: str, frames: int, truth_near: float, truth_rocks: boo
         f"  segmentation ({oracle}): P {pooled['precision']:.3f} R {pooled['recall']:.3f} "
         f"F1 {pooled['f1']:.3f} (tp {pooled['tp']:.0f} fp {pooled['fp']:.0f} fn "
         f"{pooled['fn']:.0f}); ground noise median {1e3 * np.nanmedian(sig):.1f} mm, "
-        f"{int(np.sum(sig <= 0.005))}/{sig.size} frames precise (<= 5 mm)"
+        f"{int(np.sum(sig <= _NOISY_SIGMA_M))}/{sig.size} frames precise "
+        f"(<= {1e3 * _NOISY_SIGMA_M:g} mm)"
     )
 
 
