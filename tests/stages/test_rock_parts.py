@@ -1,5 +1,5 @@
-"""Tests of stages/_rock_parts.py: attached shadows (R6), weak halves (R7), opposite halves
-(R7b), other faces (R7c)."""
+"""Tests of stages/_rock_parts.py: necks (R4b), attached shadows (R6), weak halves (R7),
+opposite halves (R7b), other faces (R7c)."""
 
 from __future__ import annotations
 
@@ -11,8 +11,56 @@ from stages._rock_parts import (
     grow_other_faces,
     grow_weak_halves,
     join_opposite_halves,
+    split_at_necks,
     trim_attached_shadows,
 )
+
+
+def dumbbell(shape=(40, 60), *, bridge_px=2):
+    """Two disks of radius 8 (centres 24 px apart) joined by a bar ``bridge_px`` rows high."""
+    left, right = disk(shape, 20, 18, 8), disk(shape, 20, 42, 8)
+    bar = np.zeros(shape, bool)
+    bar[20 - bridge_px // 2 : 20 - bridge_px // 2 + bridge_px, 18:43] = True
+    return left, right, bar
+
+
+def test_split_at_necks_parts_two_rocks_joined_by_a_narrow_neck():
+    left, right, bar = dumbbell()
+    labels = (left | right | bar).astype(np.int32) * 3
+    split, count = split_at_necks(labels)
+    assert count == 1 and set(np.unique(split)) == {0, 1, 2}
+    # each rock is one part, whole, and the bridge's pixels go to the nearer rock
+    assert len(np.unique(split[left])) == 1 and len(np.unique(split[right])) == 1
+    assert split[20, 18] != split[20, 42]
+    assert np.array_equal(split > 0, labels > 0)
+    sizes = [np.count_nonzero(split == split[20, x]) for x in (18, 42)]
+    assert abs(sizes[0] - sizes[1]) <= 2
+
+
+def test_split_at_necks_leaves_blobs_waists_streak_ends_and_specks_whole():
+    shape = (40, 60)
+    # one convex rock; two overlapping disks whose waist is wider than half their depth
+    waist = disk(shape, 20, 25, 8) | disk(shape, 20, 35, 8)
+    labels = np.zeros(shape, np.int32)
+    labels[waist] = 1
+    labels[disk(shape, 8, 52, 5)] = 2
+    assert split_at_necks(labels) == (labels, 0)
+    # a rock with a streak hanging from it: the streak is no lobe (longer than 2.5x its width)
+    left, _, _ = dumbbell()
+    streak = np.zeros(shape, bool)
+    streak[16:24, 30:59] = True
+    tail = np.zeros(shape, bool)
+    tail[19:21, 18:31] = True
+    labels = (left | streak | tail).astype(np.int32)
+    assert split_at_necks(labels)[1] == 0
+    # parts smaller than min_lobe_px are not split off; 0 disables; bad arguments raise
+    left, right, bar = dumbbell()
+    labels = (left | right | bar).astype(np.int32)
+    assert split_at_necks(labels, min_lobe_px=300)[1] == 0
+    assert split_at_necks(labels, neck_ratio=0)[1] == 0
+    for bad in ({"neck_ratio": 1.0}, {"min_lobe_px": 0}, {"solidity_gain": -0.1}):
+        with pytest.raises(ValueError, match="neck_ratio"):
+            split_at_necks(labels, **bad)
 
 
 def test_trim_attached_shadows_removes_the_lighter_class_of_a_dark_rock_only():
