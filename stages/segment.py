@@ -47,6 +47,7 @@ import numpy as np
 from pipeline.compute import compute
 from pipeline.stage import FrameContext, Param, Product, Stage, StageResult
 
+from ._blobs import add_compact_blobs
 from ._continuity import SectorAnalysis, analyse_sectors
 from ._depth_rules import (
     _NOISY_SIGMA_M,
@@ -155,6 +156,7 @@ def segment_image(
     weak_growth_px: int = 12,
     join_gap_px: int = 5,
     face_bands: float = 0.5,
+    blob_sigmas: float = 0.0,
 ) -> Segmentation:
     """Segment one reference image into background and numbered objects.
 
@@ -207,6 +209,10 @@ def segment_image(
         Depth method only, ``>= 0``: objects grow up to ``weak_growth_px`` pixels into pixels
         this many bands from the ground on the other side, when that leaves them about as
         solid (rule R7c of :mod:`stages._rock_parts`); 0 disables.
+    blob_sigmas : float
+        Depth method only, ``>= 0``: compact blobs this many ground spreads (at their own
+        scale) darker or lighter than the ground that no object touches are added (rule R8
+        of :mod:`stages._blobs`); 0 disables.
 
     Returns
     -------
@@ -235,6 +241,8 @@ def segment_image(
         )
     if split_disparity_px < 0:
         raise ValueError(f"split_disparity_px must be >= 0 (0 disables), got {split_disparity_px}")
+    if not blob_sigmas >= 0:
+        raise ValueError(f"blob_sigmas must be >= 0 (0 disables), got {blob_sigmas}")
     if not weak_bands >= 0 or weak_growth_px < 0 or join_gap_px < 0 or not face_bands >= 0:
         raise ValueError(
             "weak_bands, weak_growth_px, join_gap_px and face_bands must be >= 0 (0 disables), "
@@ -351,6 +359,13 @@ def segment_image(
         )
         if faced:
             notes.append(f"{faced} px of other faces joined to their objects")
+    if method == "sector-histogram+depth" and blob_sigmas > 0:
+        # R8, after every rule: only rocks no object touches are added
+        labels, blobs = add_compact_blobs(
+            labels, image, min_sigmas=blob_sigmas, min_area_px=min_area_px
+        )
+        if blobs:
+            notes.append(f"{blobs} compact blob(s) no threshold reached added")
     return Segmentation(
         labels=labels, sectors=analysis, depth=depth_stats, streaks_dropped=streaks, notes=notes
     )
@@ -495,7 +510,7 @@ def _sector_product(name: str, dtype: str, long_name: str, units: str = "") -> P
 
 STAGE = Stage(
     name="segment",
-    version="21",
+    version="22",
     inputs=("left", "right", "disparity", "height"),
     outputs=(
         Product(
@@ -602,6 +617,14 @@ STAGE = Stage(
             float,
             0.5,
             "depth: objects grow into pixels this many bands out on the other side; 0 = off",
+            None,
+            0,
+        ),
+        Param(
+            "blob_sigmas",
+            float,
+            0.0,
+            "depth: add compact blobs this many ground spreads out at their scale; 0 = off",
             None,
             0,
         ),
