@@ -27,7 +27,7 @@ from pipeline.camera import Camera
 from pipeline.metrics import disparity_errors, pool_disparity_errors
 from pipeline.synth import render_pair
 from stages._stereo import match_disparity
-from stages.depth import resolve_row_band
+from stages.depth import resolve_row_band, resolve_row_gradient
 from stages.geometry import derive_max_disparity
 
 
@@ -57,10 +57,13 @@ def main() -> None:
             keep = ~truth["occluded"]
             for method in methods:
                 t0 = time.perf_counter()
-                band = resolve_row_band(camera, right.shape, {**band_params, "method": method})
+                stage_params = {**band_params, "method": method}
+                band = resolve_row_band(camera, right.shape, stage_params)
+                gradient = resolve_row_gradient(camera, right.shape, stage_params)
                 m = match_disparity(
                     right, left, min_disparity=0, max_disparity=hi, method=method,
-                    row_min_disparity=band[0], row_max_disparity=band[1], **settings,
+                    row_min_disparity=band[0], row_max_disparity=band[1],
+                    row_gradient=gradient, **settings,
                 )  # fmt: skip
                 secs[method] += time.perf_counter() - t0
                 per[method].append(

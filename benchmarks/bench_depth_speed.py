@@ -36,7 +36,7 @@ from pipeline._baselines import sgbm_disparity  # noqa: E402
 from pipeline.camera import Camera  # noqa: E402
 from pipeline.synth import render_pair  # noqa: E402
 from stages._stereo import match_disparity  # noqa: E402
-from stages.depth import resolve_row_band  # noqa: E402
+from stages.depth import resolve_row_band, resolve_row_gradient  # noqa: E402
 
 D_MAX = 63  # 64 disparities, 0..63
 
@@ -77,11 +77,13 @@ def main() -> None:
             args.repeats,
         )
         for method in methods:
-            band = resolve_row_band(camera, right.shape, {**band_params, "method": method})
+            stage_params = {**band_params, "method": method}
+            band = resolve_row_band(camera, right.shape, stage_params)
+            gradient = resolve_row_gradient(camera, right.shape, stage_params)
             secs = _median_seconds(
-                lambda m=method, lft=left, rgt=right, b=band: match_disparity(
+                lambda m=method, lft=left, rgt=right, b=band, g=gradient: match_disparity(
                     rgt, lft, min_disparity=0, max_disparity=D_MAX, method=m,
-                    row_min_disparity=b[0], row_max_disparity=b[1], **settings,
+                    row_min_disparity=b[0], row_max_disparity=b[1], row_gradient=g, **settings,
                 ),
                 args.repeats,
             )  # fmt: skip

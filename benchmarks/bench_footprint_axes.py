@@ -8,8 +8,8 @@ view) and y axis (along the view), one pixel added as in
 :func:`stages._footprint.footprint_dimensions`, against the truth's ``extent_x_m`` and
 ``extent_y_m``. Rocks within ``--near`` m, seen whole; the whole truth region (no fringe
 trimming, no outlier rule). Disparity per pixel from the truth or the run (``--depth``),
-either raw or on the describe stage's fitted surface (:func:`stages._ground.fit_disparity_surface`
-with the footprint's quadratic threshold). Prints per archive the median signed and absolute
+either raw or on the describe stage's fitted disparity
+(:func:`stages._footprint.footprint_disparity`). Prints per archive the median signed and absolute
 relative error of each axis.
 
 Usage::
@@ -25,8 +25,8 @@ import argparse
 import numpy as np
 from _rundir import open_run  # sibling module (benchmarks/ is on sys.path)
 
-from stages._footprint import _FOOTPRINT_QUADRATIC_PX
-from stages._ground import fit_disparity_surface, frame_ground, pixel_points
+from stages._footprint import footprint_disparity
+from stages._ground import frame_ground, pixel_points
 
 
 def _axis_errors(rundir: str, depth: str, near: float) -> tuple[str, dict[str, list[float]]]:
@@ -50,9 +50,7 @@ def _axis_errors(rundir: str, depth: str, near: float) -> tuple[str, dict[str, l
             pixel_m = float(np.nanmedian(camera.k_m_px / d)) / camera.focal_px
             surfaces = {
                 "raw": d,
-                "fitted": fit_disparity_surface(
-                    rows, cols, d, min_quadratic=_FOOTPRINT_QUADRATIC_PX
-                ),
+                "fitted": footprint_disparity(rows, cols, d),
             }
             for name, surface in surfaces.items():
                 p = ground.to_ground(

@@ -9,6 +9,8 @@ Usage (from the repository root)::
         --set depth.subpixel=parabola min_area_px=20  # depth param, segment_image keyword
     PYTHONPATH=. .venv/bin/python benchmarks/bench_segment.py --speed-only
     PYTHONPATH=. .venv/bin/python benchmarks/bench_segment.py --stage-speed  # + describe
+    PYTHONPATH=. .venv/bin/python benchmarks/bench_segment.py --stage-speed --archetypes lava \
+        --set band_sigmas=2.5 blob_sigmas=4  # the lava catalog's segment settings
 
 ``--stage-speed`` prints the CPU time per frame of the segment and describe stages (the
 engine's entry points, depth stage products as input) for ``--frames`` seeds of each
@@ -111,6 +113,7 @@ def stage_speed(
     repeats: int,
     stages=("segment", "describe"),
     profile: int = 0,
+    segment_overrides: dict | None = None,
 ) -> None:
     """CPU ms per frame of the segment and describe stages as the engine runs them.
 
@@ -119,7 +122,8 @@ def stage_speed(
     (CPU time of this process: other agents on the machine do not count, library threads
     do), best of ``repeats``, OpenCV single-threaded. ``profile`` > 0 also runs each stage
     once more per frame under cProfile and prints its ``profile`` costliest functions (own
-    time), over all frames: where a stage's time goes.
+    time), over all frames: where a stage's time goes. ``segment_overrides`` (``--set``)
+    replace segment stage defaults, e.g. a catalog's ``[params.segment]``.
     """
     import cProfile
     import pstats
@@ -130,6 +134,8 @@ def stage_speed(
 
     cv2.setNumThreads(1)
     chosen = {"segment": segment_stage.STAGE, "describe": describe_stage.STAGE}
+    params = {name: dict(stage.defaults()) for name, stage in chosen.items()}
+    params["segment"].update(segment_overrides or {})
     profilers = {name: cProfile.Profile() for name in stages}
     print(f"stage CPU time per {size}x{size} frame (process_time, best of {repeats}):")
     print(f"{'archetype':9s} {'seed':>4s} " + " ".join(f"{name:>10s}" for name in stages))
@@ -141,20 +147,18 @@ def stage_speed(
             inputs = {"left": left, "right": right}
             inputs.update(depth_products(left, right, camera=camera))
             inputs.update(
-                segment_stage.STAGE.run(
-                    inputs, frame=frame, params=segment_stage.STAGE.defaults()
-                ).arrays
+                segment_stage.STAGE.run(inputs, frame=frame, params=params["segment"]).arrays
             )
             for name in stages:
                 stage = chosen[name]
                 best = float("inf")
                 for _ in range(repeats):
                     start = time.process_time()
-                    stage.run(inputs, frame=frame, params=stage.defaults())
+                    stage.run(inputs, frame=frame, params=params[name])
                     best = min(best, time.process_time() - start)
                 per_stage[name].append(1e3 * best)
                 if profile:
-                    profilers[name].runcall(stage.run, inputs, frame=frame, params=stage.defaults())
+                    profilers[name].runcall(stage.run, inputs, frame=frame, params=params[name])
             row = " ".join(f"{per_stage[name][-1]:8.1f}ms" for name in stages)
             print(f"{archetype:9s} {seed:4d} {row}")
         mean = " ".join(f"{np.mean(per_stage[name]):8.1f}ms" for name in stages)
@@ -311,7 +315,7 @@ def main() -> None:
     if args.rundir:
         mode = "--rundir (the run's depth products)"
     elif args.stage_speed:
-        mode = "--stage-speed (the stages' defaults)"
+        mode = "--stage-speed (the stages' defaults, segment keywords from --set)"
     elif args.speed_only:
         mode = "--speed-only"
     else:
@@ -332,7 +336,12 @@ def _run(args: argparse.Namespace, overrides: dict, depth_params: dict) -> None:
         return
     if args.stage_speed:
         stage_speed(
-            args.archetypes, args.frames, args.size, min(args.repeats, 3), profile=args.profile
+            args.archetypes,
+            args.frames,
+            args.size,
+            min(args.repeats, 3),
+            profile=args.profile,
+            segment_overrides=overrides,
         )
         return
     if not args.scores_only:

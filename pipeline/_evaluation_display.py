@@ -11,7 +11,7 @@ __all__ = ["evaluation_tables", "format_evaluation"]
 
 _AGGREGATE = "*"
 _COLUMNS = ("run_id", "archive", "frame_id", "product", "method", "metric", "value")
-_METHOD_ORDER = ("arroyo", "opencv-sgbm", "otsu")
+_METHOD_ORDER = ("arroyo", "opencv-sgbm", "otsu", "truth")
 
 #: (product, metric, label, kind): what the terminal table shows, in order.
 _DISPLAY: tuple[tuple[str, str, str, str], ...] = (
@@ -40,6 +40,9 @@ _DISPLAY: tuple[tuple[str, str, str, str], ...] = (
     ("descriptors", "near_class_accuracy", "  sample/obstacle accuracy (%)", "pct"),
     ("relations", "agreement", "edges agreeing with truth (%)", "pct"),
     ("relations", "n_checked", "edges checked", "int"),
+    ("size-frequency", "k", "Golombek-Rapp k", "f3"),
+    ("size-frequency", "rock_area_fraction", "rock area fraction (%)", "pct"),
+    ("size-frequency", "n_rocks", "rocks in the fit", "int"),
 )
 
 

@@ -8,6 +8,12 @@ What is scored (see :mod:`pipeline.metrics` for the exact definitions):
 * ``segmentation``: arroyo's ``labels`` and a global Otsu threshold (``otsu``) on the
   reference image.
 * ``descriptors`` and ``relations``: arroyo's tables, on the rocks matched by segmentation.
+* ``size-frequency``: the archive's Golombek-Rapp fit (``k``, the observed rock area
+  fraction, the rocks in the fit) from arroyo's descriptors and, as the baseline ``truth``,
+  from the truth rock table of the same frames, over the same ground area (the frames'
+  ``describe_ground_area_m2``) with the run's ``sfd_max_range_m`` and
+  ``sfd_min_diameter_m``: every object counts, matched or not, as in the products a
+  scientist reads.
 
 Which frames: a frame is scored for a product when its truth exists and its row in
 ``frames.parquet`` says the stage that writes the product completed (a ``<stage>_status``
@@ -311,6 +317,7 @@ def evaluate_run(rundir: str | os.PathLike[str]) -> pa.Table:
     )
     stored = set(map(str, products["frame"].values)) if products is not None else set()
     out = _Collector(str(run.get("run_id", "")), str(run.get("archive", "")))
+    described: list[str] = []
     for frame_id in sorted(frames):
         truth_file = truth_dir / f"{frame_id}.npz"
         if frame_id not in stored or not truth_file.is_file():
@@ -320,8 +327,11 @@ def evaluate_run(rundir: str | os.PathLike[str]) -> pa.Table:
         frame = products.sel(frame=frame_id)
         _score_depth(ctx, out, frame_id, frames[frame_id], frame, truth)
         _score_objects(ctx, out, frame_id, frames[frame_id], frame, truth)
+        if _stage_done(frames[frame_id], "describe"):
+            described.append(frame_id)
 
     _add_aggregates(out)
+    _score_size_frequency(ctx, out, [frames[f] for f in described])
     table = pa.Table.from_pylist(out.rows, schema=EVALUATION_SCHEMA)
     _write_atomic(table, path / "evaluation.parquet")
     return table
@@ -400,6 +410,34 @@ def _score_objects(ctx: _RunData, out: _Collector, frame_id: str, row, frame, tr
         out.extend(frame_id, "relations", "arroyo", _relation_scores(edges))
         for k, v in edges.items():
             out.pooled_edges.setdefault(k, []).extend(v)
+
+
+def _score_size_frequency(ctx: _RunData, out: _Collector, rows: list[Mapping[str, Any]]) -> None:
+    """The archive's size-frequency fit from arroyo's rocks and from the truth's, same ground."""
+    from stages._sizefreq import size_frequency_from_table
+
+    areas = np.array([row.get("describe_ground_area_m2") for row in rows], dtype=np.float64)
+    area = float(np.nansum(areas))
+    if not area > 0:
+        return  # no frame measured its ground: there is no fraction to compare
+    params = ((ctx.run.get("stages") or {}).get("describe") or {}).get("params") or {}
+    frame_ids = [str(row["frame_id"]) for row in rows]
+    for method, by_frame in (("arroyo", ctx.descriptors), ("truth", ctx.truth_rocks)):
+        if method == "truth" and not by_frame:
+            continue  # no truth rock table: nothing to compare with
+        rocks = [rock for frame_id in frame_ids for rock in by_frame.get(frame_id, [])]
+        table = {
+            name: np.array([rock[name] for rock in rocks], dtype=np.float64)
+            for name in ("width_m", "range_m")
+        }
+        fit = size_frequency_from_table(
+            table,
+            ground_area_m2=area,
+            max_range_m=float(params.get("sfd_max_range_m", math.inf)),
+            d_min_m=float(params.get("sfd_min_diameter_m", 0.0)),
+        )
+        values = {"k": fit.k, "rock_area_fraction": fit.rock_area_fraction}
+        out.extend(AGGREGATE, "size-frequency", method, {**values, "n_rocks": fit.n_rocks})
 
 
 def _add_aggregates(out: _Collector) -> None:

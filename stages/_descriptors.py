@@ -19,9 +19,9 @@ from scipy import ndimage
 from pipeline.camera import Camera
 
 from ._footprint import (
-    _FOOTPRINT_QUADRATIC_PX,
     _dilate_diamond,
     footprint_dimensions,
+    footprint_disparity,
     ground_fringe_keep,
     widest_row_width_m,
 )
@@ -439,8 +439,8 @@ def describe_objects(
                 heights = np.full(rows.shape, np.nan)
                 heights[valid] = raw[:, 2]
             x_m, y_m = float(_median(smooth[:, 0])), float(_median(smooth[:, 1]))
-            # the footprint: without ground-level fringes (shadows), on a surface fitted to
-            # the pixels kept (a quadratic only for large rocks, see fit_disparity_surface)
+            # the footprint: without ground-level fringes (shadows), on a disparity fitted to
+            # the pixels kept, constant along rows (see footprint_disparity)
             keep = ground_fringe_keep(
                 mask,
                 heights,
@@ -454,9 +454,7 @@ def describe_objects(
                 pixel_points(
                     rows[keep],
                     cols[keep],
-                    fit_disparity_surface(
-                        rows[keep], cols[keep], disp_px[keep], min_quadratic=_FOOTPRINT_QUADRATIC_PX
-                    ),
+                    footprint_disparity(rows[keep], cols[keep], disp_px[keep]),
                     camera=camera,
                     shape=shape,
                 )

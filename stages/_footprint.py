@@ -1,6 +1,7 @@
 """Footprint measurements of the describe stage: an object's width and length on the ground.
 
 Pure functions, arrays in, numbers out, used by :func:`stages._descriptors.describe_objects`:
+:func:`footprint_disparity` (the disparity the footprint is measured on),
 :func:`footprint_dimensions` (width and length of the ground points),
 :func:`ground_fringe_keep` (which pixels count: not the ground-level fringes),
 :func:`widest_row_width_m` (the width when there is no ground frame).
@@ -8,8 +9,8 @@ Pure functions, arrays in, numbers out, used by :func:`stages._descriptors.descr
 ``width_m`` and ``length_m`` are the largest horizontal dimension of the object's visible
 footprint and its dimension across that (:func:`footprint_dimensions`), measured on the
 object's pixels without its ground-level fringes (:func:`ground_fringe_keep`: a sun shadow
-segmented with the rock lies on the ground) on a disparity surface fitted to the pixels
-kept (a plane below 500 valid pixels, a quadratic above). For an object that touches the
+segmented with the rock lies on the ground) on a disparity fitted to the pixels kept,
+constant along each image row (:func:`footprint_disparity`). For an object that touches the
 image border they are of the visible part only, a lower bound (``touches_border``); its
 ``size_class`` is then 'obstacle' only if the visible part already exceeds the limits.
 
@@ -35,10 +36,11 @@ import math
 import cv2
 import numpy as np
 
-from ._ground import _median
+from ._ground import _median, fit_disparity_surface
 
 __all__ = [
     "widest_row_width_m",
+    "footprint_disparity",
     "footprint_dimensions",
     "ground_fringe_keep",
 ]
@@ -90,6 +92,56 @@ def widest_row_width_m(
     if not np.isfinite(widths).any():
         return math.nan
     return float(np.nanmax(widths))
+
+
+def footprint_disparity(rows: np.ndarray, cols: np.ndarray, disparity: np.ndarray) -> np.ndarray:
+    """The disparity an object's footprint is measured on: a robust straight line in rows,
+    ``d = a + b row``, constant along each image row
+    (:func:`stages._ground.fit_disparity_surface` with ``row_only=True``).
+
+    Why constant along rows: at these ranges a rock's visible surface lies at about one depth
+    across the view, while the measured disparity of a small rock tilts across it (the
+    matching windows take the ground's disparity on one side, sub-pixel bias); a fitted tilt
+    across columns turned far rocks into diagonal streaks on the ground. Why no curvature:
+    on a small rock the curvature terms follow the matching windows' blur at its rim (the
+    disparity falls towards the ground's there), which spreads the footprint along the line
+    of sight, and on the large rocks a row-squared term measured no better.
+
+    Median signed / absolute width error of the rocks seen whole, by range 0-2 / 2-3 / 3-4 /
+    beyond 4 m; describe v5 (a plane in (col, row), a quadratic from 500 valid pixels) ->
+    v6 (this line); ``benchmarks/bench_describe.py --rundir runs/eval/ARCHIVE --dump CSV``
+    on the catalog runs of ``evaluate_archives.sh``:
+
+    ======  ====================================  ====================================
+    lab     -3/6, +5/13, +12/21, +89/89 %          -4/5, -0/10, -1/10, +11/17 %
+    mojave  +4/8, +13/14, +17/19, +36/39 %         +4/7, +6/10, +3/11, +5/13 %
+    lava    +3/11, +5/11, +17/23, +48/48 %         +1/10, -1/10, -2/13, +4/16 %
+    ======  ====================================  ====================================
+
+    All matched rocks' median width error (the size-frequency fit reads those within 5 m),
+    catalog runs and runs of the catalogs with ``seed = 2, 3`` (lab) or ``2..5``: lab 13.3 /
+    10.9 / 10.4 -> 9.7 / 8.8 / 9.5 %, mojave 21.3 / 19.6 / 16.6 / 19.1 / 18.4 -> 12.2 / 11.4
+    / 10.8 / 12.6 / 13.2 %, lava 18.7 / 19.2 / 18.6 / 19.0 / 17.8 -> 11.8 / 12.7 / 12.9 /
+    12.7 / 12.6 %. The rocks within 2 m, for which a tilt is measurable, change little: lab
+    6.4 / 7.3 / 6.1 -> 7.5 / 7.8 / 5.6 %, mojave 8.7 / 10.5 / 10.5 / 13.7 / 11.5 -> 8.3 /
+    10.3 / 7.7 / 11.3 / 9.7 %, lava 10.5 / 8.1 / 12.6 / 12.7 / 11.3 -> 9.5 / 7.9 / 12.0 /
+    11.6 / 13.0 % (means 6.6 -> 7.0, 11.0 -> 9.5, 11.0 -> 10.8 %). A row-squared term from
+    250, 500, 1000 or 2000 valid pixels measured the same or worse on these runs, and so did
+    keeping v5's surface for rocks of 200, 500 or 1000 pixels and more on the catalog runs.
+
+    Parameters
+    ----------
+    rows, cols : (K,) ndarray of int
+        The object's pixels (those the footprint keeps).
+    disparity : (K,) ndarray of float
+        Their measured disparity, NaN (or <= 0) where invalid.
+
+    Returns
+    -------
+    (K,) ndarray of float64
+        The fitted disparity of every pixel; all NaN when none is valid.
+    """
+    return fit_disparity_surface(rows, cols, disparity, row_only=True)
 
 
 def footprint_dimensions(
@@ -239,15 +291,3 @@ def _dilate_diamond(mask: np.ndarray, radius: int) -> np.ndarray:
     kernel = (steps[:, None] + steps[None, :] <= radius).astype(np.uint8)
     return cv2.dilate(np.ascontiguousarray(mask).view(np.uint8), kernel).view(bool)
 
-
-_FOOTPRINT_QUADRATIC_PX = 500
-"""Fewest valid pixels for a quadratic footprint surface; smaller rocks get a plane.
-
-On a small rock the curvature terms follow the matching windows' blur at its rim (the
-disparity falls towards the ground's there), which spreads the footprint along the line of
-sight; a plane keeps the rock's tilt without that. Median width error of the rocks within
-2 m (lab / mojave / lava, fringes trimmed; ``benchmarks/bench_describe.py --rundir`` on
-runs/eval): 6.7 / 10.8 / 10.6 % with the quadratic from 12 pixels, 6.3 / 8.6 / 9.8 % from
-500; pooled with two more 12-frame runs of each archive (catalog seeds 7 and 13) 6.4 / 10.8 /
-10.6 -> 6.5 / 9.5 / 10.0 %, and 300 or 1000 pixels give the same.
-"""

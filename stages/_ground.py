@@ -228,6 +228,7 @@ def fit_disparity_surface(
     *,
     iterations: int = 5,
     min_quadratic: int = 12,
+    row_only: bool = False,
 ) -> np.ndarray:
     """Robust quadratic surface ``d(col, row)`` through an object's disparities.
 
@@ -248,9 +249,12 @@ def fit_disparity_surface(
     iterations : int
         Reweighting rounds, >= 1.
     min_quadratic : int
-        Fewest valid pixels for the quadratic terms, >= 6 (the footprint of
-        :func:`stages._descriptors.describe_objects` asks for 500: on a small rock the
-        curvature terms follow the matching windows' blur at the rim rather than its shape).
+        Fewest valid pixels for the quadratic terms, >= 6.
+    row_only : bool
+        Fit a straight line in rows, ``d = a + b row``, instead (``min_quadratic`` does not
+        apply): the disparity is constant along each image row. The footprint of
+        :func:`stages._descriptors.describe_objects` asks for it, see
+        :func:`stages._footprint.footprint_disparity`.
 
     Returns
     -------
@@ -279,9 +283,12 @@ def fit_disparity_surface(
         return np.full(d.shape, float(_median(d[ok])))
     scale = max(float(np.std(c)), float(np.std(r)), 1.0)
     x, y = (c - c.mean()) / scale, (r - r.mean()) / scale
-    terms = [np.ones_like(x), x, y]
-    if n >= min_quadratic:
-        terms += [x * x, x * y, y * y]
+    if row_only:
+        terms = [np.ones_like(y), y]
+    else:
+        terms = [np.ones_like(x), x, y]
+        if n >= min_quadratic:
+            terms += [x * x, x * y, y * y]
     design = np.stack(terms, axis=1)
     a, b = design[ok], d[ok]
     weights = np.ones(n)

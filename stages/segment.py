@@ -48,6 +48,7 @@ import numpy as np
 from pipeline.compute import compute
 from pipeline.stage import FrameContext, Param, Product, Stage, StageResult
 
+from ._blobs import add_compact_blobs
 from ._continuity import SectorAnalysis, analyse_sectors
 from ._depth_rules import (
     _NOISY_SIGMA_M,
@@ -158,6 +159,7 @@ def segment_image(
     join_gap_px: int = 5,
     face_bands: float = 0.5,
     neck_ratio: float = 0.5,
+    blob_sigmas: float = 0.0,
 ) -> Segmentation:
     """Segment one reference image into background and numbered objects.
 
@@ -214,6 +216,10 @@ def segment_image(
         Depth method only, in ``[0, 1)``: an object that narrows to this fraction of the
         depth of two compact lobes is split there (rule R4b of :mod:`stages._rock_parts`);
         0 disables.
+    blob_sigmas : float
+        Depth method only, ``>= 0``: compact blobs this many ground spreads (at their own
+        scale) darker or lighter than the ground that no object touches are added (rule R8
+        of :mod:`stages._blobs`); 0 disables.
 
     Returns
     -------
@@ -244,6 +250,8 @@ def segment_image(
         raise ValueError(f"split_disparity_px must be >= 0 (0 disables), got {split_disparity_px}")
     if not 0 <= neck_ratio < 1:
         raise ValueError(f"neck_ratio must be in [0, 1) (0 disables), got {neck_ratio}")
+    if not blob_sigmas >= 0:
+        raise ValueError(f"blob_sigmas must be >= 0 (0 disables), got {blob_sigmas}")
     if not weak_bands >= 0 or weak_growth_px < 0 or join_gap_px < 0 or not face_bands >= 0:
         raise ValueError(
             "weak_bands, weak_growth_px, join_gap_px and face_bands must be >= 0 (0 disables), "
@@ -365,6 +373,13 @@ def segment_image(
         )
         if faced:
             notes.append(f"{faced} px of other faces joined to their objects")
+    if method == "sector-histogram+depth" and blob_sigmas > 0:
+        # R8, after every rule: only rocks no object touches are added
+        labels, blobs = add_compact_blobs(
+            labels, image, min_sigmas=blob_sigmas, min_area_px=min_area_px
+        )
+        if blobs:
+            notes.append(f"{blobs} compact blob(s) no threshold reached added")
     return Segmentation(
         labels=labels, sectors=analysis, depth=depth_stats, streaks_dropped=streaks, notes=notes
     )
@@ -509,7 +524,7 @@ def _sector_product(name: str, dtype: str, long_name: str, units: str = "") -> P
 
 STAGE = Stage(
     name="segment",
-    version="22",
+    version="23",
     inputs=("left", "right", "disparity", "height"),
     outputs=(
         Product(
@@ -627,6 +642,14 @@ STAGE = Stage(
             None,
             0,
             0.99,
+        ),
+        Param(
+            "blob_sigmas",
+            float,
+            0.0,
+            "depth: add compact blobs this many ground spreads out at their scale; 0 = off",
+            None,
+            0,
         ),
         Param(
             "tile_px",

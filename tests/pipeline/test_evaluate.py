@@ -13,6 +13,7 @@ import xarray as xr
 from pipeline._baselines import otsu_labels, sgbm_disparity
 from pipeline.errors import RunDirError
 from pipeline.evaluate import AGGREGATE, EVALUATION_SCHEMA, evaluate_run, format_evaluation
+from stages._sizefreq import fit_size_frequency
 
 H, W, D = 64, 96, 6  # frame size and the constant ground disparity of the fixture
 ROCKS = [(10, 30, 10, 30), (30, 50, 50, 80)]  # (y0, y1, x0, x1) of rocks 1 and 2
@@ -231,6 +232,42 @@ def test_evaluate_run_scores_fixture(rundir: Path):
     text = format_evaluation(table)
     assert "fixture: 2 frames scored" in text
     assert "opencv-sgbm" in text and "otsu" in text and "bad-2" in text
+
+
+def test_evaluate_size_frequency_against_the_truth_rocks(rundir: Path):
+    # the describe stage measured 2 m^2 of ground in each of f0 and f1; f3 has no truth
+    frames = pq.read_table(rundir / "frames.parquet").to_pandas()
+    frames["describe_seconds"] = [0.1, 0.1, None, 0.1]
+    frames["describe_ground_area_m2"] = [2.0, 2.0, None, 2.0]
+    pq.write_table(pa.Table.from_pandas(frames, preserve_index=False), rundir / "frames.parquet")
+    meta = json.loads((rundir / "run.json").read_text())
+    meta["stages"]["describe"] = {"version": "6", "params": {"sfd_max_range_m": 5.0}}
+    (rundir / "run.json").write_text(json.dumps(meta))
+    table = evaluate_run(rundir)
+
+    def v(method, metric):
+        return _value(
+            table, frame_id=AGGREGATE, product="size-frequency", method=method, metric=metric
+        )
+
+    # the fixture's descriptors read every rock 10 % wide: 21 % more plan area
+    truth_widths = [0.12, 0.3, 0.12, 0.3]
+    expected = fit_size_frequency(truth_widths, ground_area_m2=4.0)
+    assert v("truth", "k") == pytest.approx(expected.k)
+    assert v("truth", "rock_area_fraction") == pytest.approx(
+        sum(np.pi * w**2 / 4 for w in truth_widths) / 4.0
+    )
+    assert v("arroyo", "rock_area_fraction") == pytest.approx(
+        1.21 * v("truth", "rock_area_fraction")
+    )
+    assert v("arroyo", "k") > v("truth", "k")
+    assert v("arroyo", "n_rocks") == v("truth", "n_rocks") == 4
+    assert "size-frequency (vs truth)" in format_evaluation(table)
+
+
+def test_evaluate_size_frequency_needs_a_ground_area(rundir: Path):
+    # the fixture's frames never ran describe: no ground area, no size-frequency rows
+    assert "size-frequency" not in set(evaluate_run(rundir).column("product").to_pylist())
 
 
 def test_evaluate_without_optional_products(rundir: Path):

@@ -9,7 +9,7 @@ from scipy import ndimage
 from pipeline.camera import Camera
 from pipeline.errors import ParamError
 from pipeline.stage import FrameContext
-from stages.depth import STAGE, resolve_disparity_range, resolve_row_band
+from stages.depth import STAGE, resolve_disparity_range, resolve_row_band, resolve_row_gradient
 from stages.geometry import plane_disparity_coefficients, plane_from_pose
 
 CAMERA = Camera(focal_px=120.0, baseline_m=0.1, height_m=1.2, pitch_deg=38.0)
@@ -188,6 +188,16 @@ def test_row_band_only_for_the_adaptive_method_with_a_pose():
     assert resolve_row_band(bare, (96, 128), params) == (None, None)
     with pytest.raises(ParamError, match="ceiling_ratio"):
         resolve_row_band(CAMERA, (96, 128), {**params, "ceiling_ratio": 0.5})
+
+
+def test_row_gradient_is_the_pose_grounds_for_the_adaptive_method():
+    params = STAGE.defaults()
+    plane = plane_from_pose(height_m=1.2, pitch_deg=38.0)
+    _, beta, _ = plane_disparity_coefficients(plane, camera=CAMERA, shape=(96, 128))
+    gradient = resolve_row_gradient(CAMERA, (96, 128), params)
+    assert gradient > 0 and gradient == pytest.approx(beta)  # nearer, larger, down the image
+    assert resolve_row_gradient(CAMERA, (96, 128), {**params, "method": "sgm"}) == 0.0
+    assert resolve_row_gradient(Camera(focal_px=120.0, baseline_m=0.1), (96, 128), params) == 0
 
 
 def test_default_band_keeps_the_ground_matches():

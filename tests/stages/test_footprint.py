@@ -7,11 +7,18 @@ import math
 import numpy as np
 import pytest
 
+from pipeline.camera import Camera
 from stages._footprint import (
     footprint_dimensions,
+    footprint_disparity,
     ground_fringe_keep,
     widest_row_width_m,
 )
+from stages._ground import GroundFrame, fit_disparity_surface, pixel_points
+
+# the built-in archives' camera
+CAMERA = Camera(focal_px=430.0, baseline_m=0.1, height_m=1.2, pitch_deg=40.0)
+SHAPE = (500, 500)
 
 
 def test_widest_row_width():
@@ -55,6 +62,46 @@ def test_footprint_dimensions_drop_far_outliers():
     x_out, y_out = np.r_[x, 0.05], np.r_[y, 3.0]  # a ground point far behind the rock
     assert footprint_dimensions(x_out, y_out, pixel_m=0.01) == pytest.approx(clean)
     assert all(math.isnan(v) for v in footprint_dimensions([1.0], [2.0], pixel_m=0.01))
+
+
+def _flat_patch(rows: slice, cols: slice):
+    """Pixels of a patch lying on the ground, with their exact disparities."""
+    rr, cc = np.mgrid[rows, cols]
+    rr, cc = rr.ravel(), cc.ravel()
+    ground = GroundFrame.from_camera(CAMERA)
+    rays = pixel_points(rr, cc, np.full(rr.shape, CAMERA.k_m_px), camera=CAMERA, shape=SHAPE)
+    depth = float(ground.origin @ ground.up) / (rays @ ground.up)  # where the ray meets z = 0
+    return rr, cc, CAMERA.k_m_px / depth, ground
+
+
+def _footprint_width(rows, cols, surface, ground) -> float:
+    points = ground.to_ground(pixel_points(rows, cols, surface, camera=CAMERA, shape=SHAPE))
+    pixel_m = CAMERA.k_m_px / float(np.median(surface)) / CAMERA.focal_px
+    return footprint_dimensions(points[:, 0], points[:, 1], pixel_m=pixel_m)[0]
+
+
+def test_footprint_disparity_of_a_far_rock_tilted_across_columns():
+    # regression (describe v5): a small rock 4 m away whose measured disparity tilts by 0.6 px
+    # across its 12 columns (the matching windows take the ground's disparity on one side)
+    # got a plane tilted across the view: a diagonal streak on the ground twice its width
+    rows, cols, exact, ground = _flat_patch(slice(60, 66), slice(240, 252))
+    true_width = _footprint_width(rows, cols, exact, ground)
+    assert 0.12 < true_width < 0.25  # 12 pixels about 4 m away
+    rng = np.random.default_rng(5)
+    measured = exact + 0.05 * (cols - 246) + rng.normal(0, 0.05, exact.shape)
+    tilted = fit_disparity_surface(rows, cols, measured, min_quadratic=500)
+    assert _footprint_width(rows, cols, tilted, ground) > 2 * true_width
+    along_rows = footprint_disparity(rows, cols, measured)
+    assert _footprint_width(rows, cols, along_rows, ground) == pytest.approx(true_width, rel=0.15)
+
+
+def test_footprint_disparity_is_constant_along_rows_and_follows_them():
+    # a near patch: its disparity changes from row to row by far more than the noise
+    rows, cols, exact, _ = _flat_patch(slice(400, 440), slice(200, 240))
+    fitted = footprint_disparity(rows, cols, exact + 0.2 * np.sin(cols))
+    per_row = fitted.reshape(40, 40)
+    np.testing.assert_allclose(np.ptp(per_row, axis=1), 0.0, atol=1e-9)
+    np.testing.assert_allclose(per_row[:, 0], exact.reshape(40, 40).mean(axis=1), atol=0.02)
 
 
 def _rock_and_shadow(rock_h: float = 0.03):

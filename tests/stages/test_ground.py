@@ -82,6 +82,18 @@ def test_fit_min_quadratic_sets_where_the_curvature_terms_start():
         fit_disparity_surface(rows, cols, bowl, min_quadratic=5)
 
 
+def test_fit_row_only_is_a_line_in_rows():
+    rows, cols = _blob(15)
+    y = rows - 47.0
+    line = 20.0 + 0.1 * y
+    tilted = line + 0.05 * (cols - 67.0)  # symmetric about the blob's centre column
+    np.testing.assert_allclose(fit_disparity_surface(rows, cols, tilted, row_only=True), line)
+    # no curvature, however many pixels: a bowl in rows gives a straight line
+    bowl = fit_disparity_surface(rows, cols, line + 0.01 * y * y, row_only=True).reshape(15, 15)
+    assert np.ptp(bowl, axis=1).max() < 1e-9
+    np.testing.assert_allclose(np.diff(bowl[:, 0]), 0.1, atol=1e-9)
+
+
 def test_fit_of_a_single_row_is_finite():
     # all pixels in one row: the row terms have no support (a singular normal matrix),
     # the least-squares fallback still fits the slope along the row

@@ -165,6 +165,8 @@ def test_bad_parameters_raise_clear_errors():
         segment_image(image, sectors=4, face_bands=-0.5)
     with pytest.raises(ValueError, match=r"neck_ratio must be in \[0, 1\)"):
         segment_image(image, sectors=4, neck_ratio=1.0)
+    with pytest.raises(ValueError, match="blob_sigmas must be >= 0"):
+        segment_image(image, sectors=4, blob_sigmas=-1.0)
 
 
 def test_depth_mode_splits_rocks_at_one_range_joined_by_a_neck():
@@ -192,6 +194,17 @@ def test_depth_mode_completes_a_rock_whose_other_half_is_just_inside_the_thresho
         labels = segment_image(image, sectors=4, weak_bands=weak_bands).labels
         found[weak_bands] = labels == labels[150, 145]
     assert iou(found[0.0], rock) < 0.5 and iou(found[0.7], rock) > 0.95
+
+
+def test_depth_mode_adds_a_compact_blob_inside_the_thresholds_only_when_asked():
+    """R8: a rock 12 levels darker than a ground of pixel noise 4 lies inside the thresholds
+    (3.5 sigmas, 14 levels) but is many spreads out at its own scale."""
+    image = scene(shape=(160, 160), ground=100.0, rocks=[(80, 80, 7, 88.0)])
+    rock = disk(image.shape, 80, 80, 7)
+    off = segment_image(image, sectors=4).labels
+    on = segment_image(image, sectors=4, blob_sigmas=4.0).labels
+    assert not off[rock].any()
+    assert iou(on > 0, rock) > 0.8 and on.max() == 1
 
 
 def test_segment_image_defaults_match_the_stage_defaults():

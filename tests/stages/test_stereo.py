@@ -133,6 +133,32 @@ def test_top_and_bottom_rows_are_matched_with_shifted_windows():
     assert np.nanmax(np.abs(m.disparity[edge_rows] - 7)) < 0.5
 
 
+def test_row_gradient_carries_shifted_windows_to_their_rows():
+    # regression (depth v5): a window shifted down at the top rows measured the ground
+    # around its centre row, so a floor rising 0.05 px per row read up to +0.5 px too far
+    # in the first rows (the lab's 63-row window: +0.9 px at row 0)
+    slope = 0.05
+    right, left, truth = _ramp_pair(seed=2, d0=4.0, slope=slope)
+    edge = np.r_[0:4, 76:80]  # 6-10 rows from the 21-row window's centre rows 10 and 69
+
+    def edge_error(row_gradient):
+        m = match_disparity(
+            right, left, min_disparity=0, max_disparity=16, windows=(21,), speckle_size=0,
+            row_gradient=row_gradient,
+        )  # fmt: skip
+        err = (m.disparity - truth)[edge, 20:-30]
+        return np.nanmedian(err[:4]), np.nanmedian(err[4:]), m
+
+    top, bottom, plain = edge_error(0.0)
+    assert top > 0.25 and bottom < -0.25
+    top, bottom, carried = edge_error(slope)
+    assert abs(top) < 0.08 and abs(bottom) < 0.08
+    # only the shifted rows move
+    np.testing.assert_array_equal(carried.disparity[10:70], plain.disparity[10:70])
+    with pytest.raises(ValueError, match="row_gradient"):
+        match_disparity(right, left, min_disparity=0, max_disparity=16, row_gradient=np.nan)
+
+
 def test_textureless_image_is_invalid_not_guessed():
     flat = np.full((40, 60), 120, np.uint8)
     m = match_disparity(flat, flat, min_disparity=0, max_disparity=10)

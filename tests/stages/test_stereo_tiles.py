@@ -20,11 +20,15 @@ def test_tiled_equals_whole_frame(prefilter):
     np.testing.assert_array_equal(tiled.status, whole.status)
 
 
-def test_tiled_equals_whole_frame_with_row_bands():
+@pytest.mark.parametrize("row_gradient", [0.0, 0.05])
+def test_tiled_equals_whole_frame_with_row_bands(row_gradient):
     right, left, _, _ = occlusion_scene(shape=(80, 130))
     floor = (np.arange(80) // 10).astype(np.int64)
     band = {"row_min_disparity": floor, "row_max_disparity": floor + 13}
-    args = {"min_disparity": 0, "max_disparity": 20, "speckle_size": 20, "windows": "5,9,15"}
+    args = {
+        "min_disparity": 0, "max_disparity": 20, "speckle_size": 20, "windows": "5,9,15",
+        "row_gradient": row_gradient,
+    }  # fmt: skip
     whole = match_disparity(right, left, **band, **args)
     tiled = match_tiled(right, left, tile_px=32, **band, **args)
     np.testing.assert_array_equal(tiled.disparity, whole.disparity)

@@ -1,0 +1,102 @@
+"""Tests of stages/_blobs.py: compact blobs no threshold reached (R8)."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+from object_masks import disk
+
+from stages._blobs import add_compact_blobs
+
+SHAPE = (160, 160)
+
+
+def blotchy_ground(seed=0, *, ground=76.0):
+    """Lava-like ground: dark and light blotches of 1-3 px, as dark and as light as a rock,
+    on slight pixel noise (its pixel spread is wide, its spread at 5-9 px much less)."""
+    rng = np.random.default_rng(seed)
+    image = ground + rng.normal(0, 3, SHAPE)
+    for gray in (36.0, 110.0):
+        spots = np.zeros(SHAPE, np.uint8)
+        spots[rng.random(SHAPE) < 0.025] = 1
+        spots = cv2.dilate(spots, np.ones((2, 2), np.uint8)) > 0
+        image[spots] = gray + rng.normal(0, 3, spots.sum())
+    return image
+
+
+def to_uint8(image):
+    return np.clip(np.round(image), 0, 255).astype(np.uint8)
+
+
+def test_a_compact_dark_blob_on_a_fine_blotchy_texture_is_found():
+    image = blotchy_ground()
+    rock = disk(SHAPE, 80, 80, 6)  # 113 px, as dark as the ground's blotches
+    image[rock] = 40 + np.random.default_rng(1).normal(0, 3, rock.sum())
+    labels = np.zeros(SHAPE, np.int32)
+    found, added = add_compact_blobs(labels, to_uint8(image), min_sigmas=4.0)
+    assert added == 1
+    blob = found > 0
+    assert np.count_nonzero(blob & rock) / np.count_nonzero(blob | rock) > 0.7
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_blotchy_texture_alone_yields_nothing(seed):
+    labels = np.zeros(SHAPE, np.int32)
+    found, added = add_compact_blobs(labels, to_uint8(blotchy_ground(seed)), min_sigmas=4.0)
+    assert added == 0 and not found.any()
+
+
+def test_a_flat_shadow_next_to_a_found_light_rock_is_not_added():
+    image = blotchy_ground()
+    rock = disk(SHAPE, 80, 70, 8)
+    shadow = disk(SHAPE, 80, 82, 8) & ~rock  # cast to the right, touching the rock
+    image[rock] = 170
+    image[shadow] = 35
+    labels = np.zeros(SHAPE, np.int32)
+    labels[rock] = 1  # the thresholds found the lit rock
+    found, added = add_compact_blobs(labels, to_uint8(image), min_sigmas=4.0)
+    assert added == 0
+    np.testing.assert_array_equal(found, labels)
+    # the same dark patch with nothing beside it is a rock
+    alone, added_alone = add_compact_blobs(
+        np.zeros(SHAPE, np.int32), to_uint8(np.where(rock, blotchy_ground(), image)),
+        min_sigmas=4.0,
+    )
+    assert added_alone == 1 and np.count_nonzero((alone > 0) & shadow) > 0.8 * shadow.sum()
+
+
+def test_objects_are_kept_and_blobs_numbered_after_them():
+    image = blotchy_ground()
+    rock = disk(SHAPE, 40, 40, 6)
+    other = disk(SHAPE, 110, 110, 7)
+    image[rock] = 40
+    image[other] = 45
+    labels = np.zeros(SHAPE, np.int32)
+    labels[other] = 5
+    found, added = add_compact_blobs(labels, to_uint8(image), min_sigmas=4.0)
+    assert added == 1 and set(np.unique(found)) == {0, 5, 6}
+    np.testing.assert_array_equal(found == 5, other)
+    assert labels.max() == 5  # the input is not modified
+
+
+def test_a_thin_streak_is_not_a_blob():
+    image = blotchy_ground()
+    image[78:81, 30:130] = 38  # a 3 px wide dark streak: no interior, not compact
+    found, added = add_compact_blobs(np.zeros(SHAPE, np.int32), to_uint8(image), min_sigmas=4.0)
+    assert added == 0
+
+
+def test_bad_arguments_raise_clear_errors():
+    image = to_uint8(blotchy_ground())
+    labels = np.zeros(SHAPE, np.int32)
+    with pytest.raises(ValueError, match="one shape"):
+        add_compact_blobs(labels[:10], image, min_sigmas=4.0)
+    with pytest.raises(TypeError, match="uint8"):
+        add_compact_blobs(labels, image.astype(np.float32), min_sigmas=4.0)
+    with pytest.raises(ValueError, match="min_sigmas > 0"):
+        add_compact_blobs(labels, image, min_sigmas=0.0)
+    with pytest.raises(ValueError, match="odd ground_px"):
+        add_compact_blobs(labels, image, min_sigmas=4.0, ground_px=40)
+    with pytest.raises(ValueError, match=r"must be in \[0, 1\]"):
+        add_compact_blobs(labels, image, min_sigmas=4.0, min_solidity=1.5)
