@@ -13,7 +13,7 @@ noisy-height vote), all documented rule by rule.
 ``method = 'sector-histogram+depth'`` (default) adds the depth stage's ``height`` (metres
 above the fitted ground plane) and ``disparity`` (rules R0-R3 in :mod:`stages._depth_rules`
 and :mod:`stages._height_vote`, R4 in :mod:`stages._regions`, R5-R5c in
-:mod:`stages._texture_rules`, R4b and R6-R7c in :mod:`stages._rock_parts`):
+:mod:`stages._texture_rules`, R4b and R6-R7d in :mod:`stages._rock_parts`):
 raised pixels are object even when their gray equals the ground's, flat intensity objects
 (shadows, stains, texture blotches) are background, touching objects split at disparity
 jumps or, at one range, at narrow necks (R4b), streaks (ripple troughs) are dropped and so
@@ -65,6 +65,7 @@ from ._rock_parts import (
     join_opposite_halves,
     split_at_necks,
     trim_attached_shadows,
+    trim_faint_rims,
 )
 from ._sectors import (
     N_LEVELS,
@@ -160,6 +161,7 @@ def segment_image(
     face_bands: float = 0.5,
     neck_ratio: float = 0.5,
     blob_sigmas: float = 0.0,
+    rim_fraction: float = 0.3,
 ) -> Segmentation:
     """Segment one reference image into background and numbered objects.
 
@@ -216,6 +218,10 @@ def segment_image(
         Depth method only, in ``[0, 1)``: an object that narrows to this fraction of the
         depth of two compact lobes is split there (rule R4b of :mod:`stages._rock_parts`);
         0 disables.
+    rim_fraction : float
+        Depth method only, in ``[0, 1)``: after R7c, outline pixels nearer the ground's gray
+        level than this fraction of their object's median contrast are dropped (rule R7d of
+        :mod:`stages._rock_parts`); 0 disables.
     blob_sigmas : float
         Depth method only, ``>= 0``: compact blobs this many ground spreads (at their own
         scale) darker or lighter than the ground that no object touches are added (rule R8
@@ -248,8 +254,11 @@ def segment_image(
         )
     if split_disparity_px < 0:
         raise ValueError(f"split_disparity_px must be >= 0 (0 disables), got {split_disparity_px}")
-    if not 0 <= neck_ratio < 1:
-        raise ValueError(f"neck_ratio must be in [0, 1) (0 disables), got {neck_ratio}")
+    if not 0 <= neck_ratio < 1 or not 0 <= rim_fraction < 1:
+        raise ValueError(
+            f"neck_ratio and rim_fraction must be in [0, 1) (0 disables), got {neck_ratio} "
+            f"and {rim_fraction}"
+        )
     if not blob_sigmas >= 0:
         raise ValueError(f"blob_sigmas must be >= 0 (0 disables), got {blob_sigmas}")
     if not weak_bands >= 0 or weak_growth_px < 0 or join_gap_px < 0 or not face_bands >= 0:
@@ -373,6 +382,11 @@ def segment_image(
         )
         if faced:
             notes.append(f"{faced} px of other faces joined to their objects")
+    if contrast is not None and rim_fraction > 0:
+        # R7d, after R7c (R8's whole blobs come after it): a blurred rim the rules took
+        labels, rims = trim_faint_rims(labels, contrast, fraction=rim_fraction)
+        if rims:
+            notes.append(f"{rims} px of faint rims dropped")
     if method == "sector-histogram+depth" and blob_sigmas > 0:
         # R8, after every rule: only rocks no object touches are added
         labels, blobs = add_compact_blobs(
@@ -650,6 +664,15 @@ STAGE = Stage(
             "depth: add compact blobs this many ground spreads out at their scale; 0 = off",
             None,
             0,
+        ),
+        Param(
+            "rim_fraction",
+            float,
+            0.3,
+            "depth: outline pixels nearer ground gray than this x the object's contrast go",
+            None,
+            0,
+            0.99,
         ),
         Param(
             "tile_px",

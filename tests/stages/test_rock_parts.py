@@ -1,5 +1,5 @@
 """Tests of stages/_rock_parts.py: necks (R4b), attached shadows (R6), weak halves (R7),
-opposite halves (R7b), other faces (R7c)."""
+opposite halves (R7b), other faces (R7c), faint rims (R7d)."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ from stages._rock_parts import (
     join_opposite_halves,
     split_at_necks,
     trim_attached_shadows,
+    trim_faint_rims,
 )
 
 
@@ -254,3 +255,48 @@ def test_grow_other_faces_takes_a_face_not_a_rim():
     assert count == 0 and np.array_equal(grown, labels)
     with pytest.raises(ValueError, match="min_gain >= 0"):
         grow_weak_halves(labels, contrast, between=labels == 0, min_gain=-1.0)
+
+
+def square(shape, top, bottom):
+    mask = np.zeros(shape, bool)
+    mask[top:bottom, top:bottom] = True
+    return mask
+
+
+def test_trim_faint_rims_drops_outline_pixels_near_the_ground_gray_only():
+    shape = (40, 40)
+    rock = square(shape, 12, 28)
+    rim = square(shape, 11, 29) & ~rock  # one pixel all round
+    contrast = np.zeros(shape, np.float32)
+    contrast[rock] = -3.0
+    contrast[rim] = -0.5  # blurred edge: 0.17 of the rock's contrast
+    labels = (rock | rim).astype(np.int32)
+    trimmed, count = trim_faint_rims(labels, contrast)
+    assert np.array_equal(trimmed > 0, rock) and count == np.count_nonzero(rim)
+    # a rim at half the rock's contrast is the rock's edge: kept; so is a light face (R7c)
+    contrast[rim] = -1.5
+    assert trim_faint_rims(labels, contrast) == (labels, 0)
+    contrast[rim] = 0.8
+    assert trim_faint_rims(labels, contrast)[1] == 0
+    # the same for a light rock; one layer is peeled, not two
+    wide_rim = square(shape, 10, 30) & ~rock
+    contrast[rock], contrast[wide_rim] = 3.0, 0.5
+    labels = (rock | wide_rim).astype(np.int32)
+    trimmed, count = trim_faint_rims(labels, contrast)
+    assert np.array_equal(trimmed > 0, rock | rim)
+
+
+def test_trim_faint_rims_keeps_a_cut_at_the_frame_border():
+    shape = (30, 30)
+    contrast = np.full(shape, -0.2, np.float32)
+    contrast[:, :10] = -3.0
+    labels = np.zeros(shape, np.int32)
+    labels[:, :12] = 1  # a rock cut by the frame's edges with a faint 2-px rim on its right
+    trimmed, count = trim_faint_rims(labels, contrast)
+    assert np.array_equal(trimmed > 0, np.arange(30)[None, :] * np.ones((30, 1)) < 11)
+    assert count == 30
+    assert trim_faint_rims(labels, contrast, fraction=0) == (labels, 0)
+    with pytest.raises(ValueError, match="fraction must be in"):
+        trim_faint_rims(labels, contrast, fraction=1.0)
+    with pytest.raises(ValueError, match="one shape"):
+        trim_faint_rims(labels, contrast[:5])

@@ -163,8 +163,10 @@ def test_bad_parameters_raise_clear_errors():
         segment_image(image, sectors=4, weak_growth_px=-1)
     with pytest.raises(ValueError, match="face_bands must be >= 0"):
         segment_image(image, sectors=4, face_bands=-0.5)
-    with pytest.raises(ValueError, match=r"neck_ratio must be in \[0, 1\)"):
+    with pytest.raises(ValueError, match=r"neck_ratio and rim_fraction must be in \[0, 1\)"):
         segment_image(image, sectors=4, neck_ratio=1.0)
+    with pytest.raises(ValueError, match=r"neck_ratio and rim_fraction must be in \[0, 1\)"):
+        segment_image(image, sectors=4, rim_fraction=-0.1)
     with pytest.raises(ValueError, match="blob_sigmas must be >= 0"):
         segment_image(image, sectors=4, blob_sigmas=-1.0)
 
