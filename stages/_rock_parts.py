@@ -114,8 +114,9 @@ fields, :mod:`stages._texture_rules`), R7d last:
   lab seed 3 0.914); an opening of the growth (3 or 5 px) against tails gains less.
 * **R7d faint rims** -- a rock's edge is blurred over a pixel or two, and where its gray
   level is halfway between the rock's and the ground's lies its outline; R7 (growing into
-  pixels 0.7 bands out), R7b's closed gap and hole filling take rim pixels far nearer the
-  ground's gray than that, which widen a small rock by a pixel on each side. After R7c every
+  pixels 0.7 bands out), R7b's closed gap and, around a rock of high contrast, the threshold
+  itself take rim pixels far nearer the ground's gray than that, which widen a small rock by
+  a pixel on each side. After R7c every
   outline pixel (a 4-neighbour in the background) on the object's own side of the ground
   level but less than ``rim_fraction`` (0.3) of the object's median contrast from it is
   dropped, once; pixels on the other side (a face R7b or R7c joined) stay
