@@ -21,10 +21,14 @@ Renders pairs with ``pipeline.synth.pair.render_pair`` and runs
   border, whose truth is of the whole rock while only part of it is visible; last the signed
   median width error of the near rocks (the median |error| hides a bias).
   ``--labels truth`` / ``--depth truth`` describe the truth labels / the truth disparity,
-  range and height instead of the run's; ``--dump CSV`` writes one row per matched rock
-  (descriptors, ``t_`` truth columns, IoU and mask pixel counts); ``--decompose`` scores the
-  same rocks (matched by the run, near, seen whole; pooled per archive) with each of the
-  four combinations, which splits the error between segmentation, depth and describe.
+  range and height instead of the run's; ``--labels segment`` segments every frame again
+  with the current segment code (the run's depth products, the catalog's current
+  ``[params.segment]`` as ``bench_segment.py --rundir`` reads them, plus ``--set
+  segment.PARAM=VALUE``), so a segmentation change is measured on the widths; ``--dump
+  CSV`` writes one row per matched rock (descriptors, ``t_`` truth columns, IoU and mask
+  pixel counts); ``--decompose`` scores the same rocks (matched by the run, near, seen
+  whole; pooled per archive) with each of the four combinations, which splits the error
+  between segmentation, depth and describe.
 
 Scores against the truth rocks with ``pipeline.metrics`` (rocks within ``--near`` m of the
 camera for the descriptor targets; relations between matched rocks).
@@ -33,7 +37,8 @@ camera for the descriptor targets; relations between matched rocks).
 checked like ``arroyo run --set`` (an unknown one is an error that lists the stage's
 parameters; ``benchmarks/_overrides.py``): ``describe.*``, ``depth.*`` with
 ``--inputs depth`` or ``pipeline``, ``segment.*`` with ``--inputs pipeline``; ``--rundir``
-keeps the run's depth and segment products, so it takes ``describe.*`` only, and
+keeps the run's depth and segment products, so it takes ``describe.*`` only (and
+``segment.*`` with ``--labels segment``), and
 ``--stage-speed`` runs every stage with its defaults and takes none.
 
 Usage::
@@ -44,6 +49,8 @@ Usage::
     PYTHONPATH=. .venv/bin/python benchmarks/bench_describe.py --stage-speed  # CPU ms/frame
     PYTHONPATH=. .venv/bin/python benchmarks/bench_describe.py --rundir runs/lab runs/lava \
         --set describe.relation_radius_m=1e6
+    PYTHONPATH=. .venv/bin/python benchmarks/bench_describe.py --labels segment \
+        --rundir runs/eval/lava --set segment.face_bands=0   # widths of new masks
     PYTHONPATH=. .venv/bin/python benchmarks/bench_describe.py --decompose \
         --rundir runs/eval/lab runs/eval/mojave runs/eval/lava
 """
@@ -71,6 +78,7 @@ from pipeline.stage import FrameContext
 from pipeline.synth.pair import render_pair
 from stages import describe as describe_stage
 from stages.describe import describe_frame
+from stages.segment import segment_image
 
 
 def _frame(archetype: str, seed: int, size: int, inputs: str, overrides: dict) -> dict:
@@ -175,13 +183,16 @@ def _rundir_scores(
     labels_from: str = "run",
     depth_from: str = "run",
     dump: list | None = None,
+    segment_overrides: dict | None = None,
 ) -> dict:
     """Describe every frame of a finished run again and score it like ``arroyo evaluate``.
 
     ``labels_from`` / ``depth_from`` = ``'truth'`` swap the run's labels / disparity, range
     and height for the truth's (to split an error between segmentation, matching and the
-    describe stage's own rules); ``dump`` collects one dict per matched rock (the
-    descriptor row, ``t_``-prefixed truth columns, the pair's IoU and pixel counts).
+    describe stage's own rules); ``labels_from = 'segment'`` segments the frame again with
+    the current code, ``run.segment_params()`` and ``segment_overrides``; ``dump`` collects
+    one dict per matched rock (the descriptor row, ``t_``-prefixed truth columns, the pair's
+    IoU and pixel counts).
     """
     from pipeline.evaluate import (
         _PRED_COLUMNS,
@@ -194,6 +205,7 @@ def _rundir_scores(
 
     run = open_run(rundir)
     camera = run.camera
+    segment_params = {**run.segment_params(), **(segment_overrides or {})}
     pairs: tuple[list, list] = ([], [])
     edges: dict[str, list] = {}
     n_rel, n_frames, cpu = 0, 0, 0.0
@@ -202,6 +214,13 @@ def _rundir_scores(
         labels = frame.product("labels").astype(np.int32)
         if labels_from == "truth":
             labels = truth_labels
+        elif labels_from == "segment":
+            labels = segment_image(
+                frame.product(camera.reference),
+                height=frame.product("height"),
+                disparity=frame.product("disparity"),
+                **segment_params,
+            ).labels
         arrays = [
             frame.truth[name]
             if depth_from == "truth" and name in ("disparity", "range", "height")
@@ -291,6 +310,7 @@ def _rundir_main(
     labels_from: str = "run",
     depth_from: str = "run",
     dump_path: str | None = None,
+    segment_overrides: dict | None = None,
 ) -> None:
     print(
         f"{'archive':9} {'rocks':>5} {'near':>5} {'dw/w':>6} {'class':>6} {'|dh| m':>7} "
@@ -301,7 +321,13 @@ def _rundir_main(
     dump: list | None = [] if dump_path else None
     for rundir in rundirs:
         r = _rundir_scores(
-            rundir, overrides, near, labels_from=labels_from, depth_from=depth_from, dump=dump
+            rundir,
+            overrides,
+            near,
+            labels_from=labels_from,
+            depth_from=depth_from,
+            dump=dump,
+            segment_overrides=segment_overrides,
         )
         e = r["err"]
         split = " | ".join(
@@ -414,9 +440,10 @@ def main() -> None:
     )
     parser.add_argument(
         "--labels",
-        choices=("run", "truth"),
+        choices=("run", "truth", "segment"),
         default="run",
-        help="with --rundir: describe the run's labels or the truth labels",
+        help="with --rundir: describe the run's labels, the truth labels or labels segmented "
+        "again with the current code (and --set segment.PARAM=VALUE)",
     )
     parser.add_argument(
         "--depth",
@@ -433,6 +460,8 @@ def main() -> None:
     args = parser.parse_args()
     if args.rundir:
         mode, runs = "--rundir (the run's depth and segment products)", ("describe",)
+        if args.labels == "segment" and not args.decompose:
+            mode, runs = "--rundir --labels segment", ("describe", "segment")
     elif args.stage_speed:
         mode, runs = "--stage-speed (the stages' defaults)", ()
     else:
@@ -463,6 +492,7 @@ def _run(args: argparse.Namespace, overrides: dict) -> None:
             labels_from=args.labels,
             depth_from=args.depth,
             dump_path=args.dump,
+            segment_overrides=overrides.get("segment", {}),
         )
         return
     if args.stage_speed:

@@ -13,10 +13,11 @@ noisy-height vote), all documented rule by rule.
 ``method = 'sector-histogram+depth'`` (default) adds the depth stage's ``height`` (metres
 above the fitted ground plane) and ``disparity`` (rules R0-R3 in :mod:`stages._depth_rules`
 and :mod:`stages._height_vote`, R4 in :mod:`stages._regions`, R5-R5c in
-:mod:`stages._texture_rules`, R6-R7c in :mod:`stages._rock_parts`):
+:mod:`stages._texture_rules`, R4b and R6-R7d in :mod:`stages._rock_parts`):
 raised pixels are object even when their gray equals the ground's, flat intensity objects
 (shadows, stains, texture blotches) are background, touching objects split at disparity
-jumps, streaks (ripple troughs) are dropped and so are, in a field of parallel streaks,
+jumps or, at one range, at narrow necks (R4b), streaks (ripple troughs) are dropped and so
+are, in a field of parallel streaks,
 objects that do not stand out of the ripple texture around them, objects whose other half
 lies just inside the thresholds grow into it when they stay compact (R7), a lighter and a
 darker half of one rock are joined (R7b), and the intensity decision
@@ -62,7 +63,9 @@ from ._rock_parts import (
     grow_other_faces,
     grow_weak_halves,
     join_opposite_halves,
+    split_at_necks,
     trim_attached_shadows,
+    trim_faint_rims,
 )
 from ._sectors import (
     N_LEVELS,
@@ -156,7 +159,9 @@ def segment_image(
     weak_growth_px: int = 12,
     join_gap_px: int = 5,
     face_bands: float = 0.5,
+    neck_ratio: float = 0.5,
     blob_sigmas: float = 0.0,
+    rim_fraction: float = 0.3,
 ) -> Segmentation:
     """Segment one reference image into background and numbered objects.
 
@@ -209,6 +214,14 @@ def segment_image(
         Depth method only, ``>= 0``: objects grow up to ``weak_growth_px`` pixels into pixels
         this many bands from the ground on the other side, when that leaves them about as
         solid (rule R7c of :mod:`stages._rock_parts`); 0 disables.
+    neck_ratio : float
+        Depth method only, in ``[0, 1)``: an object that narrows to this fraction of the
+        depth of two compact lobes is split there (rule R4b of :mod:`stages._rock_parts`);
+        0 disables.
+    rim_fraction : float
+        Depth method only, in ``[0, 1)``: after R7c, outline pixels nearer the ground's gray
+        level than this fraction of their object's median contrast are dropped (rule R7d of
+        :mod:`stages._rock_parts`); 0 disables.
     blob_sigmas : float
         Depth method only, ``>= 0``: compact blobs this many ground spreads (at their own
         scale) darker or lighter than the ground that no object touches are added (rule R8
@@ -241,6 +254,11 @@ def segment_image(
         )
     if split_disparity_px < 0:
         raise ValueError(f"split_disparity_px must be >= 0 (0 disables), got {split_disparity_px}")
+    if not 0 <= neck_ratio < 1 or not 0 <= rim_fraction < 1:
+        raise ValueError(
+            f"neck_ratio and rim_fraction must be in [0, 1) (0 disables), got {neck_ratio} "
+            f"and {rim_fraction}"
+        )
     if not blob_sigmas >= 0:
         raise ValueError(f"blob_sigmas must be >= 0 (0 disables), got {blob_sigmas}")
     if not weak_bands >= 0 or weak_growth_px < 0 or join_gap_px < 0 or not face_bands >= 0:
@@ -316,6 +334,11 @@ def segment_image(
         )
         if faint:
             notes.append(f"{faint} faint object(s) without heights dropped")
+    if method == "sector-histogram+depth" and neck_ratio > 0:
+        # R4b: touching rocks at one range, which R4's depth edges cannot part
+        labels, necks = split_at_necks(labels, neck_ratio=neck_ratio, min_lobe_px=min_area_px)
+        if necks:
+            notes.append(f"{necks} object(s) split at a neck")
     streaks = 0
     heights_precise = depth_stats is not None and depth_stats.ground_sigma_m <= _NOISY_SIGMA_M
     if method == "sector-histogram+depth" and not heights_precise:
@@ -359,6 +382,11 @@ def segment_image(
         )
         if faced:
             notes.append(f"{faced} px of other faces joined to their objects")
+    if contrast is not None and rim_fraction > 0:
+        # R7d, after R7c (R8's whole blobs come after it): a blurred rim the rules took
+        labels, rims = trim_faint_rims(labels, contrast, fraction=rim_fraction)
+        if rims:
+            notes.append(f"{rims} px of faint rims dropped")
     if method == "sector-histogram+depth" and blob_sigmas > 0:
         # R8, after every rule: only rocks no object touches are added
         labels, blobs = add_compact_blobs(
@@ -510,7 +538,7 @@ def _sector_product(name: str, dtype: str, long_name: str, units: str = "") -> P
 
 STAGE = Stage(
     name="segment",
-    version="22",
+    version="23",
     inputs=("left", "right", "disparity", "height"),
     outputs=(
         Product(
@@ -621,12 +649,30 @@ STAGE = Stage(
             0,
         ),
         Param(
+            "neck_ratio",
+            float,
+            0.5,
+            "depth: objects narrower than this x their lobes' depth split there; 0 = off",
+            None,
+            0,
+            0.99,
+        ),
+        Param(
             "blob_sigmas",
             float,
             0.0,
             "depth: add compact blobs this many ground spreads out at their scale; 0 = off",
             None,
             0,
+        ),
+        Param(
+            "rim_fraction",
+            float,
+            0.3,
+            "depth: outline pixels nearer ground gray than this x the object's contrast go",
+            None,
+            0,
+            0.99,
         ),
         Param(
             "tile_px",

@@ -163,8 +163,24 @@ def test_bad_parameters_raise_clear_errors():
         segment_image(image, sectors=4, weak_growth_px=-1)
     with pytest.raises(ValueError, match="face_bands must be >= 0"):
         segment_image(image, sectors=4, face_bands=-0.5)
+    with pytest.raises(ValueError, match=r"neck_ratio and rim_fraction must be in \[0, 1\)"):
+        segment_image(image, sectors=4, neck_ratio=1.0)
+    with pytest.raises(ValueError, match=r"neck_ratio and rim_fraction must be in \[0, 1\)"):
+        segment_image(image, sectors=4, rim_fraction=-0.1)
     with pytest.raises(ValueError, match="blob_sigmas must be >= 0"):
         segment_image(image, sectors=4, blob_sigmas=-1.0)
+
+
+def test_depth_mode_splits_rocks_at_one_range_joined_by_a_neck():
+    """R4b: two rocks touching through a narrow neck, no depth edge between them."""
+    image = scene(rocks=[(80, 55, 14, 50), (80, 100, 14, 50)], seed=5)
+    image[79:82, 55:101] = 50  # a 3-pixel bridge of rock gray
+    first, second = disk(image.shape, 80, 55, 14), disk(image.shape, 80, 100, 14)
+    split = segment_image(image, sectors=8).labels
+    whole = segment_image(image, sectors=8, neck_ratio=0).labels
+    assert whole.max() == 1
+    assert split.max() == 2 and split[80, 55] != split[80, 100]
+    assert iou(split == split[80, 55], first) > 0.9 and iou(split == split[80, 100], second) > 0.9
 
 
 def test_depth_mode_completes_a_rock_whose_other_half_is_just_inside_the_threshold():
