@@ -227,3 +227,13 @@ def _object_boxes(labels: np.ndarray, count: int) -> np.ndarray:
     np.minimum.at(boxes[:, 2], ids, xs)
     np.maximum.at(boxes[:, 3], ids, xs)
     return boxes
+
+
+def _solidity(mask: np.ndarray) -> float:
+    """Pixels of a mask over the pixel area of their convex hull (1: convex)."""
+    ys, xs = np.nonzero(mask)
+    hull = cv2.convexHull(np.stack([xs, ys], axis=1).astype(np.int32))
+    # the hull runs through pixel centres: half its perimeter (+1 for the corners) is the
+    # area of the boundary pixels outside it, so a convex blob scores about 1
+    area = cv2.contourArea(hull) + 0.5 * cv2.arcLength(hull, True) + 1.0
+    return ys.size / area

@@ -7,13 +7,15 @@ sector centres (Chow and Kaneko), connected components, speck removal, hole fill
 is in :mod:`stages._sectors` (histograms, modes, interpolation), :mod:`stages._continuity`
 (background by continuity, phantom peaks, thresholds), :mod:`stages._regions` (masks,
 components, split), :mod:`stages._texture_rules` (streaks), :mod:`stages._rock_parts` (shadows,
-halves), :mod:`stages._depth_rules` (height rules) and :mod:`stages._height_vote` (the
+halves), :mod:`stages._outlines` (necks, rims), :mod:`stages._blobs` (compact blobs),
+:mod:`stages._depth_rules` (height rules) and :mod:`stages._height_vote` (the
 noisy-height vote), all documented rule by rule.
 
 ``method = 'sector-histogram+depth'`` (default) adds the depth stage's ``height`` (metres
 above the fitted ground plane) and ``disparity`` (rules R0-R3 in :mod:`stages._depth_rules`
 and :mod:`stages._height_vote`, R4 in :mod:`stages._regions`, R5-R5c in
-:mod:`stages._texture_rules`, R4b and R6-R7d in :mod:`stages._rock_parts`):
+:mod:`stages._texture_rules`, R6-R7c in :mod:`stages._rock_parts`, R4b and R7d in
+:mod:`stages._outlines`, R8 in :mod:`stages._blobs`):
 raised pixels are object even when their gray equals the ground's, flat intensity objects
 (shadows, stains, texture blotches) are background, touching objects split at disparity
 jumps or, at one range, at narrow necks (R4b), streaks (ripple troughs) are dropped and so
@@ -58,14 +60,13 @@ from ._depth_rules import (
 )
 from ._depth_rules import _UNUSABLE_SIGMA_M as _USABLE_SIGMA_M
 from ._heights import DepthRuleStats
+from ._outlines import split_at_necks, trim_faint_rims
 from ._regions import depth_edges, label_objects, threshold_mask
 from ._rock_parts import (
     grow_other_faces,
     grow_weak_halves,
     join_opposite_halves,
-    split_at_necks,
     trim_attached_shadows,
-    trim_faint_rims,
 )
 from ._sectors import (
     N_LEVELS,
@@ -216,12 +217,12 @@ def segment_image(
         solid (rule R7c of :mod:`stages._rock_parts`); 0 disables.
     neck_ratio : float
         Depth method only, in ``[0, 1)``: an object that narrows to this fraction of the
-        depth of two compact lobes is split there (rule R4b of :mod:`stages._rock_parts`);
+        depth of two compact lobes is split there (rule R4b of :mod:`stages._outlines`);
         0 disables.
     rim_fraction : float
         Depth method only, in ``[0, 1)``: after R7c, outline pixels nearer the ground's gray
         level than this fraction of their object's median contrast are dropped (rule R7d of
-        :mod:`stages._rock_parts`); 0 disables.
+        :mod:`stages._outlines`); 0 disables.
     blob_sigmas : float
         Depth method only, ``>= 0``: compact blobs this many ground spreads (at their own
         scale) darker or lighter than the ground that no object touches are added (rule R8
