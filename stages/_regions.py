@@ -202,10 +202,13 @@ def label_objects(
 
 def _renumber(labels: np.ndarray, min_area_px: int) -> np.ndarray:
     """Dense 1..n in raster order of first pixel, dropping labels smaller than min_area_px."""
-    values, first, counts = np.unique(labels.ravel(), return_index=True, return_counts=True)
-    keep = (values > 0) & (counts >= min_area_px)
+    flat = labels.ravel()
+    # objects are a small share of a frame: sort their pixels only (positions stay in order)
+    inside = np.flatnonzero(flat)
+    values, first, counts = np.unique(flat[inside], return_index=True, return_counts=True)
+    keep = counts >= min_area_px
     kept = values[keep][np.argsort(first[keep])]
-    remap = np.zeros(int(values.max()) + 1, dtype=np.int32)
+    remap = np.zeros(int(values.max(initial=0)) + 1, dtype=np.int32)
     remap[kept] = np.arange(1, kept.size + 1, dtype=np.int32)
     return remap[labels]
 
