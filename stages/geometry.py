@@ -347,7 +347,9 @@ def fit_ground_plane(
         coef, _ = _refine(xs, ys, ds, start, inlier_px)
         source = "ransac"
     plane = plane_from_disparity_coefficients(coef, camera=cam, shape=shape)
-    yy, xx = np.indices(shape, dtype=np.float64)
+    # one row and one column of coordinates, broadcast: the same sums per pixel as grids
+    xx = np.arange(shape[1], dtype=np.float64)[None, :]
+    yy = np.arange(shape[0], dtype=np.float64)[:, None]
     inliers = valid & (np.abs(coef[0] * xx + coef[1] * yy + coef[2] - d) <= inlier_px)
     if not np.all(np.isfinite(plane)):
         return none
