@@ -102,7 +102,10 @@ def objects_image(gray: np.ndarray, labels: np.ndarray) -> np.ndarray:
     g = _coerce_image("gray", gray)
     lab = _check_shape("labels", labels, g.shape)
     out = cv2.cvtColor(g, cv2.COLOR_GRAY2BGR)
-    slices = ndimage.find_objects(np.where(lab > 0, lab, 0).astype(np.int64))
+    positive = np.where(lab > 0, lab, 0)
+    if positive.dtype.kind not in "iu":  # find_objects takes integer labels of any width
+        positive = positive.astype(np.int64)
+    slices = ndimage.find_objects(positive)
     for index, sl in enumerate(slices, start=1):
         if sl is None:
             continue
@@ -207,14 +210,17 @@ def _label_levels(
     placed: list[tuple[int, int, int, int]] = []
     # one size for all labels (they share a format); getTextSize is slow, so it is cached
     tw, th = _text_size(len(max(texts, key=len)), scale)
+    x_max, y_min, y_max = max(width - tw, 0), th + 1, out.shape[0] - 1
     for index, text in enumerate(texts):
         members = order[starts[index] : starts[index + 1]]
         if members.size == 0:
             continue
+        member_cols = cols[members]
         for anchor in (0.5, 0.3, 0.7, 0.12, 0.88):
-            pick = members[int(np.argmin(np.abs(cols[members] - anchor * width)))]
-            x0 = int(np.clip(cols[pick] - tw // 2, 0, max(width - tw, 0)))
-            y1 = int(np.clip(rows[pick] - 2, th + 1, out.shape[0] - 1))
+            pick = members[int(np.argmin(np.abs(member_cols - anchor * width)))]
+            # clipped as np.clip would (the upper bound wins when the bounds cross)
+            x0 = min(max(int(cols[pick]) - tw // 2, 0), x_max)
+            y1 = min(max(int(rows[pick]) - 2, y_min), y_max)
             box = (x0 - 2, y1 - th - 2, x0 + tw + 2, y1 + 3)
             if all(
                 box[2] <= b[0] or b[2] <= box[0] or box[3] <= b[1] or b[3] <= box[1] for b in placed
@@ -228,7 +234,11 @@ def _label_levels(
 def _diff_panel(diff: np.ndarray, scale: float) -> np.ndarray:
     d = np.asarray(diff, dtype=np.float32)
     undefined = ~np.isfinite(d)
-    gray = np.clip(128.0 + scale * np.where(undefined, 0.0, d), 0, 255).astype(np.uint8)
+    # 128 + scale * d in float32, clipped, in one buffer
+    level = np.where(undefined, np.float32(0.0), d)
+    np.multiply(level, scale, out=level)
+    np.add(level, 128.0, out=level)
+    gray = np.clip(level, 0, 255, out=level).astype(np.uint8)
     panel = cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR)
     panel[undefined] = _UNDEFINED_BGR
     return panel
@@ -253,7 +263,7 @@ def residual_image(left: np.ndarray, right: np.ndarray, residual: np.ndarray) ->
     lf = _coerce_image("left", left).astype(np.float32)
     rt = _coerce_image("right", right).astype(np.float32)
     _check_shape("right", rt, lf.shape)
-    res = _check_shape("residual", residual, lf.shape).astype(np.float32)
+    res = np.asarray(_check_shape("residual", residual, lf.shape), dtype=np.float32)
     raw = lf - rt
     # every 3rd pixel of every 3rd row is plenty for a display scale
     sample = np.abs(raw[::3, ::3]) if raw.size >= 900 else np.abs(raw)
