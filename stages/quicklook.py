@@ -125,9 +125,9 @@ def objects_image(gray: np.ndarray, labels: np.ndarray) -> np.ndarray:
 
 def _smooth_nan(values: np.ndarray, sigma: float) -> np.ndarray:
     v = np.asarray(values, dtype=np.float32)
-    valid = np.isfinite(v).astype(np.float32)
-    num = cv2.GaussianBlur(np.where(valid > 0, v, 0).astype(np.float32), (0, 0), sigma)
-    den = cv2.GaussianBlur(valid, (0, 0), sigma)
+    finite = np.isfinite(v)
+    num = cv2.GaussianBlur(np.where(finite, v, np.float32(0.0)), (0, 0), sigma)
+    den = cv2.GaussianBlur(finite.astype(np.float32), (0, 0), sigma)
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(den > 0.5, num / den, np.nan)
 
@@ -153,7 +153,7 @@ def range_contours_image(
     if not (isinstance(step_m, int | float) and math.isfinite(step_m) and step_m > 0):
         raise ValueError(f"step_m must be a finite number > 0, got {step_m!r}")
     g = _coerce_image("gray", gray)
-    rng = _check_shape("range", range_m, g.shape).astype(np.float32)
+    rng = np.asarray(_check_shape("range", range_m, g.shape), dtype=np.float32)
     out = cv2.cvtColor(g, cv2.COLOR_GRAY2BGR)
     smooth = _smooth_nan(rng, 1.5)
     finite = smooth[np.isfinite(smooth)]
@@ -166,14 +166,15 @@ def range_contours_image(
     level[ok] = np.floor(smooth[ok] / step).astype(np.int32)
     # a crossing lies between 4-neighbours of different valid levels; mark the nearer pixel
     cross = np.zeros(level.shape, dtype=np.int32)  # level index crossed (upper side), 0 none
+    counted = level >= 0
     for a, b in (
         ((slice(None), slice(None, -1)), (slice(None), slice(1, None))),
         ((slice(None, -1), slice(None)), (slice(1, None), slice(None))),
     ):
         la, lb = level[a], level[b]
-        change = (la >= 0) & (lb >= 0) & (la != lb)
-        upper = np.maximum(la, lb)
-        cross[a] = np.where(change & (upper > cross[a]), upper, cross[a])
+        change = counted[a] & counted[b] & (la != lb)
+        # two different levels >= 0: the upper one is >= 1, above the 0 of "no crossing"
+        np.maximum(cross[a], np.where(change, np.maximum(la, lb), 0), out=cross[a])
     levels = np.unique(cross[cross > 0])
     if levels.size == 0:
         return out
