@@ -118,8 +118,10 @@ def open_executor(*, scheduler: str | None, workers: int | None) -> Executor:
 
         n = workers or os.cpu_count() or 1
         processes = scheduler is None and n > 1
-        # read by each nanny when it is created, and reused when it restarts its worker
-        with dask.config.set({"distributed.nanny.pre-spawn-environ": _worker_environ()}):
+        # read by each nanny (or in-process worker) when it is created; a nanny passes it
+        # on to its worker process, also when it restarts one
+        config = {**_LOCAL_WORKER_CONFIG, "distributed.nanny.pre-spawn-environ": _worker_environ()}
+        with dask.config.set(config):
             cluster = LocalCluster(
                 n_workers=n if processes else 1,
                 threads_per_worker=1 if processes else n,
@@ -131,6 +133,16 @@ def open_executor(*, scheduler: str | None, workers: int | None) -> Executor:
         return _DistributedExecutor(Client(cluster), cluster, f"local dask cluster, {n} {kind}")
     client = Client(scheduler, timeout="20s")
     return _DistributedExecutor(client, None, f"dask.distributed at {scheduler}")
+
+
+_LOCAL_WORKER_CONFIG: dict[str, Any] = {
+    # The worker's statistical profiler (the dashboard's Profile page) walks the running
+    # task's stack every 10 ms on the worker's event loop, taking the GIL from the task each
+    # time. Measured on 40 mojave frames, one worker, three alternating rounds: 0.321 s of
+    # CPU per frame with it, 0.311 without (3 %). Local clusters are the engine's own;
+    # a scheduler at an address keeps its owner's settings.
+    "distributed.worker.profile.enabled": False,
+}
 
 
 def _worker_environ() -> dict[str, Any]:
