@@ -5,6 +5,7 @@ Usage (from the repository root; numbers go to BENCHMARKS.md)::
     PYTHONPATH=. .venv/bin/python benchmarks/bench_pipeline.py throughput --frames 200
     PYTHONPATH=. .venv/bin/python benchmarks/bench_pipeline.py overhead --frames 40
     PYTHONPATH=. .venv/bin/python benchmarks/bench_pipeline.py memory --frames 200 2000
+    PYTHONPATH=. .venv/bin/python benchmarks/bench_pipeline.py cpu --frames 40
     PYTHONPATH=. .venv/bin/python benchmarks/bench_pipeline.py machine
 
 ``throughput`` runs a rendered ``mojave`` archive (``--size`` px square, default 500) with the
@@ -18,6 +19,11 @@ steady state after the first frame), parallel efficiency, mean seconds per stage
 (``STAGE.run`` in graph order, same effective params, nothing written), the engine on one core
 (``scheduler='synchronous'``: zarr, Parquet, SQLite journal, provenance) and OpenCV StereoSGBM
 alone (``pipeline._baselines.sgbm_disparity``) on the same frames.
+
+``cpu`` runs the archive once synchronously in this process and reports CPU seconds per frame
+(``time.process_time``) of each stage's ``run`` and of the engine around them, with the
+worker's zarr and file writes and the driver's journal flushes named: the figure to compare
+code versions by on a machine shared with other jobs, where wall time is not.
 
 ``memory`` runs archives of each ``--frames`` count on 2 worker processes and compares peak
 RSS. Rendering thousands of frames takes long, so ``--unique`` frames are rendered once and
@@ -508,8 +514,9 @@ def _without_fsync() -> Any:
 
 def _stage_cpu_meter(stage_package: str) -> Any:
     """Context in which every stage's ``run`` adds its CPU seconds (``time.process_time``)
-    to the yielded dict under ``'stages'``, for in-process (synchronous) engine runs: the
-    engine's own CPU is then the run's CPU minus that, without the pure loop's noise."""
+    to the yielded dict under ``'stages'`` and under its own name, for in-process
+    (synchronous) engine runs: the engine's own CPU is then the run's CPU minus that,
+    without the pure loop's noise."""
     import contextlib
     import dataclasses
 
@@ -521,18 +528,20 @@ def _stage_cpu_meter(stage_package: str) -> Any:
         original = dict(stages)
         spent = {"stages": 0.0}
 
-        def wrap(run_: Any) -> Any:
+        def wrap(name: str, run_: Any) -> Any:
             def timed(*a: Any, **k: Any) -> Any:
                 start = time.process_time()
                 try:
                     return run_(*a, **k)
                 finally:
-                    spent["stages"] += time.process_time() - start
+                    seconds = time.process_time() - start
+                    spent["stages"] += seconds
+                    spent[name] = spent.get(name, 0.0) + seconds
 
             return timed
 
         for name, stage in original.items():
-            stages[name] = dataclasses.replace(stage, run=wrap(stage.run))
+            stages[name] = dataclasses.replace(stage, run=wrap(name, stage.run))
         try:
             yield spent
         finally:
@@ -624,6 +633,66 @@ def cmd_overhead(args: argparse.Namespace) -> dict[str, Any]:
     }
 
 
+def _engine_cpu_meter(spent: dict[str, float]) -> Any:
+    """Context in which the worker's product writes and the driver's journal flushes add
+    their CPU seconds to ``spent`` (``engine:...`` keys), for synchronous runs."""
+    import contextlib
+    from unittest import mock
+
+    import pipeline.journal
+    import pipeline.worker
+
+    def wrap(label: str, fn: Any) -> Any:
+        def timed(*a: Any, **k: Any) -> Any:
+            start = time.process_time()
+            try:
+                return fn(*a, **k)
+            finally:
+                spent[label] = spent.get(label, 0.0) + time.process_time() - start
+
+        return timed
+
+    stack = contextlib.ExitStack()
+    for owner, name, label in (
+        (pipeline.worker, "write_frame_array", "engine:zarr_write"),
+        (pipeline.worker, "read_frame_array", "engine:zarr_read"),
+        (pipeline.worker, "write_product_file", "engine:file_write"),
+        (pipeline.journal.Journal, "flush", "engine:journal_flush"),
+    ):
+        stack.enter_context(mock.patch.object(owner, name, wrap(label, getattr(owner, name))))
+    return stack
+
+
+def cmd_cpu(args: argparse.Namespace) -> dict[str, Any]:
+    """CPU seconds per frame of each stage and of the engine, one synchronous run in this
+    process (``time.process_time``: what a shared machine's other jobs do not inflate).
+    Imports and the numba cache load happen before the timed run; ``engine`` is the run's
+    CPU minus its stages' (zarr writes, PNG files, journal, Parquet, run set-up), with the
+    named parts of it under ``engine:...``."""
+    frames = args.frames[0]
+    catalog = _catalog(args, frames)
+    rundir = args.workdir / "runs" / "cpu-sync"
+    shutil.rmtree(rundir, ignore_errors=True)
+    import pipeline.worker
+
+    pipeline.worker._stages(args.stage_package)  # import the stages outside the timing
+    with _stage_cpu_meter(args.stage_package) as spent, _engine_cpu_meter(spent):
+        start = time.process_time()
+        summary = run(catalog, rundir, scheduler="synchronous", stage_package=args.stage_package)
+        total = time.process_time() - start
+    n = summary.done + summary.failed
+    per_frame = {k: round(v / n, 4) for k, v in spent.items() if k != "stages"}
+    return {
+        "catalog": str(catalog),
+        "frames": n,
+        "failed": summary.failed,
+        "cpu_s_per_frame": round(total / n, 4),
+        "stage_cpu_s_per_frame": round(spent["stages"] / n, 4),
+        "engine_cpu_s_per_frame": round((total - spent["stages"]) / n, 4),
+        "per_frame": per_frame,
+    }
+
+
 def cmd_memory(args: argparse.Namespace) -> dict[str, Any]:
     runs = []
     for frames in args.frames:
@@ -642,7 +711,7 @@ def cmd_memory(args: argparse.Namespace) -> dict[str, Any]:
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument(
-        "command", choices=("throughput", "overhead", "memory", "machine", "single")
+        "command", choices=("throughput", "overhead", "memory", "machine", "single", "cpu")
     )
     parser.add_argument("--frames", type=int, nargs="+", default=[200])
     parser.add_argument("--unique", type=int, default=None, help="render only this many")
@@ -666,6 +735,7 @@ def main(argv: list[str] | None = None) -> None:
         "memory": cmd_memory,
         "machine": lambda _a: {},
         "single": cmd_single,
+        "cpu": cmd_cpu,
     }[args.command]
     if args.command == "single":  # one JSON line for the parent process
         print(json.dumps(cmd_single(args)))

@@ -69,7 +69,7 @@ from .geometry import (
     derive_row_floor,
     fit_ground_plane,
     ground_disparity_at_row,
-    height_above_plane,
+    height_from_disparity,
     pseudo_left,
     range_from_disparity,
     residual,
@@ -381,7 +381,7 @@ def run_depth(
     )
     fit = fit_ground_plane(disparity, camera=camera, inlier_px=float(params["ground_inlier_px"]))
     if np.all(np.isfinite(fit.plane)):
-        height = height_above_plane(camera.camera_points(disparity), fit.plane)
+        height = height_from_disparity(disparity, fit.plane, camera=camera)
     else:
         height = np.full(disparity.shape, np.nan, np.float32)
         notes.append("no ground plane fitted: height is NaN")

@@ -5,6 +5,7 @@ from __future__ import annotations
 import logging
 import os
 
+import dask
 import pytest
 
 from pipeline.executor import _ShutdownHeartbeatFilter, _worker_environ, open_executor
@@ -38,6 +39,23 @@ def _malloc_and_threads() -> tuple[str | None, str | None]:
     return os.environ.get("MALLOC_TRIM_THRESHOLD_"), os.environ.get("OMP_NUM_THREADS")
 
 
+def _housekeeping(dask_worker) -> tuple[bool, float]:
+    callbacks = dask_worker.periodic_callbacks
+    return "profile" in callbacks, callbacks["memory_monitor"].callback_time
+
+
+def test_local_threads_worker_runs_without_the_profiler_and_with_slower_monitors():
+    # the profiler sampled the running frame's stack every 10 ms (~3 % of a frame's CPU);
+    # the 100 ms memory monitor was most of an idle cluster's CPU
+    executor = open_executor(scheduler="threads", workers=1)
+    try:
+        seen = executor.client.run(_housekeeping)  # type: ignore[attr-defined]
+    finally:
+        executor.close()
+    assert list(seen.values()) == [(False, 500)]
+    assert dask.config.get("distributed.worker.profile.enabled")  # only its own workers
+
+
 def test_worker_environ_keeps_dask_thread_limits_without_the_malloc_trim_threshold():
     environ = _worker_environ()
     assert "MALLOC_TRIM_THRESHOLD_" not in environ
@@ -52,8 +70,10 @@ def test_local_worker_processes_run_without_the_malloc_trim_threshold(monkeypatc
     executor = open_executor(scheduler=None, workers=2)
     try:
         seen = executor.client.run(_malloc_and_threads)  # type: ignore[attr-defined]
+        housekeeping = executor.client.run(_housekeeping)  # type: ignore[attr-defined]
         results = dict(executor.map_unordered(abs, [-1, -2, -3]))
     finally:
         executor.close()
     assert len(seen) == 2 and set(seen.values()) == {(None, "1")}
+    assert list(housekeeping.values()) == [(False, 500)] * 2  # the nannies passed it on
     assert results == {-1: 1, -2: 2, -3: 3}

@@ -19,6 +19,7 @@ from stages.geometry import (
     fit_ground_plane,
     ground_disparity_at_row,
     height_above_plane,
+    height_from_disparity,
     plane_disparity_coefficients,
     plane_from_disparity_coefficients,
     plane_from_pose,
@@ -122,6 +123,25 @@ def test_pose_plane_agrees_with_camera_to_ground():
     plane = plane_from_pose(height_m=1.2, pitch_deg=38.0)
     np.testing.assert_allclose(height_above_plane(points, plane)[ok], 0.0, atol=1e-5)
     assert height_above_plane(np.zeros(3), plane) == pytest.approx(1.2)  # the camera
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_height_from_disparity_is_height_above_plane_of_the_points_bit_for_bit(seed):
+    # the depth stage's height product: computing it without the (M, N, 3) points must
+    # not change a bit of it
+    camera = Camera(focal_px=100.0, baseline_m=0.1, height_m=1.2, pitch_deg=38.0, cx=40.5)
+    rng = np.random.default_rng(seed)
+    d = (_ground_disparity(camera) + rng.normal(0.0, 0.5, SHAPE)).astype(np.float32)
+    d[rng.random(SHAPE) < 0.1] = np.nan
+    d[0, :4] = (0.0, -1.0, np.inf, 1e-30)
+    plane = fit_ground_plane(d, camera=camera).plane
+    assert np.isfinite(plane).all()
+    expected = height_above_plane(camera.camera_points(d), plane)
+    got = height_from_disparity(d, plane, camera=camera)
+    assert got.dtype == np.float32 and got.shape == SHAPE
+    np.testing.assert_array_equal(got.view(np.uint32), expected.view(np.uint32))
+    with pytest.raises(ValueError, match="2-D"):
+        height_from_disparity(d[None], plane, camera=camera)
 
 
 def _ground_with_rocks(camera: Camera, seed=0):

@@ -80,6 +80,17 @@ def test_range_contours_limit_the_number_of_levels():
     assert 0 < colored_rows.size <= 2 * 30
 
 
+def test_range_contours_label_a_strip_lower_than_the_text():
+    # the label's row bounds cross (text taller than the image): it sits on the last row,
+    # as np.clip put it, instead of failing
+    shape = (6, 200)
+    cols = np.arange(shape[1], dtype=np.float32)[None, :]
+    rng = np.broadcast_to(1.0 + cols / 40.0, shape).astype(np.float32)
+    out = range_contours_image(np.full(shape, 120, np.uint8), rng, step_m=1.0)
+    assert out.shape == (*shape, 3)
+    assert (~_is_gray(out)).any()
+
+
 def test_range_contours_validate():
     with pytest.raises(ValueError, match="step_m"):
         range_contours_image(_gray(), np.ones(SHAPE, np.float32), step_m=0.0)
