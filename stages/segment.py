@@ -510,7 +510,7 @@ def _sector_product(name: str, dtype: str, long_name: str, units: str = "") -> P
 
 STAGE = Stage(
     name="segment",
-    version="22",
+    version="23",
     inputs=("left", "right", "disparity", "height"),
     outputs=(
         Product(

@@ -84,6 +84,47 @@ def test_continuity_follows_a_steep_lamp_falloff_to_the_frame_edge():
     assert analysis.low[0, 0] < 60 - 5
 
 
+def ramp_hist(top: float, bottom: float, rows: int = 31) -> np.ndarray:
+    """Histogram of a sector whose ground brightens linearly from ``top`` to ``bottom``."""
+    return gaussian_hist(*[(level, 4, rows) for level in np.linspace(top, bottom, rows)])
+
+
+def test_a_steep_lamp_ramp_at_the_top_border_is_ground_not_object():
+    # rule C2, regression (lab_0001 cols 155-186): the floor brightens from gray 50 at row 0
+    # to ~150 two sectors down, the step between sector rows growing towards the border;
+    # the top rows' broad flat modes lie 40 levels from their neighbours' mean and past
+    # C1's straight carry, so they became phantom peaks and the ramp became object
+    n = 8
+    rows = [
+        ramp_hist(50, 92),
+        ramp_hist(90, 128),
+        ramp_hist(128, 152) + gaussian_hist((150, 3, 300)),
+        gaussian_hist((162, 5, 961)),
+        gaussian_hist((170, 5, 961)),
+    ] + [gaussian_hist((173, 5, 961))] * 3
+    hist = np.stack([np.stack([row] * n) for row in rows])
+    analysis = analyse_sectors(hist, band_sigmas=3.5, merge_ratio=0.35)
+    assert not analysis.phantom.any()
+    assert np.all((analysis.background[0] > 50) & (analysis.background[0] < 92))
+    assert np.all((analysis.background[1] > 90) & (analysis.background[1] < 128))
+    # the whole ramp lies inside the band: no pixel of it is object
+    assert np.all(analysis.low[0] < 50 - 4) and np.all(analysis.high[0] > 92 + 4)
+    assert np.all(analysis.low[1] < 90 - 4) and np.all(analysis.high[1] > 128 + 4)
+
+
+def test_a_rock_spilling_into_its_neighbour_is_not_a_ramp():
+    # rule C2, regression (lava seed 2): a dark rock covers one sector and reaches into the
+    # next; the summed histograms' valley (0.36 of the lower peak) passed the ripple test's
+    # 0.35, not C2's 0.5: the sector keeps its phantom peak and the rock stays object
+    hist = grid_of(gaussian_hist((72, 8, 961)), 8)
+    hist[4, 4] = gaussian_hist((12, 3, 450), (32, 10, 500))
+    hist[3, 4] = gaussian_hist((72, 8, 600), (40, 10, 360))
+    analysis = analyse_sectors(hist, band_sigmas=3.5, merge_ratio=0.35)
+    assert analysis.phantom[4, 4]
+    assert analysis.background[4, 4] == pytest.approx(72, abs=3)
+    assert analysis.low[4, 4] > 32
+
+
 def test_continuity_does_not_carry_a_patchwork_on():
     # C1 needs a gradient: neighbours whose carried levels disagree keep the study's rule
     hist = grid_of(gaussian_hist((150, 6, 900)), 8)
