@@ -209,3 +209,16 @@ def test_median_without_leaves_out_one_occurrence_like_np_delete(levels, data):
     value = values[data.draw(st.integers(0, values.size - 1))]
     expected = np.median(np.delete(values, np.flatnonzero(values == value)[:1]))
     assert _median_without(values, value) == expected
+
+
+def test_a_rock_sector_whose_ground_shows_at_the_predicted_level_is_not_a_ramp():
+    # rule C2, regression (lava_0001, lava_0008 catalog frames): a dark near rock fills most
+    # of a sector on a broad, blotchy ground; the summed histograms have no valley, so C2
+    # took the rock's gray (36) for the ground. The ground shows in the sector at the level
+    # its neighbours predict: the sector keeps its phantom peak there
+    hist = grid_of(gaussian_hist((70, 14, 961)), 8)
+    hist[4, 4] = gaussian_hist((36, 6, 700), (70, 14, 261))
+    analysis = analyse_sectors(hist, band_sigmas=2.5, merge_ratio=0.35)
+    assert analysis.phantom[4, 4]
+    assert analysis.background[4, 4] == pytest.approx(70, abs=1)
+    assert analysis.low[4, 4] > 30  # the rock's darker half is object, not ground
