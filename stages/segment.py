@@ -539,7 +539,7 @@ def _sector_product(name: str, dtype: str, long_name: str, units: str = "") -> P
 
 STAGE = Stage(
     name="segment",
-    version="25",
+    version="26",
     inputs=("left", "right", "disparity", "height"),
     outputs=(
         Product(

@@ -222,3 +222,18 @@ def test_a_rock_sector_whose_ground_shows_at_the_predicted_level_is_not_a_ramp()
     assert analysis.phantom[4, 4]
     assert analysis.background[4, 4] == pytest.approx(70, abs=1)
     assert analysis.low[4, 4] > 30  # the rock's darker half is object, not ground
+
+
+def test_phantoms_do_not_chain_into_a_block_of_false_ground_levels():
+    # rule C3, regression (lab_0006 top-left corner): a dark rock fills most of a sector on
+    # the lamp ramp; its phantom peak, at the level of the bright rows below, pulled its
+    # neighbours' predictions away from their own ramp modes, six phantoms chained and the
+    # corner became one false object. Predicted from mode-decided neighbours only, every
+    # sector finds its ground
+    hist = lamp_ramp_grid()
+    hist[1, 2] = ramp_hist(90, 128, columns=8) + gaussian_hist((15, 4, 961 - 31 * 8))
+    analysis = analyse_sectors(hist, band_sigmas=3.5, merge_ratio=0.35)
+    assert not analysis.phantom.any()
+    assert np.all((analysis.background[0] > 50) & (analysis.background[0] < 92))
+    assert np.all((analysis.background[1] > 90) & (analysis.background[1] < 128))
+    assert 15 + 4 < analysis.low[1, 2] < 90 - 4  # the rock is object, the ramp is not
