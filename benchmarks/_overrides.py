@@ -24,7 +24,7 @@ from pipeline.graph import default_graph, parse_set_overrides
 from pipeline.stage import FrameContext
 from stages.depth import STAGE as DEPTH
 
-__all__ = ["depth_products", "matching_settings", "stage_overrides"]
+__all__ = ["depth_products", "keyword_overrides", "matching_settings", "stage_overrides"]
 
 
 def stage_overrides(
@@ -127,3 +127,23 @@ def matching_settings(items: Iterable[str]) -> tuple[dict[str, Any], dict[str, A
     for name in ("floor_margin", "ceiling_ratio"):  # the search band's, not the matcher's
         settings.pop(name, None)
     return settings, stage_params
+
+
+def keyword_overrides(items: Iterable[str]) -> dict[str, Any]:
+    """``segment_image`` keywords from ``KEY=VALUE`` items (``bench_segment.py --rundir``).
+
+    A value is an int if it parses as one, else a float, else ``true``/``false`` (any case)
+    as a bool, else the text; the function that takes the keywords checks them.
+    """
+    overrides: dict[str, Any] = {}
+    for item in items:
+        key, _, text = item.partition("=")
+        for cast in (int, float):
+            try:
+                overrides[key] = cast(text)
+                break
+            except ValueError:
+                continue
+        else:
+            overrides[key] = {"true": True, "false": False}.get(text.lower(), text)
+    return overrides

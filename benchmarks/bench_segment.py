@@ -43,7 +43,7 @@ import cv2
 import numpy as np
 
 # sibling modules: benchmarks/ is on sys.path when one of its scripts runs
-from _overrides import depth_products, stage_overrides
+from _overrides import depth_products, keyword_overrides, stage_overrides
 from _rundir import open_run
 
 from pipeline.camera import Camera
@@ -261,19 +261,6 @@ def rundir_scores(rundirs: list[str], overrides: dict, verbose: bool = False) ->
         )
 
 
-def _parse_overrides(items: list[str]) -> dict:
-    overrides = {}
-    for item in items:
-        key, _, text = item.partition("=")
-        for cast in (int, float):
-            try:
-                overrides[key] = cast(text)
-                break
-            except ValueError:
-                continue
-        else:
-            overrides[key] = {"true": True, "false": False}.get(text.lower(), text)
-    return overrides
 
 
 def main() -> None:
@@ -311,7 +298,7 @@ def main() -> None:
     args = parser.parse_args()
     # a dotted key names a stage parameter, a bare key a segment_image keyword
     staged = [item for item in args.set if "." in item.partition("=")[0]]
-    overrides = _parse_overrides([item for item in args.set if item not in staged])
+    overrides = keyword_overrides([item for item in args.set if item not in staged])
     if args.rundir:
         mode = "--rundir (the run's depth products)"
     elif args.stage_speed:

@@ -1,0 +1,51 @@
+"""The miss classes of benchmarks/bench_misses.py on hand-made label arrays."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+_PATH = Path(__file__).resolve().parents[2] / "benchmarks" / "bench_misses.py"
+_SPEC = importlib.util.spec_from_file_location("_bench_misses", _PATH)
+assert _SPEC is not None and _SPEC.loader is not None
+bench_misses = importlib.util.module_from_spec(_SPEC)
+_SPEC.loader.exec_module(bench_misses)
+
+
+def _scene():
+    """Five 10x10 truth rocks on a 60x80 frame and a prediction that meets each differently."""
+    true = np.zeros((60, 80), np.int32)
+    pred = np.zeros_like(true)
+    for k, x in enumerate((2, 16, 30, 44, 58), start=1):
+        true[10:20, x : x + 10] = k
+    pred[10:20, 2:12] = 1  # rock 1 matched exactly
+    # rock 2 untouched
+    pred[10:20, 30:52] = 3  # rocks 3 and 4 share one object (IoU 100 / 220 and 80 / 240)
+    true[10:20, 40:44] = 0  # ... with ground between them
+    pred[10:13, 58:68] = 5  # rock 5: a speck of 30 px
+    image = np.full(true.shape, 100, np.uint8)
+    image[true > 0] = 60
+    image[::2] += 4  # a ground spread of a few levels
+    rng = np.full(true.shape, 2.5, np.float32)
+    return pred, true, image, rng
+
+
+def test_each_missed_rock_gets_the_class_of_the_object_that_covers_most_of_it():
+    rows = bench_misses.classify_misses(*_scene())
+    kinds = [row["class"] for row in rows]
+    assert kinds == ["matched", "untouched", "shared", "shared", "partial"]
+    assert [row["pieces"] for row in rows] == [1, 0, 1, 1, 1]
+    assert all(row["contrast"] < -5 for row in rows)  # dark rocks, several spreads below
+    assert rows[0]["px"] == 100 and rows[0]["range_m"] == pytest.approx(2.5)
+
+
+def test_an_object_with_as_much_ground_again_is_fat():
+    pred, true, image, rng = _scene()
+    pred[:] = 0
+    pred[8:22, 14:30] = 2  # rock 2 (100 px) inside a 224 px object
+    rows = bench_misses.classify_misses(pred, true, image, rng)
+    assert rows[1]["class"] == "fat"
+    assert np.count_nonzero([row["class"] == "untouched" for row in rows]) == 4
