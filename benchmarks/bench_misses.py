@@ -23,7 +23,10 @@ Per class: the count, the median visible pixels, the median range and how many l
 2 m, and the rock's gray contrast: its mean gray minus the median of a 4-pixel ring of
 ground around it, in robust ground spreads (1.4826 x MAD of that ring). The matched rocks'
 contrast is printed for comparison: it tells how far an intensity rule would have to reach
-into the ground's own texture to find what is missed.
+into the ground's own texture to find what is missed. Last, each class's *ceiling*: the
+object F1 when every missed rock of that class is painted into the labels from the truth
+(over everything, as a new object), all else kept -- an upper bound on what a rule that
+fixes that class alone can gain, not a promise that such a rule exists.
 """
 
 from __future__ import annotations
@@ -34,7 +37,7 @@ from collections import defaultdict
 import cv2
 import numpy as np
 
-from pipeline.metrics import match_objects
+from pipeline.metrics import match_objects, pool_segmentation_scores, segmentation_scores
 from stages.segment import segment_image
 
 __all__ = ["classify_misses", "main"]
@@ -59,8 +62,8 @@ def _contrast(image: np.ndarray, rock: np.ndarray, ground: np.ndarray) -> float:
 def classify_misses(
     pred: np.ndarray, true: np.ndarray, image: np.ndarray, rng: np.ndarray
 ) -> list[dict]:
-    """One row per graded truth rock of a frame: class ('matched' or a miss class), size,
-    range, contrast and the number of objects on it."""
+    """One row per graded truth rock of a frame: its id, class ('matched' or a miss class),
+    size, range, contrast and the number of objects on it."""
     matches = match_objects(pred, true, min_true_px=_MIN_TRUE_PX)
     matched = set(matches.true_ids.tolist())
     true_ids, true_px = np.unique(true[true > 0], return_counts=True)
@@ -89,6 +92,7 @@ def classify_misses(
                 kind = "fat"
         rows.append(
             {
+                "rock": int(t),
                 "class": kind,
                 "px": n,
                 "range_m": float(np.median(rng[rock])),
@@ -97,6 +101,14 @@ def classify_misses(
             }
         )
     return rows
+
+
+def _painted(pred: np.ndarray, true: np.ndarray, rocks: list[int]) -> np.ndarray:
+    """``pred`` with the truth rocks ``rocks`` painted over it as new objects."""
+    out = pred.astype(np.int32, copy=True)
+    for offset, rock in enumerate(rocks, start=1):
+        out[true == rock] = int(pred.max()) + offset
+    return out
 
 
 def _summary(rows: list[dict]) -> str:
@@ -127,6 +139,7 @@ def main() -> None:
         params = run.segment_params()
         params.update(overrides)
         by_class: dict[str, list[dict]] = defaultdict(list)
+        painted: dict[str, list[dict]] = defaultdict(list)
         for frame in run.frames():
             image = frame.product(run.camera.reference)
             pred = segment_image(
@@ -135,11 +148,18 @@ def main() -> None:
                 disparity=frame.product("disparity"),
                 **params,
             ).labels
-            for row in classify_misses(pred, frame.truth["labels"], image, frame.truth["range"]):
+            true = frame.truth["labels"]
+            rows = classify_misses(pred, true, image, frame.truth["range"])
+            for row in rows:
                 by_class[row["class"]].append(row)
+            for kind in CLASSES:
+                rocks = [row["rock"] for row in rows if row["class"] == kind]
+                painted[kind].append(segmentation_scores(_painted(pred, true, rocks), true))
         for kind in ("matched", *CLASSES):
             if by_class[kind]:
-                print(f"{run.archive:9s} {kind:10s} {_summary(by_class[kind])}")
+                ceiling = pool_segmentation_scores(painted[kind])["f1"] if kind in painted else 0
+                column = f"   ceiling F1 {ceiling:.3f}" if kind != "matched" else ""
+                print(f"{run.archive:9s} {kind:10s} {_summary(by_class[kind])}{column}")
         missed = [r for k in CLASSES for r in by_class[k]]
         if missed:
             print(f"{run.archive:9s} {'missed':10s} {_summary(missed)}")

@@ -39,6 +39,7 @@ def test_each_missed_rock_gets_the_class_of_the_object_that_covers_most_of_it():
     assert kinds == ["matched", "untouched", "shared", "shared", "partial"]
     assert [row["pieces"] for row in rows] == [1, 0, 1, 1, 1]
     assert all(row["contrast"] < -5 for row in rows)  # dark rocks, several spreads below
+    assert [row["rock"] for row in rows] == [1, 2, 3, 4, 5]
     assert rows[0]["px"] == 100 and rows[0]["range_m"] == pytest.approx(2.5)
 
 
@@ -49,3 +50,11 @@ def test_an_object_with_as_much_ground_again_is_fat():
     rows = bench_misses.classify_misses(pred, true, image, rng)
     assert rows[1]["class"] == "fat"
     assert np.count_nonzero([row["class"] == "untouched" for row in rows]) == 4
+
+
+def test_a_ceiling_paints_the_missed_rocks_in_as_new_objects():
+    pred, true, _, _ = _scene()
+    painted = bench_misses._painted(pred, true, [2, 5])
+    assert np.array_equal(painted[true == 2], np.full(100, 6))
+    assert np.array_equal(painted[true == 5], np.full(100, 7))
+    assert np.array_equal(painted[true == 1], pred[true == 1])
