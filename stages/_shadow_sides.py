@@ -23,33 +23,40 @@ It acts on labelled objects after R7d (:mod:`stages._outlines`) and before R8
   keeps its pixels. What is left of the dark object is dropped when most of it lies in
   precise rows and its median height is at ground level: the cast shadow
   (:func:`split_shadow_sides`).
-  Second case: the cast shadow is no object (the vote found it flat) and the shaded face,
-  as gray as the ground, lies between it and the lit face. A light object with dark pixels
-  (past the low threshold) near it -- at least 10 within 8 px -- takes the pixels a
-  closing of radius 4 fills between it and them that are neither dark nor below the raise
-  threshold, less 1-px fringes (an opening with a 3x3 square) and whatever does not reach
-  it: dark ground blotches beside small rocks otherwise gave them a comb of fringe pixels
-  along the stereo fattening.
+  Second case: the shaded face is as gray as the ground and lies between the lit face and
+  the cast shadow, which is no object (the vote found it flat) or a dark object of its own
+  that the matcher, lost in the uniform dark, stood up as high as the rock. A light object
+  with dark pixels (past the low threshold) of the ground or of a dark object near it --
+  at least 10 within 8 px -- takes the pixels a closing of radius 4 fills between it and
+  them that are neither dark nor below the raise threshold, less 1-px fringes (an opening
+  with a 3x3 square) and whatever does not reach it: dark ground blotches beside small
+  rocks otherwise gave them a comb of fringe pixels along the stereo fattening.
   With ``bench_segment.py --rundir`` (``--set shadow_noise_m=0`` for the old rules) object
   F1 on the catalog frames: lava 0.816 -> 0.820 (6 fewer false rocks: shadows left as
   objects), mojave 0.910 -> 0.912 (2 fewer), lab 0.967 and dunes (precision 1.0)
   unchanged; seeds (runs of the catalogs with ``seed =`` changed) lava 2-5 0.809 -> 0.812,
   0.819 -> 0.822, 0.819 unchanged (1 true and 1 false rock fewer), 0.822 -> 0.823; mojave
-  2-5 0.913 -> 0.916, 0.892 unchanged, 0.883 -> 0.893, 0.885 -> 0.887; lab 2, 3 and dunes
+  2-5 0.913 -> 0.918, 0.892 unchanged, 0.883 -> 0.893, 0.885 -> 0.887; lab 2, 3 and dunes
   2, 3, 4, 5, 7, 11 unchanged. Size class of the rocks within 2 m (``bench_describe.py
   --rundir DIR --labels segment``, ``--set segment.shadow_noise_m=0`` for the old rules):
-  lava's catalog frames 0.918 -> 0.936 (two obstacles measured as samples, their shaded
-  faces joined: lava_0003 rocks 5 and 9, width error -4 -> +8 % and -25 -> +7 %), mojave
-  0.884 -> 0.907 (one, the second case: mojave_0007 rock 5), lab unchanged; median width
+  lava's catalog frames 0.918 -> 0.945 (three obstacles measured as samples, their shaded
+  faces joined: lava_0003 rocks 5 and 9, width error -4 -> +8 % and -25 -> +7 %, and by the
+  second case lava_0004 rock 11), mojave 0.884 -> 0.907 (one, by the second case:
+  mojave_0007 rock 5), lab unchanged; median width
   error lava 9.7 -> 9.4 %, mojave 8.3 % and lab 7.6 % unchanged. Seeds: lava 2-5 class
   0.926 -> 0.927, 0.931 -> 0.932, 0.899 -> 0.908, 0.887, width 9.0 -> 9.1, 12.3 -> 11.9,
-  12.0 -> 12.2, 12.5 %; mojave 2-5 class 0.935 -> 0.936, 0.917, 0.955 -> 0.957, 0.892 ->
-  0.895, width 9.1 -> 8.9, 7.9, 10.3 -> 9.5, 9.5 -> 9.3 %; lab seed 2
-  unchanged. Without the second case's opening lava's catalog class rose to 0.946 (one more
-  obstacle) but its width error to 10.5 % (small rocks beside dark blotches widened by
-  10-25 %); asking for dark pixels a quarter of the object's instead of the opening gave
-  9.7 %; with a closing of radius 3 and 6 px of reach mojave lost its gain. The cost:
-  about 7 ms of CPU per 500x500 lava frame (the heights smoothed and measured again).
+  12.0 -> 12.2, 12.5 %; mojave 2-5 class 0.935 -> 0.938, 0.917, 0.955 -> 0.957, 0.892 ->
+  0.895, width 9.1 %, 7.9, 10.3 -> 9.5, 9.5 -> 9.3 %; lab seed 2 unchanged. Without the
+  second case's opening (and with shadows of the ground only) lava's catalog width error
+  rose to 10.5 % (small rocks beside dark blotches widened by 10-25 %); asking for dark
+  pixels a quarter of the object's instead of the opening gave 9.7 %; with a closing of
+  radius 3 and 6 px of reach mojave lost its gain. Dropping, the other way round, the dark
+  pieces at ground level on a light object's outline (a cast shadow R7b or R7c joined to
+  it) raised mojave's class to 0.929 but lost whole rocks whose shaded lower side the
+  stereo flattens (mojave_0002 rock 3; lava seed 5: F1 0.823 -> 0.820). The cost, with
+  ``bench_segment.py --stage-speed --archetypes lava --frames 4``: 77-79 -> 85-89 ms of CPU
+  per frame, half of it the heights smoothed, set against R0's ground and their noise
+  measured again (:func:`stages.segment.segment_image` does not keep the depth rules').
 
 Why not re-decide every near outline by height: with 4-6 mm of height noise and rock flanks
 that the stereo windows flatten (the median height of lava's and mojave's near rocks, 2-8 cm
@@ -148,25 +155,33 @@ def split_shadow_sides(
     count = int(labels.max())
     if count == 0 or max_noise_m == 0:
         return labels, 0
-    noise = row_noise.astype(np.float32)[:, None]
-    precise = np.isfinite(relative) & (noise <= max_noise_m)
+    read = np.flatnonzero(row_noise <= max_noise_m)
+    if read.size == 0:
+        return labels, 0
+    # the rows read: far rows are not, and every full-frame map is worked out on them only
+    band = slice(int(read[0]), int(read[-1]) + 1)
+    noise = row_noise[band].astype(np.float32)[:, None]
+    raise_m = np.maximum(np.float32(min_height_m), _RAISE_SIGMAS * noise)
+    flat_row = np.full(labels.shape[0], -np.inf, np.float32)
+    flat_row[band] = np.minimum(
+        np.maximum(np.float32(flat_tol_m), _FLAT_SIGMAS * noise), raise_m / 2
+    ).ravel()
+    precise = np.zeros(labels.shape, bool)
+    raised = np.zeros(labels.shape, bool)
+    flat = np.zeros(labels.shape, bool)
+    precise[band] = np.isfinite(relative[band]) & (noise <= max_noise_m)
+    with np.errstate(invalid="ignore"):
+        raised[band] = precise[band] & (relative[band] > raise_m)
+        flat[band] = precise[band] & (relative[band] < flat_row[band, None])
     if not precise.any():
         return labels, 0
-    raise_m = np.maximum(np.float32(min_height_m), _RAISE_SIGMAS * noise)
-    flat_m = np.broadcast_to(
-        np.minimum(np.maximum(np.float32(flat_tol_m), _FLAT_SIGMAS * noise), raise_m / 2),
-        labels.shape,
-    )
-    with np.errstate(invalid="ignore"):
-        raised = precise & (relative > raise_m)
-        flat = precise & (relative < flat_m)
     owners = labels.ravel()
     inside = owners > 0
     median = _percentile_by_label(
         contrast.ravel()[inside].astype(np.float64), owners[inside], count + 1, 50.0
     )
-    n_precise = np.bincount(labels[precise], minlength=count + 1)
-    n_flat = np.bincount(labels[flat], minlength=count + 1)
+    n_precise = np.bincount(labels[band][precise[band]], minlength=count + 1)
+    n_flat = np.bincount(labels[band][flat[band]], minlength=count + 1)
     # a light object in the precise rows (a far one is skipped: its rows are not read)
     n_pixels = np.bincount(owners, minlength=count + 1)
     light = (np.nan_to_num(median) > 0) & (n_precise >= 0.5 * n_pixels)
@@ -176,7 +191,9 @@ def split_shadow_sides(
     light[0] = shadowed[0] = False
     if not light.any():
         return labels, 0
-    dark = contrast < -1  # past the low threshold: a shadow's gray
+    # a shadow's pixels: dark ones of the ground or of a dark object (not of a light one)
+    shady = np.nan_to_num(median) < 0
+    shady[0] = True
     out = labels.copy()
     disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * gap_px + 1, 2 * gap_px + 1))
     step = np.ones((3, 3), np.uint8)
@@ -215,24 +232,32 @@ def split_shadow_sides(
             box[take] = k
             moved += int(np.count_nonzero(take))
             split.add(int(d))
-        moved += _fill_to_shadow(out, k, spans[k - 1], dark, raised)
+        moved += _fill_to_shadow(out, k, spans[k - 1], labels, contrast, shady, raised)
     for d in split:
-        rest = out == d
-        heights = relative[rest & precise]
-        if heights.size > 0.5 * np.count_nonzero(rest) and np.median(heights) < np.median(
-            flat_m[rest & precise]
-        ):
-            out[rest] = 0  # what is left lies on the ground: the cast shadow
+        dy, dx = spans[d - 1]
+        rest = out[dy, dx] == d
+        judged = rest & precise[dy, dx]
+        heights = relative[dy, dx][judged]
+        levels = np.broadcast_to(flat_row[dy, None], rest.shape)[judged]
+        if heights.size > 0.5 * np.count_nonzero(rest) and np.median(heights) < np.median(levels):
+            out[dy, dx][rest] = 0  # what is left lies on the ground: the cast shadow
     if not moved:
         return labels, 0
     return _renumber(out, 1), moved
 
 
 def _fill_to_shadow(
-    out: np.ndarray, k: int, span: tuple[slice, slice], dark: np.ndarray, standing: np.ndarray
+    out: np.ndarray,
+    k: int,
+    span: tuple[slice, slice],
+    labels: np.ndarray,
+    contrast: np.ndarray,
+    shady: np.ndarray,
+    standing: np.ndarray,
 ) -> int:
-    """R7e's second case, in place: light object ``k`` takes the standing ground-gray pixels
-    between it and the dark background pixels (a cast shadow no object holds) near it."""
+    """R7e's second case, in place: light object ``k`` takes the standing pixels, neither
+    dark nor its own, between it and the dark pixels near it of the ground or of an object
+    ``shady`` (by id in ``labels``) says is dark: a cast shadow."""
     pad = _SHADOW_REACH_PX + _SHADOW_CLOSE_PX
     rows, cols = out.shape
     y0, x0 = max(0, span[0].start - pad), max(0, span[1].start - pad)
@@ -241,8 +266,9 @@ def _fill_to_shadow(
     lit = box == k
     free = box == 0
     reach = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * _SHADOW_REACH_PX + 1,) * 2)
-    shade = dark[y0:y1, x0:x1]
-    shadow = shade & free & cv2.dilate(lit.view(np.uint8), reach).view(bool)
+    shade = contrast[y0:y1, x0:x1] < -1  # past the low threshold: a shadow's gray
+    shadow = shade & shady[labels[y0:y1, x0:x1]] & ~lit
+    shadow &= cv2.dilate(lit.view(np.uint8), reach).view(bool)
     if np.count_nonzero(shadow) < _SHADOW_MIN_PX:
         return 0
     disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * _SHADOW_CLOSE_PX + 1,) * 2)

@@ -71,6 +71,17 @@ def test_ground_gray_face_between_a_lit_face_and_a_shadow_no_object_holds():
     assert moved == 0 and np.array_equal(out, labels)
 
 
+def test_gray_face_before_a_shadow_object_the_matcher_stood_up_joins_the_lit_face():
+    labels, contrast, relative, noise = lit_rock_scene(shadow_object=False, face_px=3)
+    labels[10:30, 9:19] = 2  # the shadow, an object of its own, as high as the rock
+    relative[10:30, 9:19] = ROCK_M
+    out, moved = split_shadow_sides(labels, contrast, relative, noise)
+    # not split (nothing of it lies flat), but the gray face between them joins the lit face
+    assert 16 * 5 <= moved <= 20 * 5
+    assert np.all(out[12:28, 19:34] == out[20, 30]) and np.all(out[10:30, 9:19] == out[20, 12])
+    assert out[20, 12] != out[20, 30] and set(np.unique(out)) == {0, 1, 2}
+
+
 def test_rows_too_noisy_or_rule_off_change_nothing():
     for shadow_object in (True, False):
         labels, contrast, relative, noise = lit_rock_scene(shadow_object=shadow_object)
