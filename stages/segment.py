@@ -7,7 +7,8 @@ sector centres (Chow and Kaneko), connected components, speck removal, hole fill
 is in :mod:`stages._sectors` (histograms, modes, interpolation), :mod:`stages._continuity`
 (background by continuity, phantom peaks, thresholds), :mod:`stages._regions` (masks,
 components, split), :mod:`stages._texture_rules` (streaks), :mod:`stages._rock_parts` (shadows,
-halves), :mod:`stages._outlines` (necks, rims), :mod:`stages._blobs` (compact blobs),
+halves), :mod:`stages._outlines` (necks, rims), :mod:`stages._shadow_sides` (shaded faces),
+:mod:`stages._blobs` (compact blobs),
 :mod:`stages._depth_rules` (height rules) and :mod:`stages._height_vote` (the
 noisy-height vote), all documented rule by rule.
 
@@ -15,14 +16,15 @@ noisy-height vote), all documented rule by rule.
 above the fitted ground plane) and ``disparity`` (rules R0-R3 in :mod:`stages._depth_rules`
 and :mod:`stages._height_vote`, R4 in :mod:`stages._regions`, R5-R5c in
 :mod:`stages._texture_rules`, R6-R7c in :mod:`stages._rock_parts`, R4b and R7d in
-:mod:`stages._outlines`, R8 in :mod:`stages._blobs`):
+:mod:`stages._outlines`, R7e in :mod:`stages._shadow_sides`, R8 in :mod:`stages._blobs`):
 raised pixels are object even when their gray equals the ground's, flat intensity objects
 (shadows, stains, texture blotches) are background, touching objects split at disparity
 jumps or, at one range, at narrow necks (R4b), streaks (ripple troughs) are dropped and so
 are, in a field of parallel streaks,
 objects that do not stand out of the ripple texture around them, objects whose other half
 lies just inside the thresholds grow into it when they stay compact (R7), a lighter and a
-darker half of one rock are joined (R7b), and the intensity decision
+darker half of one rock are joined (R7b), near the camera a lit face takes the raised part
+of a dark neighbour and the flat rest, its cast shadow, goes (R7e), and the intensity decision
 stands where depth is invalid -- for the whole frame when fewer than
 ``min_depth_valid_fraction`` of its heights are valid. How much the height rules trust
 single pixels depends on the measured height noise of the ground (precise, noisy and
@@ -54,12 +56,13 @@ from ._blobs import add_compact_blobs
 from ._continuity import SectorAnalysis, analyse_sectors
 from ._depth_rules import (
     _NOISY_SIGMA_M,
+    _row_band_sigma,
     apply_depth_rules,
     drop_faint_depthless,
     gray_contrast,
 )
 from ._depth_rules import _UNUSABLE_SIGMA_M as _USABLE_SIGMA_M
-from ._heights import DepthRuleStats
+from ._heights import DepthRuleStats, local_ground, smooth_height
 from ._outlines import split_at_necks, trim_faint_rims
 from ._regions import depth_edges, label_objects, threshold_mask
 from ._rock_parts import (
@@ -75,6 +78,7 @@ from ._sectors import (
     sector_edges,
     sector_histograms,
 )
+from ._shadow_sides import split_shadow_sides
 from ._texture_rules import drop_ripple_pieces, drop_streaks
 
 __all__ = [
@@ -163,6 +167,7 @@ def segment_image(
     neck_ratio: float = 0.5,
     blob_sigmas: float = 0.0,
     rim_fraction: float = 0.3,
+    shadow_noise_m: float = 0.0075,
 ) -> Segmentation:
     """Segment one reference image into background and numbered objects.
 
@@ -223,6 +228,10 @@ def segment_image(
         Depth method only, in ``[0, 1)``: after R7c, outline pixels nearer the ground's gray
         level than this fraction of their object's median contrast are dropped (rule R7d of
         :mod:`stages._outlines`); 0 disables.
+    shadow_noise_m : float
+        Depth method only, ``>= 0`` metres: in rows whose ground height noise is at most this,
+        a light object takes the raised part of a dark neighbour and the flat rest (its cast
+        shadow) is dropped (rule R7e of :mod:`stages._shadow_sides`); 0 disables.
     blob_sigmas : float
         Depth method only, ``>= 0``: compact blobs this many ground spreads (at their own
         scale) darker or lighter than the ground that no object touches are added (rule R8
@@ -260,6 +269,8 @@ def segment_image(
             f"neck_ratio and rim_fraction must be in [0, 1) (0 disables), got {neck_ratio} "
             f"and {rim_fraction}"
         )
+    if not shadow_noise_m >= 0:
+        raise ValueError(f"shadow_noise_m must be >= 0 (0 disables), got {shadow_noise_m}")
     if not blob_sigmas >= 0:
         raise ValueError(f"blob_sigmas must be >= 0 (0 disables), got {blob_sigmas}")
     if not weak_bands >= 0 or weak_growth_px < 0 or join_gap_px < 0 or not face_bands >= 0:
@@ -388,6 +399,21 @@ def segment_image(
         labels, rims = trim_faint_rims(labels, contrast, fraction=rim_fraction)
         if rims:
             notes.append(f"{rims} px of faint rims dropped")
+    heights_usable = depth_stats is not None and depth_stats.ground_sigma_m <= _USABLE_SIGMA_M
+    if contrast is not None and heights_usable and shadow_noise_m > 0:
+        # R7e, after R7d: where heights are precise, a shaded face and its cast shadow
+        labels, faces = _split_shadow_sides(
+            labels,
+            contrast,
+            height,
+            max_noise_m=shadow_noise_m,
+            min_height_m=min_height_m,
+            flat_tol_m=flat_tol_m,
+            smoothing_px=height_smoothing_px,
+            ground_window_px=ground_window_px,
+        )
+        if faces:
+            notes.append(f"{faces} px of shaded faces joined to lit ones")
     if method == "sector-histogram+depth" and blob_sigmas > 0:
         # R8, after every rule: only rocks no object touches are added
         labels, blobs = add_compact_blobs(
@@ -397,6 +423,35 @@ def segment_image(
             notes.append(f"{blobs} compact blob(s) no threshold reached added")
     return Segmentation(
         labels=labels, sectors=analysis, depth=depth_stats, streaks_dropped=streaks, notes=notes
+    )
+
+
+def _split_shadow_sides(
+    labels: np.ndarray,
+    contrast: np.ndarray,
+    height: np.ndarray,
+    *,
+    max_noise_m: float,
+    min_height_m: float,
+    flat_tol_m: float,
+    smoothing_px: int,
+    ground_window_px: int,
+) -> tuple[np.ndarray, int]:
+    """R7e on the heights the depth rules read: relative to R0's local ground, R0b's noise."""
+    if not labels.any():
+        return labels, 0
+    smoothed = smooth_height(height, window=smoothing_px)
+    relative = smoothed - local_ground(smoothed, window_px=ground_window_px)
+    # the noise of the ground as the objects now stand (R0b's bands, every other column)
+    noise = _row_band_sigma(relative, np.isfinite(relative) & (labels == 0))
+    return split_shadow_sides(
+        labels,
+        contrast,
+        relative,
+        noise,
+        max_noise_m=max_noise_m,
+        min_height_m=min_height_m,
+        flat_tol_m=flat_tol_m,
     )
 
 
@@ -674,6 +729,14 @@ STAGE = Stage(
             None,
             0,
             0.99,
+        ),
+        Param(
+            "shadow_noise_m",
+            float,
+            0.0075,
+            "depth: rows this precise (m) split a lit rock's dark neighbour by height; 0 = off",
+            None,
+            0,
         ),
         Param(
             "tile_px",
