@@ -88,6 +88,7 @@ import cv2
 import numpy as np
 from scipy.ndimage import find_objects
 
+from ._fronts import grow_fronts
 from ._regions import _coerce_mask, _object_boxes, _renumber, _ring_kernel, _solidity
 
 # R7: objects grow into pixels at least this many threshold bands out on their side ...
@@ -258,22 +259,15 @@ def grow_weak_halves(
     dark_object = np.bincount(owners[inside], contrast.ravel()[inside], minlength=count + 1) < 0
     out = labels.copy()
     background = labels == 0
-    kernel = np.ones((3, 3), np.uint8)
     ids_dtype = np.uint16 if count < 2**16 else np.float32
     # every object is on one side: the light ones are the rest (one lookup, not two)
-    dark_ids = np.where(dark_object, np.arange(count + 1), 0).astype(ids_dtype)[labels]
+    dark_ids = np.take(np.where(dark_object, np.arange(count + 1), 0).astype(ids_dtype), labels)
     fronts = {True: dark_ids, False: labels.astype(ids_dtype) - dark_ids}
     for dark, front in fronts.items():
         weak = (contrast < -min_contrast) if dark != opposite else (contrast > min_contrast)
         weak &= between & background
-        for _ in range(max_steps):
-            # where two objects of one side reach a pixel at once, the higher id takes it
-            reach = cv2.dilate(front, kernel)
-            new = weak & (reach > 0)
-            if not new.any():
-                break
-            weak &= ~new
-            np.copyto(front, reach, where=new)
+        # where two objects of one side reach a pixel at once, the higher id takes it
+        grow_fronts(front, weak, max_steps=max_steps)
         np.copyto(out, front, where=background & (front > 0), casting="unsafe")
     grown = out != labels
     changed = np.unique(out[grown])
