@@ -86,6 +86,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ._modes import find_all_modes
 from ._sectors import FWHM_TO_SIGMA, N_LEVELS, find_modes, smooth_histograms
 
 __all__ = ["SectorAnalysis", "analyse_sectors"]
@@ -307,9 +308,14 @@ def analyse_sectors(
         )
     n = hist.shape[0]
     smoothed = smooth_histograms(hist, passes=smoothing)
-    modes = [
-        [find_modes(smoothed[i, j], prominence=prominence) for j in range(n)] for i in range(n)
-    ]
+    # find_modes of every sector, in one compiled loop instead of 256 scipy calls
+    all_positions, counts = find_all_modes(smoothed, prominence=prominence)
+    modes = []
+    for i in range(n):
+        modes.append([])
+        for j in range(n):
+            positions = all_positions[i, j, : counts[i, j]]
+            modes[i].append((positions, smoothed[i, j][positions]))
     level = _seed_levels(modes, seed_dominance=seed_dominance, continuity_range=continuity_range)
     seed = np.isfinite(level)
     if not seed.any():
