@@ -418,7 +418,7 @@ def drop_faint_depthless(
     inside = judged[labels]
     ids = labels[inside]
     medians = [
-        _percentile_by_label(field[inside].astype(np.float64), ids, count, 50.0)
+        _percentile_by_label(field[inside].astype(np.float32), ids, count, 50.0)
         for field in (image, background, low, high)
     ]
     # objects not judged have no values (+inf): compare the judged ones only

@@ -236,7 +236,7 @@ def trim_faint_rims(
     owners = labels.ravel()
     inside = owners > 0
     median = _percentile_by_label(
-        contrast.ravel()[inside].astype(np.float64), owners[inside], count + 1, 50.0
+        contrast.ravel()[inside].astype(np.float32), owners[inside], count + 1, 50.0
     )
     median[~np.isfinite(median)] = 0.0
     median[0] = 0.0
