@@ -2,11 +2,18 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 from object_masks import disk
 
-from stages._regions import depth_edges, fill_holes, label_objects, threshold_mask
+from stages._regions import (
+    _dense_components,
+    depth_edges,
+    fill_holes,
+    label_objects,
+    threshold_mask,
+)
 
 
 def test_threshold_mask_both_polarities():
@@ -64,3 +71,29 @@ def test_depth_edges_inside_one_object_do_not_fragment_it():
     disparity[20, 20] = 30.0  # an isolated outlier: median filtered away
     labels = label_objects(mask, edges=depth_edges(disparity, jump_px=1.5))
     assert labels.max() == 1
+
+
+def _dense_components_with_stats(mask, min_area_px, connectivity):
+    """The numpy twin of _dense_components' kernel: OpenCV's areas and a lookup table."""
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(
+        mask.view(np.uint8), connectivity=connectivity, ltype=cv2.CV_32S
+    )
+    keep = stats[:, cv2.CC_STAT_AREA] >= min_area_px
+    keep[0] = False
+    lookup = np.zeros(count, dtype=np.int32)
+    lookup[keep] = np.arange(1, int(keep.sum()) + 1, dtype=np.int32)
+    return lookup[labels]
+
+
+@pytest.mark.parametrize("connectivity", [4, 8])
+def test_dense_components_equal_opencvs_areas_and_lookup(connectivity):
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        shape = tuple(rng.integers(1, 60, 2))
+        mask = rng.random(shape) < rng.random()
+        min_area = int(rng.integers(1, 12))
+        result = _dense_components(mask, min_area, connectivity)
+        assert result.dtype == np.int32
+        np.testing.assert_array_equal(
+            result, _dense_components_with_stats(mask, min_area, connectivity)
+        )
