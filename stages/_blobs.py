@@ -64,8 +64,8 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-from scipy import ndimage as ndi
 
+from ._regions import _box_window, _object_boxes
 from ._sectors import sector_edges
 
 __all__ = ["add_compact_blobs"]
@@ -205,9 +205,11 @@ def add_compact_blobs(
             & (areas >= min_area_px)
             & (inner >= min_interior * areas)
         )
-        for blob, box in enumerate(ndi.find_objects(blob_ids), start=1):
-            if box is None or not candidate[blob]:
+        boxes = _object_boxes(blob_ids, n_blobs - 1)
+        for blob in np.flatnonzero(candidate):
+            if blob == 0 or boxes[blob, 1] < boxes[blob, 0]:
                 continue
+            box = _box_window(boxes[blob])
             # the box with room for the isolation ring
             far = _RING_PX[1]
             r0, r1 = max(box[0].start - far, 0), box[0].stop + far

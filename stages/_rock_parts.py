@@ -86,10 +86,16 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-from scipy.ndimage import find_objects
 
 from ._fronts import grow_fronts
-from ._regions import _coerce_mask, _object_boxes, _renumber, _ring_kernel, _solidity
+from ._regions import (
+    _box_window,
+    _coerce_mask,
+    _object_boxes,
+    _renumber,
+    _ring_kernel,
+    _solidity,
+)
 
 # R7: objects grow into pixels at least this many threshold bands out on their side ...
 _WEAK_CONTRAST = 0.7
@@ -271,9 +277,9 @@ def grow_weak_halves(
         np.copyto(out, front, where=background & (front > 0), casting="unsafe")
     grown = out != labels
     changed = np.unique(out[grown])
-    spans = find_objects(out)
+    boxes = _object_boxes(out, count)
     for k in changed:
-        window = spans[k - 1]
+        window = _box_window(boxes[k])
         before = labels[window] == k
         after = out[window] == k
         gain = np.count_nonzero(after) - np.count_nonzero(before)
@@ -374,7 +380,7 @@ def join_opposite_halves(
     inside = owners > 0
     area = np.bincount(owners, minlength=count + 1)
     lighter = np.bincount(owners[inside], contrast.ravel()[inside], minlength=count + 1) >= 0
-    spans = find_objects(labels)
+    boxes = _object_boxes(labels, count)
     kernel = _ring_kernel(gap_px)
     rows, cols = labels.shape
     parent = np.arange(count + 1)
@@ -387,7 +393,7 @@ def join_opposite_halves(
     out = labels.copy()
     joined = 0
     for k in range(1, count + 1):
-        sy, sx = spans[k - 1]
+        sy, sx = _box_window(boxes[k])
         y0, x0 = max(0, sy.start - gap_px), max(0, sx.start - gap_px)
         y1, x1 = min(rows, sy.stop + gap_px), min(cols, sx.stop + gap_px)
         window = labels[y0:y1, x0:x1]
@@ -399,7 +405,7 @@ def join_opposite_halves(
                 continue
             if n_facing < np.sqrt(min(area[k], area[j])):
                 continue
-            oy, ox = spans[j - 1]
+            oy, ox = _box_window(boxes[j])
             v0, v1 = max(0, min(sy.start, oy.start) - gap_px), max(sy.stop, oy.stop) + gap_px
             u0, u1 = max(0, min(sx.start, ox.start) - gap_px), max(sx.stop, ox.stop) + gap_px
             pair = labels[v0:v1, u0:u1]

@@ -69,9 +69,8 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-from scipy.ndimage import find_objects
 
-from ._regions import CLEAR_CONTRAST, _object_boxes, _renumber, _ring_kernel
+from ._regions import CLEAR_CONTRAST, _box_window, _object_boxes, _renumber, _ring_kernel
 
 # R5c: streaks of the ground texture within this many pixels of an object ...
 _RIPPLE_RADIUS_PX = 100.0
@@ -300,7 +299,7 @@ def drop_ripple_pieces(
     in_field = np.flatnonzero(in_field) + 1
     if in_field.size == 0:
         return labels, 0
-    boxes = find_objects(labels)
+    boxes = _object_boxes(labels, count)
     rows, cols = labels.shape
     # R5c at range counts only streaks longer than any rock: a subset of the field's
     streak_ids, t_boxes, _, _, t_ratio = streaks
@@ -313,7 +312,7 @@ def drop_ripple_pieces(
     is_streak = np.zeros(int(texture.max()) + 1, dtype=bool)
     ripple = np.zeros(count + 1, dtype=bool)
     for row, k in enumerate(in_field):
-        sy, sx = boxes[k - 1]
+        sy, sx = _box_window(boxes[k])
         y0, x0 = max(0, sy.start - _TEXTURE_RING_PX), max(0, sx.start - _TEXTURE_RING_PX)
         y1, x1 = min(rows, sy.stop + _TEXTURE_RING_PX), min(cols, sx.stop + _TEXTURE_RING_PX)
         window = labels[y0:y1, x0:x1]
@@ -348,15 +347,7 @@ def _streaks(
         return empty.astype(np.int64), np.zeros((0, 4)), empty, empty, empty
     t_area, _, _, t_ratio, t_angle = _moments(texture)
     streaks = np.flatnonzero(t_ratio > max_elongation)
-    # find_objects is C, _object_boxes is not
-    spans = find_objects(texture)
-    boxes = np.array(
-        [
-            (sy.start, sy.stop - 1, sx.start, sx.stop - 1)
-            for sy, sx in (spans[k - 1] for k in streaks)
-        ],
-        dtype=np.float64,
-    ).reshape(-1, 4)
+    boxes = _object_boxes(texture, t_area.size - 1)[streaks].astype(np.float64)
     return streaks, boxes, t_area[streaks], t_angle[streaks], t_ratio[streaks]
 
 

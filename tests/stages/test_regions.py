@@ -6,9 +6,12 @@ import cv2
 import numpy as np
 import pytest
 from object_masks import disk
+from scipy.ndimage import find_objects
 
 from stages._regions import (
+    _box_window,
     _dense_components,
+    _object_boxes,
     depth_edges,
     fill_holes,
     label_objects,
@@ -97,3 +100,22 @@ def test_dense_components_equal_opencvs_areas_and_lookup(connectivity):
         np.testing.assert_array_equal(
             result, _dense_components_with_stats(mask, min_area, connectivity)
         )
+
+
+def test_object_boxes_equal_find_objects():
+    rng = np.random.default_rng(6)
+    for _ in range(30):
+        shape = tuple(rng.integers(1, 50, 2))
+        labels = np.where(rng.random(shape) < 0.2, rng.integers(1, 12, shape), 0)
+        labels = labels.astype(rng.choice([np.int32, np.int64, np.uint16]))
+        count = int(labels.max())
+        boxes = _object_boxes(labels, count)
+        spans = find_objects(labels)
+        assert boxes.shape == (count + 1, 4) and boxes[0, 1] < boxes[0, 0]
+        for k in range(1, count + 1):
+            if spans[k - 1] is None:
+                assert boxes[k, 1] < boxes[k, 0] and boxes[k, 3] < boxes[k, 2]
+            else:
+                assert _box_window(boxes[k]) == spans[k - 1]
+    # ids above count are left out, not written past the table
+    assert _object_boxes(np.array([[0, 3, 1]]), 1).tolist()[1] == [0, 0, 2, 2]
