@@ -16,6 +16,8 @@ import cv2
 import numpy as np
 from scipy.ndimage import median_filter
 
+from ._select import median_abs_deviation32
+
 __all__ = [
     "DepthRuleStats",
     "smooth_height",
@@ -111,6 +113,9 @@ def _median_filter_nearest(image: np.ndarray, *, size: int) -> np.ndarray:
 def _robust_sigma(values: np.ndarray) -> float:
     if values.size < 10:
         return 0.0
+    if values.dtype == np.float32 and values.ndim == 1 and np.isfinite(values).all():
+        # the same float32 value by selection, at half the cost of two np.median
+        return float(1.4826 * median_abs_deviation32(values))
     return float(1.4826 * np.median(np.abs(values - np.median(values))))
 
 
