@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 from height_maps import correlated_noise
@@ -139,3 +140,28 @@ def test_height_bumps_peak_on_a_window_sized_rock_not_on_a_swell():
     assert bumps[40, 40] > 3 * bumps[110, 110]
     assert bumps[40, 40] > height_vote._BUMP_SCORE
     assert (bumps[:, :3] == 0).all()  # no height, no evidence
+
+
+def test_object_counts_and_peaks_equal_their_numpy_twins():
+    # the twins: whole-frame bincounts and np.maximum.at (the code the kernels replaced)
+    rng = np.random.default_rng(12)
+    for _ in range(20):
+        shape = tuple(rng.integers(1, 40, 2))
+        mask = rng.random(shape) < rng.random()
+        count, components = cv2.connectedComponents(mask.view(np.uint8), connectivity=8)
+        valid = rng.random(shape) < 0.8
+        values = rng.normal(0, 2, shape).astype(np.float32)
+        n_pixels, n_valid = height_vote._object_counts(components, valid, count)
+        valid_components = np.where(valid, components, 0)
+        np.testing.assert_array_equal(
+            n_pixels, np.bincount(components.ravel(), minlength=count)[1:]
+        )
+        np.testing.assert_array_equal(
+            n_valid, np.bincount(valid_components.ravel(), minlength=count)[1:]
+        )
+        peak = np.full(count, -np.inf)
+        height_vote._object_peaks(components, valid, values, peak)
+        in_object = valid_components > 0
+        expected = np.full(count, -np.inf)
+        np.maximum.at(expected, valid_components[in_object], values[in_object])
+        np.testing.assert_array_equal(peak, expected)
