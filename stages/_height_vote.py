@@ -122,7 +122,7 @@ def noisy_depth_rules(
     count, components = cv2.connectedComponents(mask.view(np.uint8), connectivity=8)
     lying = np.zeros(count, dtype=bool)
     if count > 1:
-        n_pixels, n_valid = _object_counts(components, valid, count)
+        n_pixels, n_valid = (n[1:] for n in _object_counts(components, valid, count))
         # only objects are voted on: leave the (large) background out of the sort
         in_object = valid & (components > 0)
         owners = components[in_object]
@@ -174,11 +174,11 @@ def noisy_depth_rules(
 def _object_counts(
     components: np.ndarray, valid: np.ndarray, count: int
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Pixels and valid pixels of each object 1..count-1 (one compiled pass, not two
+    """Pixels and valid pixels of each label 0..count-1 (one compiled pass, not two
     whole-frame bincounts; ``test_height_vote.py`` compares them)."""
     counts = np.zeros((2, count), np.int64)
-    _count_pass(components, valid, counts)
-    return counts[0, 1:], counts[1, 1:]
+    _count_pass(np.ascontiguousarray(components), np.ascontiguousarray(valid), counts)
+    return counts[0], counts[1]
 
 
 @njit(cache=True)

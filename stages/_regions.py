@@ -230,7 +230,49 @@ def label_objects(
 
 
 def _renumber(labels: np.ndarray, min_area_px: int) -> np.ndarray:
-    """Dense 1..n in raster order of first pixel, dropping labels smaller than min_area_px."""
+    """Dense 1..n in raster order of first pixel, dropping labels smaller than min_area_px.
+
+    Returns int32. Labels ``>= 0`` are renumbered by two compiled passes (count and first
+    appearance, then the lookup); otherwise by the numpy twin :func:`_renumber_numpy`
+    (``test_regions.py`` compares them).
+    """
+    if labels.ndim == 2 and labels.dtype.kind in "iu" and labels.size:
+        top = int(labels.max())
+        if labels.min() >= 0 and top < 2**31:
+            out = np.empty(labels.shape, np.int32)
+            _renumber_pass(np.ascontiguousarray(labels), top, min_area_px, out)
+            return out
+    return _renumber_numpy(labels, min_area_px)
+
+
+@njit(cache=True)
+def _renumber_pass(labels, top, min_area_px, out):  # pragma: no cover - numba
+    rows, cols = labels.shape
+    area = np.zeros(top + 1, np.int64)
+    order = np.empty(top + 1, np.int64)
+    seen = 0
+    for y in range(rows):
+        for x in range(cols):
+            k = labels[y, x]
+            if k > 0:
+                if area[k] == 0:
+                    order[seen] = k
+                    seen += 1
+                area[k] += 1
+    remap = np.zeros(top + 1, np.int32)
+    kept = 0
+    for n in range(seen):
+        k = order[n]
+        if area[k] >= min_area_px:
+            kept += 1
+            remap[k] = kept
+    for y in range(rows):
+        for x in range(cols):
+            out[y, x] = remap[labels[y, x]]
+
+
+def _renumber_numpy(labels: np.ndarray, min_area_px: int) -> np.ndarray:
+    """:func:`_renumber` by sorting the object pixels (any integer labels)."""
     flat = labels.ravel()
     # objects are a small share of a frame: sort their pixels only (positions stay in order)
     inside = np.flatnonzero(flat)

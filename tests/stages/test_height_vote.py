@@ -154,10 +154,10 @@ def test_object_counts_and_peaks_equal_their_numpy_twins():
         n_pixels, n_valid = height_vote._object_counts(components, valid, count)
         valid_components = np.where(valid, components, 0)
         np.testing.assert_array_equal(
-            n_pixels, np.bincount(components.ravel(), minlength=count)[1:]
+            n_pixels, np.bincount(components.ravel(), minlength=count)
         )
         np.testing.assert_array_equal(
-            n_valid, np.bincount(valid_components.ravel(), minlength=count)[1:]
+            n_valid, np.bincount(components[valid], minlength=count)
         )
         peak = np.full(count, -np.inf)
         height_vote._object_peaks(components, valid, values, peak)

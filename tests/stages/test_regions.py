@@ -12,6 +12,8 @@ from stages._regions import (
     _box_window,
     _dense_components,
     _object_boxes,
+    _renumber,
+    _renumber_numpy,
     depth_edges,
     fill_holes,
     label_objects,
@@ -119,3 +121,16 @@ def test_object_boxes_equal_find_objects():
                 assert _box_window(boxes[k]) == spans[k - 1]
     # ids above count are left out, not written past the table
     assert _object_boxes(np.array([[0, 3, 1]]), 1).tolist()[1] == [0, 0, 2, 2]
+
+
+def test_renumber_equals_its_numpy_twin():
+    rng = np.random.default_rng(13)
+    for trial in range(30):
+        shape = tuple(rng.integers(1, 50, 2))
+        ids = rng.integers(1, 40, shape) * (1000 if trial % 3 == 0 else 1)  # sparse ids
+        labels = np.where(rng.random(shape) < 0.4, ids, 0)
+        labels = labels.astype(np.int64 if trial % 2 else np.int32)
+        min_area = int(rng.integers(1, 6))
+        result = _renumber(labels, min_area)
+        assert result.dtype == np.int32
+        np.testing.assert_array_equal(result, _renumber_numpy(labels, min_area))
