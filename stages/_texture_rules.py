@@ -69,6 +69,7 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+from numba import njit
 
 from ._regions import CLEAR_CONTRAST, _box_window, _object_boxes, _renumber, _ring_kernel
 
@@ -106,18 +107,17 @@ def _moments(labels: np.ndarray) -> tuple[np.ndarray, ...]:
     The angle (radians in ``(-pi/2, pi/2]``, 0 along the rows, positive towards increasing
     row) is the major axis of the equivalent ellipse; it is 0 for label 0 and absent labels.
     """
-    labels = np.asarray(labels)
+    labels = np.ascontiguousarray(labels)
     count = int(labels.max()) + 1
-    ys, xs = np.nonzero(labels)
-    ids = labels[ys, xs]
-    area = np.maximum(np.bincount(ids, minlength=count), 1).astype(np.float64)
-    mx = np.bincount(ids, xs, minlength=count) / area
-    my = np.bincount(ids, ys, minlength=count) / area
-    dx, dy = xs - mx[ids], ys - my[ids]
+    area, sum_y, sum_x = _sums(labels, count)
+    area = np.maximum(area, 1).astype(np.float64)
+    mx = sum_x / area
+    my = sum_y / area
+    sum_xx, sum_yy, sum_xy = _central_sums(labels, mx, my)
     # + 1/12: a pixel is a unit square, so a single row still has a width
-    sxx = np.bincount(ids, dx * dx, minlength=count) / area + 1.0 / 12.0
-    syy = np.bincount(ids, dy * dy, minlength=count) / area + 1.0 / 12.0
-    sxy = np.bincount(ids, dx * dy, minlength=count) / area
+    sxx = sum_xx / area + 1.0 / 12.0
+    syy = sum_yy / area + 1.0 / 12.0
+    sxy = sum_xy / area
     half_trace = (sxx + syy) / 2.0
     root = np.sqrt(((sxx - syy) / 2.0) ** 2 + sxy**2)
     major, minor = half_trace + root, np.maximum(half_trace - root, 1e-12)
@@ -126,6 +126,53 @@ def _moments(labels: np.ndarray) -> tuple[np.ndarray, ...]:
     angle = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
     angle[0] = 0.0
     return area, my, mx, ratio, angle
+
+
+def _sums(labels: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Pixels, row sum and column sum of each label 0..count-1 (label 0: none counted).
+
+    The sums run over the pixels in raster order, as ``np.bincount(ids, weights)`` of
+    ``np.nonzero``'s pixels adds them (the same floats; ``test_texture_rules.py`` compares).
+    """
+    area = np.zeros(count, np.int64)
+    sums = np.zeros((2, count))
+    _sum_pass(labels, area, sums)
+    return area, sums[0], sums[1]
+
+
+@njit(cache=True)
+def _sum_pass(labels, area, sums):  # pragma: no cover - numba
+    rows, cols = labels.shape
+    for y in range(rows):
+        for x in range(cols):
+            k = labels[y, x]
+            if k != 0:
+                area[k] += 1
+                sums[0, k] += y
+                sums[1, k] += x
+
+
+def _central_sums(
+    labels: np.ndarray, mx: np.ndarray, my: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Sums of dx*dx, dy*dy and dx*dy about each label's centroid, in raster order."""
+    sums = np.zeros((3, mx.size))
+    _central_pass(labels, mx, my, sums)
+    return sums[0], sums[1], sums[2]
+
+
+@njit(cache=True)
+def _central_pass(labels, mx, my, sums):  # pragma: no cover - numba
+    rows, cols = labels.shape
+    for y in range(rows):
+        for x in range(cols):
+            k = labels[y, x]
+            if k != 0:
+                dx = x - mx[k]
+                dy = y - my[k]
+                sums[0, k] += dx * dx
+                sums[1, k] += dy * dy
+                sums[2, k] += dx * dy
 
 
 def elongation(labels: np.ndarray) -> np.ndarray:
@@ -277,11 +324,10 @@ def drop_ripple_pieces(
     count = int(labels.max())
     if count == 0:
         return labels, 0
-    ys, xs = np.nonzero(labels)
-    ids = labels[ys, xs]
-    area = np.maximum(np.bincount(ids, minlength=count + 1), 1).astype(np.float64)[1:]
-    cy = (np.bincount(ids, ys, minlength=count + 1)[1:]) / area
-    cx = (np.bincount(ids, xs, minlength=count + 1)[1:]) / area
+    pixels, sum_y, sum_x = _sums(np.ascontiguousarray(labels), count + 1)
+    area = np.maximum(pixels, 1).astype(np.float64)[1:]
+    cy = sum_y[1:] / area
+    cx = sum_x[1:] / area
     streaks = _streaks(texture, max_elongation=max_elongation)
     in_field = _streak_field(
         streaks,
