@@ -66,7 +66,7 @@ import cv2
 import numpy as np
 from numba import njit
 
-from ._regions import _box_window, _object_boxes
+from ._regions import _box_window, _lookup, _object_boxes
 from ._sectors import sector_edges
 
 __all__ = ["add_compact_blobs"]
@@ -302,7 +302,7 @@ def _grow(
     # each pixel within grow_px of a core needs half the contrast of the strongest one
     # whole gray levels: a uint8 dilation is several times faster than a float one
     # (level 0, outside the cores, is 0)
-    levels = np.take(np.clip(np.round(level), 0, 255).astype(np.uint8), core_ids)
+    levels = _lookup(np.clip(np.round(level), 0, 255).astype(np.uint8), core_ids)
     reach = cv2.dilate(levels, np.ones((2 * grow_px + 1, 2 * grow_px + 1), np.uint8))
     # reach is uint8: compared as float32, not multiplied into float64
     past = (reach > 0) & (contrast >= np.float32(_GROW_SHARE) * reach.astype(np.float32)) & free
@@ -311,7 +311,7 @@ def _grow(
     seeded[parts[cores & past]] = True
     seeded[0] = False
     # blotches of ground texture touching a rock hang off it by a pixel or two
-    filled = _fill_holes(np.take(seeded, parts))
+    filled = _fill_holes(_lookup(seeded, parts))
     opened = cv2.morphologyEx(filled.view(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
     return opened > 0
 

@@ -114,7 +114,7 @@ from ._heights import (
     local_ground,
     smooth_height,
 )
-from ._regions import CLEAR_CONTRAST, _coerce_mask, _renumber
+from ._regions import CLEAR_CONTRAST, _coerce_mask, _lookup, _renumber
 
 # Ground height noise (MAD sigma, metres) above which single heights are not trusted.
 _NOISY_SIGMA_M = 0.005
@@ -255,7 +255,7 @@ def apply_depth_rules(
         & (n_low >= 0.5 * np.maximum(n_valid, 1))
     )
     lying[0] = False
-    removed |= lying[components]
+    removed |= _lookup(lying, components)
     combined = (mask & ~removed) | raised
     stats = DepthRuleStats(
         raised_added_px=int(np.count_nonzero(raised & ~mask)),
@@ -418,7 +418,7 @@ def drop_faint_depthless(
     judged[0] = False
     if not judged.any():
         return labels, 0
-    inside = np.take(judged, labels)
+    inside = _lookup(judged, labels)
     ids = labels[inside]
     medians = [
         _percentile_by_label(field[inside].astype(np.float32), ids, count, 50.0)
@@ -435,4 +435,4 @@ def drop_faint_depthless(
     faint[judged] = np.abs(gray - ground) < min_contrast * np.maximum(band, 1.0)
     if not faint.any():
         return labels, 0
-    return _renumber(np.where(np.take(faint, labels), 0, labels), 1), int(faint.sum())
+    return _renumber(np.where(_lookup(faint, labels), 0, labels), 1), int(faint.sum())

@@ -74,6 +74,7 @@ import numpy as np
 from numba import njit
 
 from ._heights import DepthRuleStats, _percentile_by_label, _percentiles_by_label, _robust_sigma
+from ._regions import _lookup
 
 # Noisy regime: an object lies flat when the 90th percentile of its heights stays below this
 # many ground sigmas (tuned on the built-in archives with the depth stage).
@@ -157,7 +158,7 @@ def noisy_depth_rules(
         flat = ((above < bar * sigma) & ~standing) | wide_flat
         voting = (n_valid >= _VOTE_VALID_FRACTION * n_pixels) & (n_valid >= _VOTE_VALID_PX)
         lying[1:] = voting & flat
-    removed = np.take(lying, components)
+    removed = _lookup(lying, components)
     stats = DepthRuleStats(
         flat_removed_px=int(np.count_nonzero(removed)),
         depth_valid_fraction=float(valid.mean()),

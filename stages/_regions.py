@@ -229,6 +229,30 @@ def label_objects(
     return labels
 
 
+def _lookup(table: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """``table[labels]`` for a 1-D table and 2-D integer labels in its range, compiled:
+    fancy indexing and ``np.take`` first convert the labels to ``intp`` (0.3-0.5 ms a
+    frame per lookup; ``test_regions.py`` compares)."""
+    if table.ndim != 1 or labels.ndim != 2 or labels.dtype.kind not in "iu":
+        raise TypeError(
+            f"need a 1-D table and 2-D integer labels, got {table.ndim}-D and "
+            f"{labels.ndim}-D {labels.dtype}"
+        )
+    if labels.size and (labels.min() < 0 or labels.max() >= table.size):
+        raise IndexError(f"labels must lie in [0, {table.size}), the table's range")
+    out = np.empty(labels.shape, table.dtype)
+    _lookup_pass(table, np.ascontiguousarray(labels), out)
+    return out
+
+
+@njit(cache=True)
+def _lookup_pass(table, labels, out):  # pragma: no cover - numba
+    rows, cols = labels.shape
+    for y in range(rows):
+        for x in range(cols):
+            out[y, x] = table[labels[y, x]]
+
+
 def _renumber(labels: np.ndarray, min_area_px: int) -> np.ndarray:
     """Dense 1..n in raster order of first pixel, dropping labels smaller than min_area_px.
 

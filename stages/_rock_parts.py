@@ -91,6 +91,7 @@ from ._fronts import grow_fronts
 from ._regions import (
     _box_window,
     _coerce_mask,
+    _lookup,
     _object_boxes,
     _renumber,
     _ring_kernel,
@@ -267,7 +268,7 @@ def grow_weak_halves(
     background = labels == 0
     ids_dtype = np.uint16 if count < 2**16 else np.float32
     # every object is on one side: the light ones are the rest (one lookup, not two)
-    dark_ids = np.take(np.where(dark_object, np.arange(count + 1), 0).astype(ids_dtype), labels)
+    dark_ids = _lookup(np.where(dark_object, np.arange(count + 1), 0).astype(ids_dtype), labels)
     fronts = {True: dark_ids, False: labels.astype(ids_dtype) - dark_ids}
     for dark, front in fronts.items():
         weak = (contrast < -min_contrast) if dark != opposite else (contrast > min_contrast)
@@ -423,4 +424,4 @@ def join_opposite_halves(
     if not joined:
         return labels, 0
     roots = np.array([root(k) for k in range(count + 1)])
-    return _renumber(roots[out], 1), joined
+    return _renumber(_lookup(roots, out), 1), joined

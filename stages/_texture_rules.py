@@ -71,7 +71,14 @@ import cv2
 import numpy as np
 from numba import njit
 
-from ._regions import CLEAR_CONTRAST, _box_window, _object_boxes, _renumber, _ring_kernel
+from ._regions import (
+    CLEAR_CONTRAST,
+    _box_window,
+    _lookup,
+    _object_boxes,
+    _renumber,
+    _ring_kernel,
+)
 
 # R5c: streaks of the ground texture within this many pixels of an object ...
 _RIPPLE_RADIUS_PX = 100.0
@@ -247,7 +254,7 @@ def drop_streaks(
                 streak[k] = False
     if not streak.any():
         return labels, 0
-    kept = np.where(streak[labels], 0, labels)
+    kept = np.where(_lookup(streak, labels), 0, labels)
     return _renumber(kept, 1), int(streak.sum())
 
 
@@ -369,7 +376,7 @@ def drop_ripple_pieces(
             # ring but not of the streaks beside it, which are as dark as it is
             is_streak[:] = False
             is_streak[streak_ids[at_range[row]]] = True
-            pixels = is_streak[texture] & (labels != k)
+            pixels = _lookup(is_streak, texture) & (labels != k)
             ratio = min(ratio, _streak_ratio(image, pixels, gray_level, level))
         ripple[k] = ratio < min_texture_ratio
     if not ripple.any():
@@ -377,7 +384,7 @@ def drop_ripple_pieces(
     # labels are dense and numbered in raster order: dropping some keeps the order
     remap = np.zeros(count + 1, dtype=np.int32)
     remap[1:][~ripple[1:]] = np.arange(1, count + 1 - int(ripple.sum()), dtype=np.int32)
-    return remap[labels], int(ripple.sum())
+    return _lookup(remap, labels), int(ripple.sum())
 
 
 def _streaks(

@@ -11,6 +11,7 @@ from scipy.ndimage import find_objects
 from stages._regions import (
     _box_window,
     _dense_components,
+    _lookup,
     _object_boxes,
     _renumber,
     _renumber_numpy,
@@ -134,3 +135,15 @@ def test_renumber_equals_its_numpy_twin():
         result = _renumber(labels, min_area)
         assert result.dtype == np.int32
         np.testing.assert_array_equal(result, _renumber_numpy(labels, min_area))
+
+
+def test_lookup_equals_fancy_indexing_and_checks_the_range():
+    rng = np.random.default_rng(15)
+    labels = rng.integers(0, 9, (30, 40)).astype(np.int32)
+    tables = (rng.random(9) < 0.5, rng.integers(0, 300, 9).astype(np.uint16), rng.normal(size=9))
+    for table in tables:
+        result = _lookup(table, labels)
+        assert result.dtype == table.dtype
+        np.testing.assert_array_equal(result, table[labels])
+    with pytest.raises(IndexError, match="range"):
+        _lookup(np.zeros(5), labels)
