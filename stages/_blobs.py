@@ -66,7 +66,7 @@ import cv2
 import numpy as np
 from numba import njit
 
-from ._regions import _box_window, _lookup, _object_boxes
+from ._regions import _box_window, _label_sums, _lookup, _object_boxes
 from ._sectors import sector_edges
 
 __all__ = ["add_compact_blobs"]
@@ -295,9 +295,8 @@ def _grow(
     n_cores, core_ids = cv2.connectedComponents(cores.view(np.uint8), connectivity=8)
     if n_cores == 1:
         return np.zeros(cores.shape, bool)
-    ids = core_ids[cores]
-    counts = np.bincount(ids, minlength=n_cores)
-    level = np.bincount(ids, weights=contrast[cores], minlength=n_cores) / np.maximum(counts, 1)
+    counts, sums = _label_sums(core_ids, contrast, n_cores)
+    level = sums / np.maximum(counts, 1)
     level[0] = 0.0
     # each pixel within grow_px of a core needs half the contrast of the strongest one
     # whole gray levels: a uint8 dilation is several times faster than a float one

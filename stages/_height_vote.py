@@ -253,9 +253,27 @@ def _ring_levels(
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
     # grey dilation of the ids: a ring pixel between two objects goes to the higher id
     ids = components.astype(np.uint16 if count < 2**16 else np.float32)
-    grown = cv2.dilate(ids, kernel).astype(np.int64)
-    ring = (components == 0) & (grown > 0) & np.isfinite(relative)
-    owners = grown[ring]
-    levels = _percentile_by_label(relative[ring], owners, count, 50.0)[1:]
+    grown = cv2.dilate(ids, kernel)
+    # the ring: background pixels a dilated id reaches, with a height (one compiled pass)
+    owners = np.empty(components.size, np.int64)
+    values = np.empty(components.size, np.float32)
+    n = _ring_pass(components, grown, relative, owners, values)
+    owners, values = owners[:n], values[:n]
+    levels = _percentile_by_label(values, owners, count, 50.0)[1:]
     n_ring = np.bincount(owners, minlength=count)[1:]
     return np.where(n_ring >= 10, levels, np.nan)
+
+
+@njit(cache=True)
+def _ring_pass(components, grown, relative, owners, values):  # pragma: no cover - numba
+    """Ids and heights of the ring pixels in raster order, as ``grown[ring]`` and
+    ``relative[ring]`` give them (``test_height_vote.py`` compares); returns their count."""
+    rows, cols = components.shape
+    n = 0
+    for y in range(rows):
+        for x in range(cols):
+            if components[y, x] == 0 and grown[y, x] > 0 and np.isfinite(relative[y, x]):
+                owners[n] = np.int64(grown[y, x])
+                values[n] = relative[y, x]
+                n += 1
+    return n

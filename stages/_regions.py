@@ -253,6 +253,33 @@ def _lookup_pass(table, labels, out):  # pragma: no cover - numba
             out[y, x] = table[labels[y, x]]
 
 
+def _label_sums(
+    labels: np.ndarray, values: np.ndarray, count: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Pixels of each label 0..count-1 and the sum of ``values`` over each object's pixels
+    (label 0's sum is 0), added in raster order as ``np.bincount(labels[labels > 0],
+    values[labels > 0])`` adds them (the same floats; ``test_regions.py`` compares)."""
+    if labels.shape != values.shape or labels.ndim != 2:
+        raise ValueError(f"labels {labels.shape} and values {values.shape}: need 2-D, one shape")
+    if labels.size and (labels.min() < 0 or labels.max() >= count):
+        raise IndexError(f"labels must lie in [0, {count})")
+    counts = np.zeros(count, np.int64)
+    sums = np.zeros(count)
+    _sums_pass(np.ascontiguousarray(labels), np.ascontiguousarray(values), counts, sums)
+    return counts, sums
+
+
+@njit(cache=True)
+def _sums_pass(labels, values, counts, sums):  # pragma: no cover - numba
+    rows, cols = labels.shape
+    for y in range(rows):
+        for x in range(cols):
+            k = labels[y, x]
+            counts[k] += 1
+            if k > 0:
+                sums[k] += values[y, x]
+
+
 def _renumber(labels: np.ndarray, min_area_px: int) -> np.ndarray:
     """Dense 1..n in raster order of first pixel, dropping labels smaller than min_area_px.
 

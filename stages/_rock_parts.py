@@ -91,6 +91,7 @@ from ._fronts import grow_fronts
 from ._regions import (
     _box_window,
     _coerce_mask,
+    _label_sums,
     _lookup,
     _object_boxes,
     _renumber,
@@ -260,10 +261,8 @@ def grow_weak_halves(
     count = int(labels.max())
     if count == 0 or max_steps == 0:
         return labels, 0
-    owners = labels.ravel()
-    inside = owners > 0
     # the side of an object: the sign of its mean contrast
-    dark_object = np.bincount(owners[inside], contrast.ravel()[inside], minlength=count + 1) < 0
+    dark_object = _label_sums(labels, contrast, count + 1)[1] < 0
     out = labels.copy()
     background = labels == 0
     ids_dtype = np.uint16 if count < 2**16 else np.float32
@@ -377,10 +376,8 @@ def join_opposite_halves(
     count = int(labels.max())
     if count < 2 or gap_px == 0:
         return labels, 0
-    owners = labels.ravel()
-    inside = owners > 0
-    area = np.bincount(owners, minlength=count + 1)
-    lighter = np.bincount(owners[inside], contrast.ravel()[inside], minlength=count + 1) >= 0
+    area, sums = _label_sums(labels, contrast, count + 1)
+    lighter = sums >= 0
     boxes = _object_boxes(labels, count)
     kernel = _ring_kernel(gap_px)
     rows, cols = labels.shape

@@ -165,3 +165,19 @@ def test_object_counts_and_peaks_equal_their_numpy_twins():
         expected = np.full(count, -np.inf)
         np.maximum.at(expected, valid_components[in_object], values[in_object])
         np.testing.assert_array_equal(peak, expected)
+
+
+def test_ring_pass_gathers_the_ring_pixels_in_raster_order():
+    rng = np.random.default_rng(17)
+    mask = rng.random((30, 40)) < 0.2
+    count, components = cv2.connectedComponents(mask.view(np.uint8), connectivity=8)
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (9, 9))
+    grown = cv2.dilate(components.astype(np.uint16), kernel)
+    relative = rng.normal(0, 0.01, (30, 40)).astype(np.float32)
+    relative[rng.random((30, 40)) < 0.2] = np.nan
+    owners = np.empty(components.size, np.int64)
+    values = np.empty(components.size, np.float32)
+    n = height_vote._ring_pass(components, grown, relative, owners, values)
+    ring = (components == 0) & (grown > 0) & np.isfinite(relative)
+    np.testing.assert_array_equal(owners[:n], grown[ring].astype(np.int64))
+    np.testing.assert_array_equal(values[:n], relative[ring])

@@ -11,6 +11,7 @@ from scipy.ndimage import find_objects
 from stages._regions import (
     _box_window,
     _dense_components,
+    _label_sums,
     _lookup,
     _object_boxes,
     _renumber,
@@ -147,3 +148,17 @@ def test_lookup_equals_fancy_indexing_and_checks_the_range():
         np.testing.assert_array_equal(result, table[labels])
     with pytest.raises(IndexError, match="range"):
         _lookup(np.zeros(5), labels)
+
+
+def test_label_sums_equal_bincounts():
+    rng = np.random.default_rng(16)
+    for _ in range(10):
+        shape = tuple(rng.integers(1, 50, 2))
+        labels = np.where(rng.random(shape) < 0.5, rng.integers(1, 7, shape), 0).astype(np.int32)
+        values = rng.normal(0, 2, shape).astype(np.float32)
+        counts, sums = _label_sums(labels, values, 7)
+        inside = labels > 0
+        np.testing.assert_array_equal(counts, np.bincount(labels.ravel(), minlength=7))
+        np.testing.assert_array_equal(
+            sums, np.bincount(labels[inside], values[inside], minlength=7)
+        )
