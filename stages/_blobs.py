@@ -64,8 +64,9 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-from scipy import ndimage as ndi
+from numba import njit
 
+from ._regions import _box_window, _label_sums, _lookup, _object_boxes
 from ._sectors import sector_edges
 
 __all__ = ["add_compact_blobs"]
@@ -186,18 +187,13 @@ def add_compact_blobs(
         cores = (z_side >= min_sigmas) & outside
         grown = _grow(cores, fine_side, free, grow_px)
         # overlapping regions of one side are one blob
-        n_blobs, blob_ids = cv2.connectedComponents(grown.astype(np.uint8), connectivity=8)
+        n_blobs, blob_ids = cv2.connectedComponents(grown.view(np.uint8), connectivity=8)
         if n_blobs == 1:
             continue
-        owners = blob_ids[grown]
-        peaks = np.full(n_blobs, -np.inf)
-        np.maximum.at(peaks, owners, z_side[grown])
-        areas = np.bincount(owners, minlength=n_blobs)
-        touching = np.bincount(blob_ids[ring], minlength=n_blobs) > 0
         # the interior test for all blobs at once: one blob's 3x3 neighbourhood holds no
         # other blob's pixels (they would be one blob), and the frame's edge erodes nothing
-        interior = cv2.erode(grown.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0
-        inner = np.bincount(blob_ids[interior], minlength=n_blobs)
+        interior = cv2.erode(grown.view(np.uint8), np.ones((3, 3), np.uint8)).view(bool)
+        peaks, areas, touching, inner = _blob_statistics(blob_ids, n_blobs, z_side, ring, interior)
         need = min_sigmas * (light_factor if sign > 0 else 1.0)
         candidate = (
             (peaks >= need)
@@ -205,9 +201,11 @@ def add_compact_blobs(
             & (areas >= min_area_px)
             & (inner >= min_interior * areas)
         )
-        for blob, box in enumerate(ndi.find_objects(blob_ids), start=1):
-            if box is None or not candidate[blob]:
+        boxes = _object_boxes(blob_ids, n_blobs - 1)
+        for blob in np.flatnonzero(candidate):
+            if blob == 0 or boxes[blob, 1] < boxes[blob, 0]:
                 continue
+            box = _box_window(boxes[blob])
             # the box with room for the isolation ring
             far = _RING_PX[1]
             r0, r1 = max(box[0].start - far, 0), box[0].stop + far
@@ -221,6 +219,35 @@ def add_compact_blobs(
             next_id += 1
             added += 1
     return labels, added
+
+
+def _blob_statistics(
+    blob_ids: np.ndarray, n_blobs: int, z: np.ndarray, ring: np.ndarray, interior: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per blob 0..n_blobs-1: peak of ``z`` (-inf for 0), pixels, whether a ``ring`` pixel
+    is its, and its ``interior`` pixels; one compiled pass instead of an ``ufunc.at`` and
+    three ``bincount`` of masked copies (``test_blobs.py`` compares them)."""
+    peaks = np.full(n_blobs, -np.inf)
+    counts = np.zeros((3, n_blobs), np.int64)
+    _blob_pass(blob_ids, np.ascontiguousarray(z), ring, interior, peaks, counts)
+    return peaks, counts[0], counts[1] > 0, counts[2]
+
+
+@njit(cache=True)
+def _blob_pass(blob_ids, z, ring, interior, peaks, counts):  # pragma: no cover - numba
+    rows, cols = blob_ids.shape
+    for y in range(rows):
+        for x in range(cols):
+            k = blob_ids[y, x]
+            if ring[y, x]:
+                counts[1, k] += 1
+            if k == 0:
+                continue
+            if z[y, x] > peaks[k]:
+                peaks[k] = z[y, x]
+            counts[0, k] += 1
+            if interior[y, x]:
+                counts[2, k] += 1
 
 
 def _ground_level(image: np.ndarray, ground_px: int) -> np.ndarray:
@@ -265,28 +292,26 @@ def _grow(
     cores: np.ndarray, contrast: np.ndarray, free: np.ndarray, grow_px: int
 ) -> np.ndarray:
     """The union of the cores' regions (module docstring, step 3), all cores at once."""
-    n_cores, core_ids = cv2.connectedComponents(cores.astype(np.uint8), connectivity=8)
+    n_cores, core_ids = cv2.connectedComponents(cores.view(np.uint8), connectivity=8)
     if n_cores == 1:
         return np.zeros(cores.shape, bool)
-    ids = core_ids[cores]
-    counts = np.bincount(ids, minlength=n_cores)
-    level = np.bincount(ids, weights=contrast[cores], minlength=n_cores) / np.maximum(counts, 1)
+    counts, sums = _label_sums(core_ids, contrast, n_cores)
+    level = sums / np.maximum(counts, 1)
     level[0] = 0.0
     # each pixel within grow_px of a core needs half the contrast of the strongest one
     # whole gray levels: a uint8 dilation is several times faster than a float one
-    levels = np.zeros(cores.shape, np.uint8)
-    levels[cores] = np.clip(np.round(level), 0, 255).astype(np.uint8)[ids]
+    # (level 0, outside the cores, is 0)
+    levels = _lookup(np.clip(np.round(level), 0, 255).astype(np.uint8), core_ids)
     reach = cv2.dilate(levels, np.ones((2 * grow_px + 1, 2 * grow_px + 1), np.uint8))
     # reach is uint8: compared as float32, not multiplied into float64
     past = (reach > 0) & (contrast >= np.float32(_GROW_SHARE) * reach.astype(np.float32)) & free
-    n_parts, parts = cv2.connectedComponents(past.astype(np.uint8), connectivity=8)
+    n_parts, parts = cv2.connectedComponents(past.view(np.uint8), connectivity=8)
     seeded = np.zeros(n_parts, bool)
     seeded[parts[cores & past]] = True
     seeded[0] = False
     # blotches of ground texture touching a rock hang off it by a pixel or two
-    opened = cv2.morphologyEx(
-        _fill_holes(seeded[parts]).astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)
-    )
+    filled = _fill_holes(_lookup(seeded, parts))
+    opened = cv2.morphologyEx(filled.view(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
     return opened > 0
 
 

@@ -101,7 +101,12 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from ._height_vote import _VOTE_VALID_FRACTION, _VOTE_VALID_PX, noisy_depth_rules
+from ._height_vote import (
+    _VOTE_VALID_FRACTION,
+    _VOTE_VALID_PX,
+    _object_counts,
+    noisy_depth_rules,
+)
 from ._heights import (
     DepthRuleStats,
     _percentile_by_label,
@@ -109,7 +114,7 @@ from ._heights import (
     local_ground,
     smooth_height,
 )
-from ._regions import CLEAR_CONTRAST, _coerce_mask, _renumber
+from ._regions import CLEAR_CONTRAST, _coerce_mask, _lookup, _renumber
 
 # Ground height noise (MAD sigma, metres) above which single heights are not trusted.
 _NOISY_SIGMA_M = 0.005
@@ -250,7 +255,7 @@ def apply_depth_rules(
         & (n_low >= 0.5 * np.maximum(n_valid, 1))
     )
     lying[0] = False
-    removed |= lying[components]
+    removed |= _lookup(lying, components)
     combined = (mask & ~removed) | raised
     stats = DepthRuleStats(
         raised_added_px=int(np.count_nonzero(raised & ~mask)),
@@ -407,18 +412,16 @@ def drop_faint_depthless(
     count = int(labels.max()) + 1
     if count == 1:
         return labels, 0
-    owners = labels.ravel()
-    n_pixels = np.bincount(owners, minlength=count)
-    n_valid = np.bincount(owners[np.isfinite(height).ravel()], minlength=count)
+    n_pixels, n_valid = _object_counts(labels, np.isfinite(height), count)
     # every object the vote could not read (too few heights, see stages._height_vote) is judged
     judged = (n_valid < max_valid_fraction * n_pixels) | (n_valid < _VOTE_VALID_PX)
     judged[0] = False
     if not judged.any():
         return labels, 0
-    inside = judged[labels]
+    inside = _lookup(judged, labels)
     ids = labels[inside]
     medians = [
-        _percentile_by_label(field[inside].astype(np.float64), ids, count, 50.0)
+        _percentile_by_label(field[inside].astype(np.float32), ids, count, 50.0)
         for field in (image, background, low, high)
     ]
     # objects not judged have no values (+inf): compare the judged ones only
@@ -432,4 +435,4 @@ def drop_faint_depthless(
     faint[judged] = np.abs(gray - ground) < min_contrast * np.maximum(band, 1.0)
     if not faint.any():
         return labels, 0
-    return _renumber(np.where(faint[labels], 0, labels), 1), int(faint.sum())
+    return _renumber(np.where(_lookup(faint, labels), 0, labels), 1), int(faint.sum())

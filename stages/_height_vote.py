@@ -71,8 +71,10 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+from numba import njit
 
 from ._heights import DepthRuleStats, _percentile_by_label, _percentiles_by_label, _robust_sigma
+from ._regions import _lookup
 
 # Noisy regime: an object lies flat when the 90th percentile of its heights stays below this
 # many ground sigmas (tuned on the built-in archives with the depth stage).
@@ -121,12 +123,11 @@ def noisy_depth_rules(
     count, components = cv2.connectedComponents(mask.view(np.uint8), connectivity=8)
     lying = np.zeros(count, dtype=bool)
     if count > 1:
-        valid_components = np.where(valid, components, 0)
-        n_valid = np.bincount(valid_components.ravel(), minlength=count)[1:]
-        n_pixels = np.bincount(components.ravel(), minlength=count)[1:]
+        n_pixels, n_valid = (n[1:] for n in _object_counts(components, valid, count))
         # only objects are voted on: leave the (large) background out of the sort
-        in_object = valid_components > 0
-        values, owners = relative[in_object], valid_components[in_object]
+        in_object = valid & (components > 0)
+        owners = components[in_object]
+        values = relative[in_object]
         upper, middle = _percentiles_by_label(values, owners, count, (_VOTE_PERCENTILE, 50.0))[
             :, 1:
         ]
@@ -152,12 +153,12 @@ def noisy_depth_rules(
         # R2d: a bump of the matching windows' scale is evidence the percentile misses
         bump = _height_bumps(relative, mask)
         peak = np.full(count, -np.inf)
-        np.maximum.at(peak, owners, bump[in_object])
+        _object_peaks(components, valid, bump, peak)
         standing = (peak[1:] >= _BUMP_MIN_SIGMAS) & (peak[1:] + clear >= _BUMP_SCORE)
         flat = ((above < bar * sigma) & ~standing) | wide_flat
         voting = (n_valid >= _VOTE_VALID_FRACTION * n_pixels) & (n_valid >= _VOTE_VALID_PX)
         lying[1:] = voting & flat
-    removed = lying[components]
+    removed = _lookup(lying, components)
     stats = DepthRuleStats(
         flat_removed_px=int(np.count_nonzero(removed)),
         depth_valid_fraction=float(valid.mean()),
@@ -169,6 +170,39 @@ def noisy_depth_rules(
         ],
     )
     return mask & ~removed, stats
+
+
+def _object_counts(
+    components: np.ndarray, valid: np.ndarray, count: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Pixels and valid pixels of each label 0..count-1 (one compiled pass, not two
+    whole-frame bincounts; ``test_height_vote.py`` compares them)."""
+    counts = np.zeros((2, count), np.int64)
+    _count_pass(np.ascontiguousarray(components), np.ascontiguousarray(valid), counts)
+    return counts[0], counts[1]
+
+
+@njit(cache=True)
+def _count_pass(components, valid, counts):  # pragma: no cover - numba
+    rows, cols = components.shape
+    for y in range(rows):
+        for x in range(cols):
+            k = components[y, x]
+            counts[0, k] += 1
+            if valid[y, x]:
+                counts[1, k] += 1
+
+
+@njit(cache=True)
+def _object_peaks(components, valid, values, peak):  # pragma: no cover - numba
+    """``np.maximum.at(peak, components[in_object], values[in_object])`` over the valid
+    object pixels, in place."""
+    rows, cols = components.shape
+    for y in range(rows):
+        for x in range(cols):
+            k = components[y, x]
+            if k > 0 and valid[y, x] and values[y, x] > peak[k]:
+                peak[k] = values[y, x]
 
 
 def _height_bumps(relative: np.ndarray, mask: np.ndarray) -> np.ndarray:
@@ -189,7 +223,7 @@ def _height_bumps(relative: np.ndarray, mask: np.ndarray) -> np.ndarray:
     """
     valid = np.isfinite(relative)
     weight = valid.astype(np.float32)
-    filled = np.where(valid, relative, np.float32(0.0)).astype(np.float32)
+    filled = np.where(valid, relative, np.float32(0.0)).astype(np.float32, copy=False)
     floor = np.float32(1e-3)
     levels = []
     for scale in (_BUMP_INNER_PX, _BUMP_OUTER_PX):
@@ -219,9 +253,27 @@ def _ring_levels(
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (size, size))
     # grey dilation of the ids: a ring pixel between two objects goes to the higher id
     ids = components.astype(np.uint16 if count < 2**16 else np.float32)
-    grown = cv2.dilate(ids, kernel).astype(np.int64)
-    ring = (components == 0) & (grown > 0) & np.isfinite(relative)
-    owners = grown[ring]
-    levels = _percentile_by_label(relative[ring], owners, count, 50.0)[1:]
+    grown = cv2.dilate(ids, kernel)
+    # the ring: background pixels a dilated id reaches, with a height (one compiled pass)
+    owners = np.empty(components.size, np.int64)
+    values = np.empty(components.size, np.float32)
+    n = _ring_pass(components, grown, relative, owners, values)
+    owners, values = owners[:n], values[:n]
+    levels = _percentile_by_label(values, owners, count, 50.0)[1:]
     n_ring = np.bincount(owners, minlength=count)[1:]
     return np.where(n_ring >= 10, levels, np.nan)
+
+
+@njit(cache=True)
+def _ring_pass(components, grown, relative, owners, values):  # pragma: no cover - numba
+    """Ids and heights of the ring pixels in raster order, as ``grown[ring]`` and
+    ``relative[ring]`` give them (``test_height_vote.py`` compares); returns their count."""
+    rows, cols = components.shape
+    n = 0
+    for y in range(rows):
+        for x in range(cols):
+            if components[y, x] == 0 and grown[y, x] > 0 and np.isfinite(relative[y, x]):
+                owners[n] = np.int64(grown[y, x])
+                values[n] = relative[y, x]
+                n += 1
+    return n

@@ -16,6 +16,8 @@ import cv2
 import numpy as np
 from scipy.ndimage import median_filter
 
+from ._select import median_abs_deviation32
+
 __all__ = [
     "DepthRuleStats",
     "smooth_height",
@@ -111,6 +113,9 @@ def _median_filter_nearest(image: np.ndarray, *, size: int) -> np.ndarray:
 def _robust_sigma(values: np.ndarray) -> float:
     if values.size < 10:
         return 0.0
+    if values.dtype == np.float32 and values.ndim == 1 and np.isfinite(values).all():
+        # the same float32 value by selection, at half the cost of two np.median
+        return float(1.4826 * median_abs_deviation32(values))
     return float(1.4826 * np.median(np.abs(values - np.median(values))))
 
 
@@ -128,6 +133,8 @@ def _percentiles_by_label(
     result = np.full((len(percentiles), count), np.inf)
     if values.size == 0:
         return result
+    if values.dtype == np.float32 and labels.min() >= 0 and np.isfinite(values).all():
+        return _float32_percentiles_by_label(values, labels, count, percentiles, result)
     values = np.asarray(values, dtype=np.float64)
     low, high = float(values.min()), float(values.max())
     if np.isfinite(low) and np.isfinite(high):
@@ -145,4 +152,37 @@ def _percentiles_by_label(
         # nearest-rank percentile: cheap and exact enough for a vote
         rank = starts + np.floor((percentile / 100.0) * (sizes - 1)).astype(np.int64)
         row[present] = sorted_values[rank[present]]
+    return result
+
+
+# float32 bits made order-preserving as int32: negative floats get their magnitude bits
+# flipped (the same transform undoes it)
+_MAGNITUDE_BITS = np.int32(0x7FFFFFFF)
+_OFFSET = np.int64(2**31)
+
+
+def _ordered_bits(bits: np.ndarray) -> np.ndarray:
+    return bits ^ ((bits >> 31) & _MAGNITUDE_BITS)
+
+
+def _float32_percentiles_by_label(
+    values: np.ndarray,
+    labels: np.ndarray,
+    count: int,
+    percentiles: tuple[float, ...],
+    result: np.ndarray,
+) -> np.ndarray:
+    """:func:`_percentiles_by_label` of finite float32 values, labels ``>= 0``: one sort
+    of int64 keys, the label in the upper 32 bits and the value's order-preserving bits in
+    the lower ones (a radix sort, a third of the time of the float64 argsort); the kept
+    bits are the values themselves."""
+    keys = (labels.astype(np.int64) << 32) + _ordered_bits(values.view(np.int32)) + _OFFSET
+    keys.sort()
+    edges = np.searchsorted(keys, np.arange(count + 1, dtype=np.int64) << 32, side="left")
+    starts, sizes = edges[:-1], np.diff(edges)
+    present = sizes > 0
+    for row, percentile in zip(result, percentiles, strict=True):
+        rank = starts + np.floor((percentile / 100.0) * (sizes - 1)).astype(np.int64)
+        kept = ((keys[rank[present]] & np.int64(0xFFFFFFFF)) - _OFFSET).astype(np.int32)
+        row[present] = _ordered_bits(kept).view(np.float32)
     return result

@@ -65,10 +65,9 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-from scipy.ndimage import find_objects
 
 from ._heights import _percentile_by_label
-from ._regions import _renumber, _solidity
+from ._regions import _box_window, _lookup, _object_boxes, _renumber, _solidity
 from ._texture_rules import elongation
 
 # R4b: an object splits where it narrows to at most this fraction of its lobes' depth ...
@@ -126,13 +125,13 @@ def split_at_necks(
     if count == 0 or neck_ratio == 0:
         return labels, 0
     out = labels.copy()
-    spans = find_objects(labels)
+    boxes = _object_boxes(labels, count)
     next_id = count + 1
     splits = 0
-    for k, span in enumerate(spans, start=1):
-        if span is None:
+    for k in range(1, count + 1):
+        if boxes[k, 1] < boxes[k, 0]:
             continue
-        sy, sx = span
+        sy, sx = _box_window(boxes[k])
         # one pixel of background around the object: its edge is at distance 1
         y0, x0 = max(0, sy.start - 1), max(0, sx.start - 1)
         inside = labels[y0 : sy.stop + 1, x0 : sx.stop + 1] == k
@@ -236,15 +235,15 @@ def trim_faint_rims(
     owners = labels.ravel()
     inside = owners > 0
     median = _percentile_by_label(
-        contrast.ravel()[inside].astype(np.float64), owners[inside], count + 1, 50.0
+        contrast.ravel()[inside].astype(np.float32), owners[inside], count + 1, 50.0
     )
     median[~np.isfinite(median)] = 0.0
     median[0] = 0.0
     cross = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
     # outside the frame counts as nothing: an object cut by the border keeps its cut edge
     outline = (cv2.dilate((labels == 0).view(np.uint8), cross) > 0) & (labels > 0)
-    own_side = contrast * np.sign(median)[labels].astype(np.float32)
-    faint = outline & (own_side >= 0) & (own_side < fraction * np.abs(median)[labels])
+    own_side = contrast * _lookup(np.sign(median), labels).astype(np.float32)
+    faint = outline & (own_side >= 0) & (own_side < fraction * _lookup(np.abs(median), labels))
     trimmed = int(np.count_nonzero(faint))
     if not trimmed:
         return labels, 0

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+from numba import njit
 from scipy.ndimage import distance_transform_edt
 
 #: Threshold bands from the ground level beyond which an object is clear in gray level
@@ -124,14 +125,33 @@ def depth_edges(disparity: np.ndarray, *, jump_px: float) -> np.ndarray:
 
 def _dense_components(mask: np.ndarray, min_area_px: int, connectivity: int = 8) -> np.ndarray:
     """Connected components, specks removed, numbered 1..n."""
-    count, labels, stats, _ = cv2.connectedComponentsWithStats(
+    # without OpenCV's statistics (bounding boxes, centroids): a quarter of the cost; the
+    # areas are counted in the same compiled pass that renumbers
+    count, labels = cv2.connectedComponents(
         mask.view(np.uint8), connectivity=connectivity, ltype=cv2.CV_32S
     )
-    keep = stats[:, cv2.CC_STAT_AREA] >= min_area_px
-    keep[0] = False
-    lookup = np.zeros(count, dtype=np.int32)
-    lookup[keep] = np.arange(1, int(keep.sum()) + 1, dtype=np.int32)
-    return lookup[labels]
+    _drop_specks(labels, count, min_area_px)
+    return labels
+
+
+@njit(cache=True)
+def _drop_specks(labels, count, min_area_px):  # pragma: no cover - numba
+    """Renumber components ``1..count-1`` in place: under ``min_area_px`` pixels to 0, the
+    others ``1..n`` in their order (``test_regions.py`` checks it against OpenCV's areas)."""
+    rows, cols = labels.shape
+    area = np.zeros(count, np.int64)
+    for y in range(rows):
+        for x in range(cols):
+            area[labels[y, x]] += 1
+    lookup = np.zeros(count, np.int32)
+    kept = 0
+    for k in range(1, count):
+        if area[k] >= min_area_px:
+            kept += 1
+            lookup[k] = kept
+    for y in range(rows):
+        for x in range(cols):
+            labels[y, x] = lookup[labels[y, x]]
 
 
 def _split_at_edges(labels: np.ndarray, edges: np.ndarray, min_area_px: int) -> np.ndarray:
@@ -209,8 +229,101 @@ def label_objects(
     return labels
 
 
+def _lookup(table: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """``table[labels]`` for a 1-D table and 2-D integer labels in its range, compiled:
+    fancy indexing and ``np.take`` first convert the labels to ``intp`` (0.3-0.5 ms a
+    frame per lookup; ``test_regions.py`` compares)."""
+    if table.ndim != 1 or labels.ndim != 2 or labels.dtype.kind not in "iu":
+        raise TypeError(
+            f"need a 1-D table and 2-D integer labels, got {table.ndim}-D and "
+            f"{labels.ndim}-D {labels.dtype}"
+        )
+    if labels.size and (labels.min() < 0 or labels.max() >= table.size):
+        raise IndexError(f"labels must lie in [0, {table.size}), the table's range")
+    out = np.empty(labels.shape, table.dtype)
+    _lookup_pass(table, np.ascontiguousarray(labels), out)
+    return out
+
+
+@njit(cache=True)
+def _lookup_pass(table, labels, out):  # pragma: no cover - numba
+    rows, cols = labels.shape
+    for y in range(rows):
+        for x in range(cols):
+            out[y, x] = table[labels[y, x]]
+
+
+def _label_sums(
+    labels: np.ndarray, values: np.ndarray, count: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Pixels of each label 0..count-1 and the sum of ``values`` over each object's pixels
+    (label 0's sum is 0), added in raster order as ``np.bincount(labels[labels > 0],
+    values[labels > 0])`` adds them (the same floats; ``test_regions.py`` compares)."""
+    if labels.shape != values.shape or labels.ndim != 2:
+        raise ValueError(f"labels {labels.shape} and values {values.shape}: need 2-D, one shape")
+    if labels.size and (labels.min() < 0 or labels.max() >= count):
+        raise IndexError(f"labels must lie in [0, {count})")
+    counts = np.zeros(count, np.int64)
+    sums = np.zeros(count)
+    _sums_pass(np.ascontiguousarray(labels), np.ascontiguousarray(values), counts, sums)
+    return counts, sums
+
+
+@njit(cache=True)
+def _sums_pass(labels, values, counts, sums):  # pragma: no cover - numba
+    rows, cols = labels.shape
+    for y in range(rows):
+        for x in range(cols):
+            k = labels[y, x]
+            counts[k] += 1
+            if k > 0:
+                sums[k] += values[y, x]
+
+
 def _renumber(labels: np.ndarray, min_area_px: int) -> np.ndarray:
-    """Dense 1..n in raster order of first pixel, dropping labels smaller than min_area_px."""
+    """Dense 1..n in raster order of first pixel, dropping labels smaller than min_area_px.
+
+    Returns int32. Labels ``>= 0`` are renumbered by two compiled passes (count and first
+    appearance, then the lookup); otherwise by the numpy twin :func:`_renumber_numpy`
+    (``test_regions.py`` compares them).
+    """
+    if labels.ndim == 2 and labels.dtype.kind in "iu" and labels.size:
+        top = int(labels.max())
+        if labels.min() >= 0 and top < 2**31:
+            out = np.empty(labels.shape, np.int32)
+            _renumber_pass(np.ascontiguousarray(labels), top, min_area_px, out)
+            return out
+    return _renumber_numpy(labels, min_area_px)
+
+
+@njit(cache=True)
+def _renumber_pass(labels, top, min_area_px, out):  # pragma: no cover - numba
+    rows, cols = labels.shape
+    area = np.zeros(top + 1, np.int64)
+    order = np.empty(top + 1, np.int64)
+    seen = 0
+    for y in range(rows):
+        for x in range(cols):
+            k = labels[y, x]
+            if k > 0:
+                if area[k] == 0:
+                    order[seen] = k
+                    seen += 1
+                area[k] += 1
+    remap = np.zeros(top + 1, np.int32)
+    kept = 0
+    for n in range(seen):
+        k = order[n]
+        if area[k] >= min_area_px:
+            kept += 1
+            remap[k] = kept
+    for y in range(rows):
+        for x in range(cols):
+            out[y, x] = remap[labels[y, x]]
+
+
+def _renumber_numpy(labels: np.ndarray, min_area_px: int) -> np.ndarray:
+    """:func:`_renumber` by sorting the object pixels (any integer labels)."""
     flat = labels.ravel()
     # objects are a small share of a frame: sort their pixels only (positions stay in order)
     inside = np.flatnonzero(flat)
@@ -228,24 +341,48 @@ def _ring_kernel(radius: int) -> np.ndarray:
 
 
 def _object_boxes(labels: np.ndarray, count: int) -> np.ndarray:
-    """Inclusive (y0, y1, x0, x1) of each label 0..count (y1 < y0 when absent)."""
-    ys, xs = np.nonzero(labels)
-    ids = labels[ys, xs]
-    boxes = np.empty((count + 1, 4), dtype=np.int64)
-    boxes[:, 0] = boxes[:, 2] = np.iinfo(np.int64).max
-    boxes[:, 1] = boxes[:, 3] = -1
-    np.minimum.at(boxes[:, 0], ids, ys)
-    np.maximum.at(boxes[:, 1], ids, ys)
-    np.minimum.at(boxes[:, 2], ids, xs)
-    np.maximum.at(boxes[:, 3], ids, xs)
+    """Inclusive (y0, y1, x0, x1) of each label 0..count (y1 < y0 when absent; label 0 is
+    always absent); ``labels`` holds ids 0..count. One compiled pass: a third of
+    ``scipy.ndimage.find_objects``, a fifth of ``np.nonzero`` and ``ufunc.at``; ids above
+    ``count`` are left out."""
+    if labels.ndim != 2 or labels.dtype.kind not in "iu":
+        raise TypeError(f"labels must be a 2-D integer array, got {labels.ndim}-D {labels.dtype}")
+    return _boxes(np.ascontiguousarray(labels), int(count))
+
+
+def _box_window(box: np.ndarray) -> tuple[slice, slice]:
+    """The slices of an inclusive (y0, y1, x0, x1) box, as ``find_objects`` gives them."""
+    y0, y1, x0, x1 = (int(v) for v in box)
+    return slice(y0, y1 + 1), slice(x0, x1 + 1)
+
+
+@njit(cache=True)
+def _boxes(labels, count):  # pragma: no cover - numba
+    boxes = np.empty((count + 1, 4), np.int64)
+    for k in range(count + 1):
+        boxes[k, 0] = boxes[k, 2] = np.iinfo(np.int64).max
+        boxes[k, 1] = boxes[k, 3] = -1
+    rows, cols = labels.shape
+    for y in range(rows):
+        for x in range(cols):
+            k = labels[y, x]
+            if 0 < k <= count:
+                if y < boxes[k, 0]:
+                    boxes[k, 0] = y
+                boxes[k, 1] = y  # rows come in order
+                if x < boxes[k, 2]:
+                    boxes[k, 2] = x
+                if x > boxes[k, 3]:
+                    boxes[k, 3] = x
     return boxes
 
 
 def _solidity(mask: np.ndarray) -> float:
     """Pixels of a mask over the pixel area of their convex hull (1: convex)."""
-    ys, xs = np.nonzero(mask)
-    hull = cv2.convexHull(np.stack([xs, ys], axis=1).astype(np.int32))
+    # (x, y) of the pixels in raster order, as np.nonzero gives them, at a third of the cost
+    points = cv2.findNonZero(np.ascontiguousarray(mask).view(np.uint8))
+    hull = cv2.convexHull(points)
     # the hull runs through pixel centres: half its perimeter (+1 for the corners) is the
     # area of the boundary pixels outside it, so a convex blob scores about 1
     area = cv2.contourArea(hull) + 0.5 * cv2.arcLength(hull, True) + 1.0
-    return ys.size / area
+    return len(points) / area

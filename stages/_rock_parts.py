@@ -86,9 +86,18 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-from scipy.ndimage import find_objects
 
-from ._regions import _coerce_mask, _object_boxes, _renumber, _ring_kernel, _solidity
+from ._fronts import grow_fronts
+from ._regions import (
+    _box_window,
+    _coerce_mask,
+    _label_sums,
+    _lookup,
+    _object_boxes,
+    _renumber,
+    _ring_kernel,
+    _solidity,
+)
 
 # R7: objects grow into pixels at least this many threshold bands out on their side ...
 _WEAK_CONTRAST = 0.7
@@ -252,34 +261,25 @@ def grow_weak_halves(
     count = int(labels.max())
     if count == 0 or max_steps == 0:
         return labels, 0
-    owners = labels.ravel()
-    inside = owners > 0
     # the side of an object: the sign of its mean contrast
-    dark_object = np.bincount(owners[inside], contrast.ravel()[inside], minlength=count + 1) < 0
+    dark_object = _label_sums(labels, contrast, count + 1)[1] < 0
     out = labels.copy()
     background = labels == 0
-    kernel = np.ones((3, 3), np.uint8)
     ids_dtype = np.uint16 if count < 2**16 else np.float32
     # every object is on one side: the light ones are the rest (one lookup, not two)
-    dark_ids = np.where(dark_object, np.arange(count + 1), 0).astype(ids_dtype)[labels]
+    dark_ids = _lookup(np.where(dark_object, np.arange(count + 1), 0).astype(ids_dtype), labels)
     fronts = {True: dark_ids, False: labels.astype(ids_dtype) - dark_ids}
     for dark, front in fronts.items():
         weak = (contrast < -min_contrast) if dark != opposite else (contrast > min_contrast)
         weak &= between & background
-        for _ in range(max_steps):
-            # where two objects of one side reach a pixel at once, the higher id takes it
-            reach = cv2.dilate(front, kernel)
-            new = weak & (reach > 0)
-            if not new.any():
-                break
-            weak &= ~new
-            np.copyto(front, reach, where=new)
+        # where two objects of one side reach a pixel at once, the higher id takes it
+        grow_fronts(front, weak, max_steps=max_steps)
         np.copyto(out, front, where=background & (front > 0), casting="unsafe")
     grown = out != labels
     changed = np.unique(out[grown])
-    spans = find_objects(out)
+    boxes = _object_boxes(out, count)
     for k in changed:
-        window = spans[k - 1]
+        window = _box_window(boxes[k])
         before = labels[window] == k
         after = out[window] == k
         gain = np.count_nonzero(after) - np.count_nonzero(before)
@@ -376,11 +376,9 @@ def join_opposite_halves(
     count = int(labels.max())
     if count < 2 or gap_px == 0:
         return labels, 0
-    owners = labels.ravel()
-    inside = owners > 0
-    area = np.bincount(owners, minlength=count + 1)
-    lighter = np.bincount(owners[inside], contrast.ravel()[inside], minlength=count + 1) >= 0
-    spans = find_objects(labels)
+    area, sums = _label_sums(labels, contrast, count + 1)
+    lighter = sums >= 0
+    boxes = _object_boxes(labels, count)
     kernel = _ring_kernel(gap_px)
     rows, cols = labels.shape
     parent = np.arange(count + 1)
@@ -393,7 +391,7 @@ def join_opposite_halves(
     out = labels.copy()
     joined = 0
     for k in range(1, count + 1):
-        sy, sx = spans[k - 1]
+        sy, sx = _box_window(boxes[k])
         y0, x0 = max(0, sy.start - gap_px), max(0, sx.start - gap_px)
         y1, x1 = min(rows, sy.stop + gap_px), min(cols, sx.stop + gap_px)
         window = labels[y0:y1, x0:x1]
@@ -405,7 +403,7 @@ def join_opposite_halves(
                 continue
             if n_facing < np.sqrt(min(area[k], area[j])):
                 continue
-            oy, ox = spans[j - 1]
+            oy, ox = _box_window(boxes[j])
             v0, v1 = max(0, min(sy.start, oy.start) - gap_px), max(sy.stop, oy.stop) + gap_px
             u0, u1 = max(0, min(sx.start, ox.start) - gap_px), max(sx.stop, ox.stop) + gap_px
             pair = labels[v0:v1, u0:u1]
@@ -423,4 +421,4 @@ def join_opposite_halves(
     if not joined:
         return labels, 0
     roots = np.array([root(k) for k in range(count + 1)])
-    return _renumber(roots[out], 1), joined
+    return _renumber(_lookup(roots, out), 1), joined

@@ -69,9 +69,16 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-from scipy.ndimage import find_objects
+from numba import njit
 
-from ._regions import CLEAR_CONTRAST, _object_boxes, _renumber, _ring_kernel
+from ._regions import (
+    CLEAR_CONTRAST,
+    _box_window,
+    _lookup,
+    _object_boxes,
+    _renumber,
+    _ring_kernel,
+)
 
 # R5c: streaks of the ground texture within this many pixels of an object ...
 _RIPPLE_RADIUS_PX = 100.0
@@ -107,18 +114,17 @@ def _moments(labels: np.ndarray) -> tuple[np.ndarray, ...]:
     The angle (radians in ``(-pi/2, pi/2]``, 0 along the rows, positive towards increasing
     row) is the major axis of the equivalent ellipse; it is 0 for label 0 and absent labels.
     """
-    labels = np.asarray(labels)
+    labels = np.ascontiguousarray(labels)
     count = int(labels.max()) + 1
-    ys, xs = np.nonzero(labels)
-    ids = labels[ys, xs]
-    area = np.maximum(np.bincount(ids, minlength=count), 1).astype(np.float64)
-    mx = np.bincount(ids, xs, minlength=count) / area
-    my = np.bincount(ids, ys, minlength=count) / area
-    dx, dy = xs - mx[ids], ys - my[ids]
+    area, sum_y, sum_x = _sums(labels, count)
+    area = np.maximum(area, 1).astype(np.float64)
+    mx = sum_x / area
+    my = sum_y / area
+    sum_xx, sum_yy, sum_xy = _central_sums(labels, mx, my)
     # + 1/12: a pixel is a unit square, so a single row still has a width
-    sxx = np.bincount(ids, dx * dx, minlength=count) / area + 1.0 / 12.0
-    syy = np.bincount(ids, dy * dy, minlength=count) / area + 1.0 / 12.0
-    sxy = np.bincount(ids, dx * dy, minlength=count) / area
+    sxx = sum_xx / area + 1.0 / 12.0
+    syy = sum_yy / area + 1.0 / 12.0
+    sxy = sum_xy / area
     half_trace = (sxx + syy) / 2.0
     root = np.sqrt(((sxx - syy) / 2.0) ** 2 + sxy**2)
     major, minor = half_trace + root, np.maximum(half_trace - root, 1e-12)
@@ -127,6 +133,53 @@ def _moments(labels: np.ndarray) -> tuple[np.ndarray, ...]:
     angle = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
     angle[0] = 0.0
     return area, my, mx, ratio, angle
+
+
+def _sums(labels: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Pixels, row sum and column sum of each label 0..count-1 (label 0: none counted).
+
+    The sums run over the pixels in raster order, as ``np.bincount(ids, weights)`` of
+    ``np.nonzero``'s pixels adds them (the same floats; ``test_texture_rules.py`` compares).
+    """
+    area = np.zeros(count, np.int64)
+    sums = np.zeros((2, count))
+    _sum_pass(labels, area, sums)
+    return area, sums[0], sums[1]
+
+
+@njit(cache=True)
+def _sum_pass(labels, area, sums):  # pragma: no cover - numba
+    rows, cols = labels.shape
+    for y in range(rows):
+        for x in range(cols):
+            k = labels[y, x]
+            if k != 0:
+                area[k] += 1
+                sums[0, k] += y
+                sums[1, k] += x
+
+
+def _central_sums(
+    labels: np.ndarray, mx: np.ndarray, my: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Sums of dx*dx, dy*dy and dx*dy about each label's centroid, in raster order."""
+    sums = np.zeros((3, mx.size))
+    _central_pass(labels, mx, my, sums)
+    return sums[0], sums[1], sums[2]
+
+
+@njit(cache=True)
+def _central_pass(labels, mx, my, sums):  # pragma: no cover - numba
+    rows, cols = labels.shape
+    for y in range(rows):
+        for x in range(cols):
+            k = labels[y, x]
+            if k != 0:
+                dx = x - mx[k]
+                dy = y - my[k]
+                sums[0, k] += dx * dx
+                sums[1, k] += dy * dy
+                sums[2, k] += dx * dy
 
 
 def elongation(labels: np.ndarray) -> np.ndarray:
@@ -201,7 +254,7 @@ def drop_streaks(
                 streak[k] = False
     if not streak.any():
         return labels, 0
-    kept = np.where(streak[labels], 0, labels)
+    kept = np.where(_lookup(streak, labels), 0, labels)
     return _renumber(kept, 1), int(streak.sum())
 
 
@@ -278,11 +331,10 @@ def drop_ripple_pieces(
     count = int(labels.max())
     if count == 0:
         return labels, 0
-    ys, xs = np.nonzero(labels)
-    ids = labels[ys, xs]
-    area = np.maximum(np.bincount(ids, minlength=count + 1), 1).astype(np.float64)[1:]
-    cy = (np.bincount(ids, ys, minlength=count + 1)[1:]) / area
-    cx = (np.bincount(ids, xs, minlength=count + 1)[1:]) / area
+    pixels, sum_y, sum_x = _sums(np.ascontiguousarray(labels), count + 1)
+    area = np.maximum(pixels, 1).astype(np.float64)[1:]
+    cy = sum_y[1:] / area
+    cx = sum_x[1:] / area
     streaks = _streaks(texture, max_elongation=max_elongation)
     in_field = _streak_field(
         streaks,
@@ -300,7 +352,7 @@ def drop_ripple_pieces(
     in_field = np.flatnonzero(in_field) + 1
     if in_field.size == 0:
         return labels, 0
-    boxes = find_objects(labels)
+    boxes = _object_boxes(labels, count)
     rows, cols = labels.shape
     # R5c at range counts only streaks longer than any rock: a subset of the field's
     streak_ids, t_boxes, _, _, t_ratio = streaks
@@ -313,7 +365,7 @@ def drop_ripple_pieces(
     is_streak = np.zeros(int(texture.max()) + 1, dtype=bool)
     ripple = np.zeros(count + 1, dtype=bool)
     for row, k in enumerate(in_field):
-        sy, sx = boxes[k - 1]
+        sy, sx = _box_window(boxes[k])
         y0, x0 = max(0, sy.start - _TEXTURE_RING_PX), max(0, sx.start - _TEXTURE_RING_PX)
         y1, x1 = min(rows, sy.stop + _TEXTURE_RING_PX), min(cols, sx.stop + _TEXTURE_RING_PX)
         window = labels[y0:y1, x0:x1]
@@ -324,7 +376,7 @@ def drop_ripple_pieces(
             # ring but not of the streaks beside it, which are as dark as it is
             is_streak[:] = False
             is_streak[streak_ids[at_range[row]]] = True
-            pixels = is_streak[texture] & (labels != k)
+            pixels = _lookup(is_streak, texture) & (labels != k)
             ratio = min(ratio, _streak_ratio(image, pixels, gray_level, level))
         ripple[k] = ratio < min_texture_ratio
     if not ripple.any():
@@ -332,7 +384,7 @@ def drop_ripple_pieces(
     # labels are dense and numbered in raster order: dropping some keeps the order
     remap = np.zeros(count + 1, dtype=np.int32)
     remap[1:][~ripple[1:]] = np.arange(1, count + 1 - int(ripple.sum()), dtype=np.int32)
-    return remap[labels], int(ripple.sum())
+    return _lookup(remap, labels), int(ripple.sum())
 
 
 def _streaks(
@@ -348,15 +400,7 @@ def _streaks(
         return empty.astype(np.int64), np.zeros((0, 4)), empty, empty, empty
     t_area, _, _, t_ratio, t_angle = _moments(texture)
     streaks = np.flatnonzero(t_ratio > max_elongation)
-    # find_objects is C, _object_boxes is not
-    spans = find_objects(texture)
-    boxes = np.array(
-        [
-            (sy.start, sy.stop - 1, sx.start, sx.stop - 1)
-            for sy, sx in (spans[k - 1] for k in streaks)
-        ],
-        dtype=np.float64,
-    ).reshape(-1, 4)
+    boxes = _object_boxes(texture, t_area.size - 1)[streaks].astype(np.float64)
     return streaks, boxes, t_area[streaks], t_angle[streaks], t_ratio[streaks]
 
 

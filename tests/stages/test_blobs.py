@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from object_masks import disk
 
-from stages._blobs import add_compact_blobs
+from stages._blobs import _blob_statistics, add_compact_blobs
 
 SHAPE = (160, 160)
 
@@ -100,3 +100,27 @@ def test_bad_arguments_raise_clear_errors():
         add_compact_blobs(labels, image, min_sigmas=4.0, ground_px=40)
     with pytest.raises(ValueError, match=r"must be in \[0, 1\]"):
         add_compact_blobs(labels, image, min_sigmas=4.0, min_solidity=1.5)
+
+
+def test_blob_statistics_equal_their_numpy_twin():
+    # the twin: ufunc.at and bincounts of masked copies (the code the kernel replaced)
+    rng = np.random.default_rng(11)
+    for _ in range(20):
+        shape = tuple(rng.integers(1, 40, 2))
+        grown = rng.random(shape) < rng.random()
+        n_blobs, blob_ids = cv2.connectedComponents(grown.view(np.uint8), connectivity=8)
+        z = rng.normal(0, 3, shape).astype(np.float32)
+        ring = rng.random(shape) < 0.3
+        interior = cv2.erode(grown.view(np.uint8), np.ones((3, 3), np.uint8)).view(bool)
+        peaks, areas, touching, inner = _blob_statistics(blob_ids, n_blobs, z, ring, interior)
+        owners = blob_ids[grown]
+        expected = np.full(n_blobs, -np.inf)
+        np.maximum.at(expected, owners, z[grown])
+        np.testing.assert_array_equal(peaks, expected)
+        np.testing.assert_array_equal(areas, np.bincount(owners, minlength=n_blobs))
+        np.testing.assert_array_equal(
+            touching, np.bincount(blob_ids[ring], minlength=n_blobs) > 0
+        )
+        np.testing.assert_array_equal(
+            inner, np.bincount(blob_ids[interior], minlength=n_blobs)
+        )

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 from height_maps import correlated_noise
@@ -139,3 +140,44 @@ def test_height_bumps_peak_on_a_window_sized_rock_not_on_a_swell():
     assert bumps[40, 40] > 3 * bumps[110, 110]
     assert bumps[40, 40] > height_vote._BUMP_SCORE
     assert (bumps[:, :3] == 0).all()  # no height, no evidence
+
+
+def test_object_counts_and_peaks_equal_their_numpy_twins():
+    # the twins: whole-frame bincounts and np.maximum.at (the code the kernels replaced)
+    rng = np.random.default_rng(12)
+    for _ in range(20):
+        shape = tuple(rng.integers(1, 40, 2))
+        mask = rng.random(shape) < rng.random()
+        count, components = cv2.connectedComponents(mask.view(np.uint8), connectivity=8)
+        valid = rng.random(shape) < 0.8
+        values = rng.normal(0, 2, shape).astype(np.float32)
+        n_pixels, n_valid = height_vote._object_counts(components, valid, count)
+        valid_components = np.where(valid, components, 0)
+        np.testing.assert_array_equal(
+            n_pixels, np.bincount(components.ravel(), minlength=count)
+        )
+        np.testing.assert_array_equal(
+            n_valid, np.bincount(components[valid], minlength=count)
+        )
+        peak = np.full(count, -np.inf)
+        height_vote._object_peaks(components, valid, values, peak)
+        in_object = valid_components > 0
+        expected = np.full(count, -np.inf)
+        np.maximum.at(expected, valid_components[in_object], values[in_object])
+        np.testing.assert_array_equal(peak, expected)
+
+
+def test_ring_pass_gathers_the_ring_pixels_in_raster_order():
+    rng = np.random.default_rng(17)
+    mask = rng.random((30, 40)) < 0.2
+    count, components = cv2.connectedComponents(mask.view(np.uint8), connectivity=8)
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (9, 9))
+    grown = cv2.dilate(components.astype(np.uint16), kernel)
+    relative = rng.normal(0, 0.01, (30, 40)).astype(np.float32)
+    relative[rng.random((30, 40)) < 0.2] = np.nan
+    owners = np.empty(components.size, np.int64)
+    values = np.empty(components.size, np.float32)
+    n = height_vote._ring_pass(components, grown, relative, owners, values)
+    ring = (components == 0) & (grown > 0) & np.isfinite(relative)
+    np.testing.assert_array_equal(owners[:n], grown[ring].astype(np.int64))
+    np.testing.assert_array_equal(values[:n], relative[ring])

@@ -61,3 +61,23 @@ def test_percentiles_by_label_match_one_at_a_time():
     both = _percentiles_by_label(values, labels, 8, (90.0, 50.0))
     np.testing.assert_array_equal(both[0], _percentile_by_label(values, labels, 8, 90.0))
     np.testing.assert_array_equal(both[1], _percentile_by_label(values, labels, 8, 50.0))
+
+
+@given(
+    st.lists(
+        st.tuples(st.integers(0, 6), st.floats(-1e3, 1e3, allow_nan=False, width=32)),
+        max_size=80,
+    )
+)
+def test_percentiles_by_label_of_float32_values_equal_numpys_lower_percentile(pairs):
+    # float32 values take the packed-key sort; it must pick the same nearest-rank value
+    # (exactly: the float64 path's combined key cannot tell a label's values apart when
+    # they differ by less than its rounding, e.g. 0 and 1.4e-45 under label 1)
+    labels = np.array([p[0] for p in pairs], dtype=np.int64)
+    values = np.array([p[1] for p in pairs], dtype=np.float32)
+    result = _percentiles_by_label(values, labels, 8, (90.0, 50.0, 0.0, 100.0))
+    for label in range(8):
+        chosen = values[labels == label].astype(np.float64)
+        for row, q in zip(result, (90, 50, 0, 100), strict=True):
+            expected = np.percentile(chosen, q, method="lower") if chosen.size else np.inf
+            assert row[label] == expected

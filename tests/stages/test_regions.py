@@ -2,11 +2,25 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 from object_masks import disk
+from scipy.ndimage import find_objects
 
-from stages._regions import depth_edges, fill_holes, label_objects, threshold_mask
+from stages._regions import (
+    _box_window,
+    _dense_components,
+    _label_sums,
+    _lookup,
+    _object_boxes,
+    _renumber,
+    _renumber_numpy,
+    depth_edges,
+    fill_holes,
+    label_objects,
+    threshold_mask,
+)
 
 
 def test_threshold_mask_both_polarities():
@@ -64,3 +78,87 @@ def test_depth_edges_inside_one_object_do_not_fragment_it():
     disparity[20, 20] = 30.0  # an isolated outlier: median filtered away
     labels = label_objects(mask, edges=depth_edges(disparity, jump_px=1.5))
     assert labels.max() == 1
+
+
+def _dense_components_with_stats(mask, min_area_px, connectivity):
+    """The numpy twin of _dense_components' kernel: OpenCV's areas and a lookup table."""
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(
+        mask.view(np.uint8), connectivity=connectivity, ltype=cv2.CV_32S
+    )
+    keep = stats[:, cv2.CC_STAT_AREA] >= min_area_px
+    keep[0] = False
+    lookup = np.zeros(count, dtype=np.int32)
+    lookup[keep] = np.arange(1, int(keep.sum()) + 1, dtype=np.int32)
+    return lookup[labels]
+
+
+@pytest.mark.parametrize("connectivity", [4, 8])
+def test_dense_components_equal_opencvs_areas_and_lookup(connectivity):
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        shape = tuple(rng.integers(1, 60, 2))
+        mask = rng.random(shape) < rng.random()
+        min_area = int(rng.integers(1, 12))
+        result = _dense_components(mask, min_area, connectivity)
+        assert result.dtype == np.int32
+        np.testing.assert_array_equal(
+            result, _dense_components_with_stats(mask, min_area, connectivity)
+        )
+
+
+def test_object_boxes_equal_find_objects():
+    rng = np.random.default_rng(6)
+    for _ in range(30):
+        shape = tuple(rng.integers(1, 50, 2))
+        labels = np.where(rng.random(shape) < 0.2, rng.integers(1, 12, shape), 0)
+        labels = labels.astype(rng.choice([np.int32, np.int64, np.uint16]))
+        count = int(labels.max())
+        boxes = _object_boxes(labels, count)
+        spans = find_objects(labels)
+        assert boxes.shape == (count + 1, 4) and boxes[0, 1] < boxes[0, 0]
+        for k in range(1, count + 1):
+            if spans[k - 1] is None:
+                assert boxes[k, 1] < boxes[k, 0] and boxes[k, 3] < boxes[k, 2]
+            else:
+                assert _box_window(boxes[k]) == spans[k - 1]
+    # ids above count are left out, not written past the table
+    assert _object_boxes(np.array([[0, 3, 1]]), 1).tolist()[1] == [0, 0, 2, 2]
+
+
+def test_renumber_equals_its_numpy_twin():
+    rng = np.random.default_rng(13)
+    for trial in range(30):
+        shape = tuple(rng.integers(1, 50, 2))
+        ids = rng.integers(1, 40, shape) * (1000 if trial % 3 == 0 else 1)  # sparse ids
+        labels = np.where(rng.random(shape) < 0.4, ids, 0)
+        labels = labels.astype(np.int64 if trial % 2 else np.int32)
+        min_area = int(rng.integers(1, 6))
+        result = _renumber(labels, min_area)
+        assert result.dtype == np.int32
+        np.testing.assert_array_equal(result, _renumber_numpy(labels, min_area))
+
+
+def test_lookup_equals_fancy_indexing_and_checks_the_range():
+    rng = np.random.default_rng(15)
+    labels = rng.integers(0, 9, (30, 40)).astype(np.int32)
+    tables = (rng.random(9) < 0.5, rng.integers(0, 300, 9).astype(np.uint16), rng.normal(size=9))
+    for table in tables:
+        result = _lookup(table, labels)
+        assert result.dtype == table.dtype
+        np.testing.assert_array_equal(result, table[labels])
+    with pytest.raises(IndexError, match="range"):
+        _lookup(np.zeros(5), labels)
+
+
+def test_label_sums_equal_bincounts():
+    rng = np.random.default_rng(16)
+    for _ in range(10):
+        shape = tuple(rng.integers(1, 50, 2))
+        labels = np.where(rng.random(shape) < 0.5, rng.integers(1, 7, shape), 0).astype(np.int32)
+        values = rng.normal(0, 2, shape).astype(np.float32)
+        counts, sums = _label_sums(labels, values, 7)
+        inside = labels > 0
+        np.testing.assert_array_equal(counts, np.bincount(labels.ravel(), minlength=7))
+        np.testing.assert_array_equal(
+            sums, np.bincount(labels[inside], values[inside], minlength=7)
+        )

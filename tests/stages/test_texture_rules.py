@@ -8,7 +8,14 @@ import pytest
 from object_masks import disk
 
 from stages._regions import label_objects
-from stages._texture_rules import _gradient_coherence, drop_ripple_pieces, drop_streaks, elongation
+from stages._texture_rules import (
+    _central_sums,
+    _gradient_coherence,
+    _sums,
+    drop_ripple_pieces,
+    drop_streaks,
+    elongation,
+)
 
 
 def test_elongation_of_a_disk_a_bar_and_a_line():
@@ -189,3 +196,25 @@ def test_drop_ripple_pieces_at_range_drops_a_blob_as_dark_as_the_streaks_beside_
     texture = label_objects(far | blob | rock, min_area_px=20, fill=False)
     _, dropped = drop_ripple_pieces(labels, texture=texture, image=image)
     assert dropped == 0
+
+
+def test_moment_sums_equal_bincounts_of_the_nonzero_pixels():
+    # the numpy twin: np.nonzero's pixels and weighted bincounts (the code replaced)
+    rng = np.random.default_rng(14)
+    for _ in range(20):
+        shape = tuple(rng.integers(1, 50, 2))
+        labels = np.where(rng.random(shape) < 0.3, rng.integers(1, 9, shape), 0).astype(np.int32)
+        count = int(labels.max()) + 1
+        ys, xs = np.nonzero(labels)
+        ids = labels[ys, xs]
+        area, sum_y, sum_x = _sums(labels, count)
+        np.testing.assert_array_equal(area, np.bincount(ids, minlength=count))
+        np.testing.assert_array_equal(sum_y, np.bincount(ids, ys, minlength=count))
+        np.testing.assert_array_equal(sum_x, np.bincount(ids, xs, minlength=count))
+        safe = np.maximum(area, 1).astype(np.float64)
+        mx, my = sum_x / safe, sum_y / safe
+        dx, dy = xs - mx[ids], ys - my[ids]
+        for got, weights in zip(
+            _central_sums(labels, mx, my), (dx * dx, dy * dy, dx * dy), strict=True
+        ):
+            np.testing.assert_array_equal(got, np.bincount(ids, weights, minlength=count))

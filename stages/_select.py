@@ -1,0 +1,139 @@
+"""Numba kernel: the median absolute deviation of float32 values by selection.
+
+Private helper of :mod:`stages._heights` (``_robust_sigma``: the ground's height noise of
+the depth rules, three times a frame over 50-250 thousand heights). ``np.median`` selects
+three order statistics (the two middle ones and, for NaN, the last), twice, each by an
+introselect over the whole array; counting the values' top bits and selecting among the
+few in the middle buckets costs a fraction. The arithmetic is ``np.median``'s in
+float32: the mean of the two middle values is their float32 sum halved, the deviations are
+float32 differences (``tests/stages/test_select.py`` compares it with numpy).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+__all__ = ["median_abs_deviation32"]
+
+
+@njit(cache=True)
+def _kth(a, k):  # pragma: no cover - numba
+    """The k-th smallest of ``a`` (reordered: everything before ``k`` is <= it)."""
+    lo, hi = 0, a.size - 1
+    while lo < hi:
+        mid = (lo + hi) // 2
+        # median of three as the pivot, sorted into lo, mid, hi
+        if a[mid] < a[lo]:
+            a[mid], a[lo] = a[lo], a[mid]
+        if a[hi] < a[lo]:
+            a[hi], a[lo] = a[lo], a[hi]
+        if a[hi] < a[mid]:
+            a[hi], a[mid] = a[mid], a[hi]
+        pivot = a[mid]
+        i, j = lo, hi
+        while i <= j:
+            while a[i] < pivot:
+                i += 1
+            while a[j] > pivot:
+                j -= 1
+            if i <= j:
+                a[i], a[j] = a[j], a[i]
+                i += 1
+                j -= 1
+        if k <= j:
+            hi = j
+        elif k >= i:
+            lo = i
+        else:
+            break  # between the two halves: equal to the pivot
+    return a[k]
+
+
+@njit(cache=True)
+def _bucket(bits):  # pragma: no cover - numba
+    """Top 16 bits of a float32's order-preserving key, 0..65535 (negative floats get their
+    magnitude bits flipped; no branch)."""
+    return ((bits ^ ((bits >> 31) & np.int32(0x7FFFFFFF))) >> 16) + 32768
+
+
+@njit(cache=True)
+def _gather(values, first, last, size):  # pragma: no cover - numba
+    """The ``size`` values whose buckets lie in ``first..last``, in their order."""
+    bits = values.view(np.int32)
+    kept = np.empty(size, np.float32)
+    j = 0
+    for i in range(values.size):
+        b = _bucket(bits[i])
+        if b >= first and b <= last:
+            kept[j] = values[i]
+            j += 1
+    return kept
+
+
+@njit(cache=True)
+def _median(values):  # pragma: no cover - numba
+    """``np.median`` of finite float32 values.
+
+    One counting pass over the top 16 bits of the values' order-preserving keys finds the
+    buckets of the two middle ranks (no data-dependent branches: a quickselect over the
+    whole array mispredicts half of its comparisons); a quickselect finishes in the few
+    values of those buckets.
+    """
+    n = values.size
+    bits = values.view(np.int32)
+    counts = np.zeros(65536, np.int64)
+    for i in range(n):
+        counts[_bucket(bits[i])] += 1
+    upper_rank = n // 2
+    lower_rank = upper_rank if n % 2 else upper_rank - 1
+    first, last, below, seen = -1, -1, 0, 0
+    for b in range(65536):
+        if first < 0 and seen + counts[b] > lower_rank:
+            first, below = b, seen
+        if seen + counts[b] > upper_rank:
+            last = b
+            break
+        seen += counts[b]
+    size = 0
+    for b in range(first, last + 1):
+        size += counts[b]
+    kept = _gather(values, first, last, size)
+    upper = _kth(kept, upper_rank - below)
+    if n % 2:
+        return upper
+    # after the selection every value before the upper rank is at most it
+    lower = kept[0]
+    for i in range(1, upper_rank - below):
+        if kept[i] > lower:
+            lower = kept[i]
+    return (lower + upper) / np.float32(2.0)
+
+
+@njit(cache=True)
+def _mad(values):  # pragma: no cover - numba
+    middle = _median(values)
+    deviations = np.empty_like(values)
+    for i in range(values.size):
+        deviations[i] = abs(values[i] - middle)
+    return _median(deviations)
+
+
+def median_abs_deviation32(values: np.ndarray) -> np.float32:
+    """``np.median(np.abs(values - np.median(values)))`` of finite float32 values.
+
+    Parameters
+    ----------
+    values : (K,) ndarray of float32
+        Finite, ``K >= 1``.
+
+    Returns
+    -------
+    mad : numpy.float32
+    """
+    if values.dtype != np.float32 or values.ndim != 1 or values.size == 0:
+        raise ValueError(
+            f"values must be a non-empty 1-D float32 array, got {values.ndim}-D "
+            f"{values.dtype} of size {values.size}"
+        )
+    return np.float32(_mad(np.ascontiguousarray(values)))

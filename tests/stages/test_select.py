@@ -1,0 +1,43 @@
+"""Tests of stages/_select.py: the median absolute deviation by selection, against numpy."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from stages._select import median_abs_deviation32
+
+
+def _numpy_mad(values: np.ndarray) -> np.float32:
+    return np.median(np.abs(values - np.median(values)))
+
+
+def test_median_abs_deviation32_equals_numpy_on_heights_ties_and_signs():
+    rng = np.random.default_rng(8)
+    for trial in range(400):
+        size = int(rng.integers(1, 300))
+        values = (rng.normal(size=size) * 10.0 ** rng.integers(-8, 3)).astype(np.float32)
+        if trial % 3 == 0:
+            values = np.round(values, 1).astype(np.float32)  # many ties
+        if trial % 4 == 0:
+            values[rng.random(size) < 0.5] = 0.0
+        if trial % 5 == 0:
+            values = np.abs(values) * (-1 if trial % 2 else 1)  # one sign only
+        mad = median_abs_deviation32(values)
+        assert mad.dtype == np.float32 and mad == _numpy_mad(values)
+
+
+def test_median_abs_deviation32_on_a_frame_of_heights_and_constant_values():
+    rng = np.random.default_rng(9)
+    heights = (rng.standard_t(3, 200_001) * 0.004).astype(np.float32)  # odd size, heavy tails
+    assert median_abs_deviation32(heights) == _numpy_mad(heights)
+    assert median_abs_deviation32(heights[:-1]) == _numpy_mad(heights[:-1])
+    flat = np.full(1000, 0.25, np.float32)
+    assert median_abs_deviation32(flat) == 0.0
+
+
+def test_median_abs_deviation32_rejects_other_arrays():
+    with pytest.raises(ValueError, match="float32"):
+        median_abs_deviation32(np.zeros(5))
+    with pytest.raises(ValueError, match="non-empty"):
+        median_abs_deviation32(np.zeros(0, np.float32))
