@@ -23,6 +23,7 @@ from ._footprint import (
     footprint_dimensions,
     footprint_disparity,
     ground_fringe_keep,
+    too_dark_to_match,
     widest_row_width_m,
 )
 from ._ground import (
@@ -325,6 +326,7 @@ def describe_objects(
     fringe_height_m: float = 0.004,
     fringe_reach_px: int = 3,
     fringe_smoothing_px: int = 7,
+    fringe_dark_ratio: float = 0.15,
 ) -> dict[str, np.ndarray]:
     """Descriptor columns of every object of a label image.
 
@@ -367,6 +369,11 @@ def describe_objects(
     fringe_smoothing_px : int
         Odd, >= 1: heights are averaged over this box of the object's pixels first
         (:func:`ground_fringe_keep`).
+    fringe_dark_ratio : float
+        In [0, 1): pixels darker than this share of the gray of the background ring around
+        the object are too dark for stereo (their heights are the ground's next to them) and
+        count as of unknown height for the fringe decision (:func:`too_dark_to_match`);
+        0 reads every pixel's height.
 
     Returns
     -------
@@ -381,6 +388,11 @@ def describe_objects(
         raise ValueError(
             "fringe_smoothing_px must be an odd number of pixels >= 1 (1: no smoothing), got "
             f"{fringe_smoothing_px!r}"
+        )
+    if not 0.0 <= fringe_dark_ratio < 1.0:
+        raise ValueError(
+            "fringe_dark_ratio must be a share of the ground ring's gray in [0, 1) (0: off), "
+            f"got {fringe_dark_ratio!r}"
         )
     if not isinstance(camera, Camera):
         raise TypeError(f"camera must be a pipeline.camera.Camera, got {type(camera).__name__}")
@@ -408,6 +420,8 @@ def describe_objects(
         disp_c = _float_crop(disp, crop)
         disp_c[~(disp_c > 0)] = np.nan
         gray_px = gray_c[mask]
+        ring = _dilate_diamond(mask, ring_px) & (lab_c == 0)
+        ground_gray = float(_median(gray_c[ring])) if ring.any() else math.nan
         disp_px = disp_c[mask]
         range_px = _float_crop(rng, crop)[mask]
         valid = np.isfinite(disp_px) & np.isfinite(range_px)
@@ -441,9 +455,10 @@ def describe_objects(
             x_m, y_m = float(_median(smooth[:, 0])), float(_median(smooth[:, 1]))
             # the footprint: without ground-level fringes (shadows), on a disparity fitted to
             # the pixels kept, constant along rows (see footprint_disparity)
+            dark = too_dark_to_match(gray_px, ground_gray=ground_gray, dark_ratio=fringe_dark_ratio)
             keep = ground_fringe_keep(
                 mask,
-                heights,
+                np.where(dark, np.nan, heights),
                 min_height_m=fringe_height_m,
                 reach_px=fringe_reach_px,
                 smoothing_px=fringe_smoothing_px,
@@ -480,7 +495,6 @@ def describe_objects(
             ray = np.array([(np.mean(cols[top]) - cx) / f, (top_row - cy) / f, 1.0])
             height_err = abs(float(ray @ ground.up)) * z_top**2 / kb * disparity_error_px
         mean_gray = float(gray_px.mean())
-        ring = _dilate_diamond(mask, ring_px) & (lab_c == 0)
         major, minor, angle = second_moment_ellipse(rows, cols)
         largest = np.nanmax([width, length]) if np.isfinite([width, length]).any() else math.nan
         jump = background_jump_fraction(mask, lab_c, disp_c, jump_px=background_jump_px)

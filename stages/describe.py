@@ -245,7 +245,7 @@ def run_describe(
 
 STAGE = Stage(
     name="describe",
-    version="6",
+    version="7",
     inputs=("left", "right", "labels", "disparity", "range", "height", "ground_plane"),
     outputs=(
         Product(

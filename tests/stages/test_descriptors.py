@@ -204,6 +204,8 @@ def test_describe_objects_validates_inputs():
         describe_objects(np.zeros(8, np.int32), ok, ok, ok, ok, camera=CAMERA)
     with pytest.raises(TypeError, match="Camera"):
         describe_objects(labels, ok, ok, ok, ok, camera={"focal_px": 1})
+    with pytest.raises(ValueError, match="fringe_dark_ratio"):
+        describe_objects(labels, ok, ok, ok, ok, camera=CAMERA, fringe_dark_ratio=1.0)
 
 
 def test_describe_objects_empty_gives_typed_columns():

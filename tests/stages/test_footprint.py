@@ -12,6 +12,7 @@ from stages._footprint import (
     footprint_dimensions,
     footprint_disparity,
     ground_fringe_keep,
+    too_dark_to_match,
     widest_row_width_m,
 )
 from stages._ground import GroundFrame, fit_disparity_surface, pixel_points
@@ -170,3 +171,41 @@ def test_ground_fringe_keep_smoothing_drops_a_noisy_shadow():
     )
     with pytest.raises(ValueError, match="odd number"):
         ground_fringe_keep(mask, noisy, min_height_m=0.004, reach_px=3, smoothing_px=4)
+
+
+def test_too_dark_to_match():
+    gray = np.array([0, 10, 23, 24, 70, 200], dtype=np.uint8)
+    assert too_dark_to_match(gray, ground_gray=160.0, dark_ratio=0.15).tolist() == [
+        True, True, True, False, False, False,
+    ]  # fmt: skip
+    # no ground ring (NaN) or ratio 0: no pixel is too dark
+    assert not too_dark_to_match(gray, ground_gray=math.nan, dark_ratio=0.15).any()
+    assert not too_dark_to_match(gray, ground_gray=160.0, dark_ratio=0.0).any()
+    with pytest.raises(ValueError, match=r"\[0, 1\)"):
+        too_dark_to_match(gray, ground_gray=160.0, dark_ratio=1.0)
+
+
+def test_black_rock_whose_lower_half_reads_ground_keeps_it_when_too_dark_to_match():
+    # Regression (lab): a black rock gives the matcher no texture, its lower half takes the
+    # floor's disparity and reads ground level, and the fringe rule cut it off as a shadow;
+    # the widest rows of the rock went with it (widths ~5 % short, rocks of 0.10-0.12 m
+    # classed as samples). A cast shadow (0.44 of the floor's gray) must still go.
+    mask = np.zeros((20, 32), dtype=bool)
+    mask[1:19, 1:31] = True
+    heights = np.zeros(mask.shape)
+    gray = np.full(mask.shape, 160.0)
+    heights[1:11, 1:21] = 0.03  # the rock's upper part: measured
+    gray[1:19, 1:21] = 20.0  # the whole rock is near-black: 0.125 of the floor's 160
+    gray[1:19, 21:31] = 70.0  # its cast shadow beside it, at ground level
+    h, g = heights[mask], gray[mask]
+    cols, rows = np.nonzero(mask)[1], np.nonzero(mask)[0]
+    rock_low = (cols < 21) & (rows > 13)  # farther than reach from the measured part
+    plain = ground_fringe_keep(mask, h, min_height_m=0.004, reach_px=3, smoothing_px=7)
+    assert not plain[rock_low].any()  # the bug: the rock's lower half is dropped
+    dark = too_dark_to_match(g, ground_gray=160.0, dark_ratio=0.15)
+    assert dark[cols < 21].all() and not dark[cols >= 21].any()
+    fixed = ground_fringe_keep(
+        mask, np.where(dark, np.nan, h), min_height_m=0.004, reach_px=3, smoothing_px=7
+    )
+    assert fixed[cols < 21].all()
+    assert not fixed[cols >= 21 + 3 + 7 // 2].any()  # the shadow's far part still goes
