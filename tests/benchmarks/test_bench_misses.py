@@ -2,17 +2,11 @@
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
 import pytest
+from bench_modules import load_benchmark
 
-_PATH = Path(__file__).resolve().parents[2] / "benchmarks" / "bench_misses.py"
-_SPEC = importlib.util.spec_from_file_location("_bench_misses", _PATH)
-assert _SPEC is not None and _SPEC.loader is not None
-bench_misses = importlib.util.module_from_spec(_SPEC)
-_SPEC.loader.exec_module(bench_misses)
+bench_misses = load_benchmark("bench_misses.py")
 
 
 def _scene():

@@ -6,22 +6,16 @@ and ``bench_describe.py --inputs depth|pipeline``: they ran it with its defaults
 
 from __future__ import annotations
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
 import pytest
+from bench_modules import load_benchmark
 
 from pipeline.camera import Camera
 from pipeline.errors import ParamError
 from pipeline.synth import render_pair
 from stages import depth as depth_stage
 
-_PATH = Path(__file__).resolve().parents[2] / "benchmarks" / "_overrides.py"
-_SPEC = importlib.util.spec_from_file_location("_bench_overrides", _PATH)
-assert _SPEC is not None and _SPEC.loader is not None
-overrides = importlib.util.module_from_spec(_SPEC)
-_SPEC.loader.exec_module(overrides)
+overrides = load_benchmark("_overrides.py")
 
 
 def test_values_are_parsed_to_the_params_types():
