@@ -6,9 +6,10 @@ frame). :func:`find_all_modes` runs the same two steps -- local maxima with plat
 their middle (rounded down), then each peak's prominence over the whole histogram, padded
 with a zero bin on each side -- for every histogram in one compiled loop and returns the
 same positions (``tests/stages/test_modes.py`` compares it with ``find_modes``).
-:func:`sector_thresholds` runs ``stages._continuity._sector_band`` (valleys, merged
-ground facets, width-based bands) for every sector at once, another 3 ms of Python a
-frame, with the same arithmetic (compared with ``_sector_band`` in the same test module).
+:func:`sector_thresholds` runs the threshold rule of :mod:`stages._continuity` (valleys,
+merged ground facets, width-based bands) for every sector at once, another 3 ms of Python a
+frame, with the same arithmetic as the per-sector Python it replaced, kept as the reference
+``_sector_band`` in ``tests/stages/test_modes.py`` and compared there.
 """
 
 from __future__ import annotations
@@ -200,7 +201,7 @@ def sector_thresholds(
     positions, counts : (S, S, K) and (S, S) ndarray of int64
         :func:`find_all_modes`.
     band_sigmas, min_band, merge, fwhm_to_sigma : float
-        As ``stages._continuity._sector_band`` (``merge`` is its merge ratio).
+        As :func:`stages._continuity.analyse_sectors` (``merge`` is its ``merge_ratio``).
 
     Returns
     -------
