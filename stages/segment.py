@@ -594,7 +594,7 @@ def _sector_product(name: str, dtype: str, long_name: str, units: str = "") -> P
 
 STAGE = Stage(
     name="segment",
-    version="27",
+    version="28",
     inputs=("left", "right", "disparity", "height"),
     outputs=(
         Product(

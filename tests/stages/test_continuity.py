@@ -237,3 +237,17 @@ def test_phantoms_do_not_chain_into_a_block_of_false_ground_levels():
     assert np.all((analysis.background[0] > 50) & (analysis.background[0] < 92))
     assert np.all((analysis.background[1] > 90) & (analysis.background[1] < 128))
     assert 15 + 4 < analysis.low[1, 2] < 90 - 4  # the rock is object, the ramp is not
+
+
+def test_a_border_sector_whose_highest_mode_is_a_rock_finds_its_ramp_in_the_next():
+    # rule C2 on the frame border, regression (lab_0002 sector (0, 1), lab_0003 (0, 8)): a
+    # dark rock covers a little more of a top sector than the lamp ramp does, so its
+    # highest mode is the rock and C2 tried nothing else; the sector became a phantom peak
+    # at the bright level below, and the ramp part of it a false object at the top border
+    hist = lamp_ramp_grid()
+    for j in (2, 3, 4):
+        hist[0, j] = ramp_hist(50, 92, columns=14) + gaussian_hist((15, 4, 31 * 17))
+    analysis = analyse_sectors(hist, band_sigmas=3.5, merge_ratio=0.35)
+    assert not analysis.phantom.any()
+    assert np.all((analysis.background[0] > 50) & (analysis.background[0] < 92))
+    assert np.all(analysis.low[0, 2:5] > 15 + 4)  # the rock is still object
