@@ -112,7 +112,7 @@ from ._heights import (
     _percentile_by_label,
     _robust_sigma,
     local_ground,
-    smooth_height,
+    relative_height,
 )
 from ._regions import CLEAR_CONTRAST, _coerce_mask, _lookup, _renumber
 
@@ -160,6 +160,7 @@ def apply_depth_rules(
     ground_window_px: int = 72,
     min_raised_fraction: float = 0.1,
     contrast: np.ndarray | None = None,
+    relative: np.ndarray | None = None,
 ) -> tuple[np.ndarray, DepthRuleStats]:
     """Combine an intensity mask with height above ground (rules R0-R3 of the module doc).
 
@@ -185,6 +186,10 @@ def apply_depth_rules(
     contrast : (M, N) ndarray of float32, optional
         Gray-level distance from the ground level in threshold bands (:func:`gray_contrast`);
         when given, the noisy-depth vote asks less height of clear objects (R2c).
+    relative : (M, N) ndarray of float32, optional
+        ``relative_height(height, smoothing_px=..., ground_window_px=...)`` when the caller
+        has it already (:func:`stages.segment.segment_image` reads it again for R7e);
+        computed here otherwise.
 
     Returns
     -------
@@ -205,9 +210,13 @@ def apply_depth_rules(
         raise ValueError(f"base_px must be >= 0, got {base_px}")
     if not 0 <= min_raised_fraction <= 1:
         raise ValueError(f"min_raised_fraction must be in [0, 1], got {min_raised_fraction}")
-    smoothed = smooth_height(height, window=smoothing_px)
-    valid = np.isfinite(smoothed)
-    relative = smoothed - local_ground(smoothed, window_px=ground_window_px)
+    if relative is None:
+        relative = relative_height(
+            height, smoothing_px=smoothing_px, ground_window_px=ground_window_px
+        )
+    else:
+        relative = _coerce_float_map(relative, mask.shape, "relative")
+    valid = np.isfinite(relative)
     sigma = _robust_sigma(relative[valid & ~mask])
     if sigma > _UNUSABLE_SIGMA_M:
         stats = DepthRuleStats(

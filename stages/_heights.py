@@ -22,6 +22,7 @@ __all__ = [
     "DepthRuleStats",
     "smooth_height",
     "local_ground",
+    "relative_height",
 ]
 
 
@@ -92,6 +93,29 @@ def local_ground(height: np.ndarray, *, window_px: int = 72) -> np.ndarray:
     small = cv2.resize(filled, small_shape[::-1], interpolation=cv2.INTER_AREA)
     coarse = _median_filter_nearest(small, size=min(9, *small_shape))
     return cv2.resize(coarse, (cols, rows), interpolation=cv2.INTER_LINEAR)
+
+
+def relative_height(height: np.ndarray, *, smoothing_px: int, ground_window_px: int) -> np.ndarray:
+    """Smoothed heights above the local ground (R0 of :mod:`stages._depth_rules`).
+
+    ``smooth_height(height, window=smoothing_px)`` minus its :func:`local_ground`; NaN
+    exactly where the smoothed map is NaN (the local ground is finite everywhere).
+
+    Parameters
+    ----------
+    height : (M, N) ndarray of float32
+        Metres above the fitted plane, NaN where invalid.
+    smoothing_px : {1, 3, 5}
+        Median window of the height map.
+    ground_window_px : int
+        ``>= 9``; window of the local ground level.
+
+    Returns
+    -------
+    (M, N) ndarray of float32
+    """
+    smoothed = smooth_height(height, window=smoothing_px)
+    return smoothed - local_ground(smoothed, window_px=ground_window_px)
 
 
 def _median_filter_nearest(image: np.ndarray, *, size: int) -> np.ndarray:

@@ -62,7 +62,7 @@ from ._depth_rules import (
     gray_contrast,
 )
 from ._depth_rules import _UNUSABLE_SIGMA_M as _USABLE_SIGMA_M
-from ._heights import DepthRuleStats, local_ground, smooth_height
+from ._heights import DepthRuleStats, relative_height
 from ._outlines import split_at_necks, trim_faint_rims
 from ._regions import depth_edges, label_objects, threshold_mask
 from ._rock_parts import (
@@ -305,6 +305,7 @@ def segment_image(
     edges = None
     contrast = None
     texture = None
+    relative = None
     if method == "sector-histogram+depth":
         if ripple_texture_ratio > 0 and max_elongation > 0:
             # R5c's evidence: the ground texture's objects, before the depth rules thin them
@@ -315,6 +316,10 @@ def segment_image(
         disparity = _coerce_depth(disparity, shape, "disparity")
         valid_fraction = float(np.isfinite(height).mean()) if height is not None else 0.0
         if height is not None and valid_fraction >= min_depth_valid_fraction:
+            # R0's relative heights, read by the depth rules and again by R7e
+            relative = relative_height(
+                height, smoothing_px=height_smoothing_px, ground_window_px=ground_window_px
+            )
             mask, depth_stats = apply_depth_rules(
                 mask,
                 height,
@@ -325,6 +330,7 @@ def segment_image(
                 ground_window_px=ground_window_px,
                 min_raised_fraction=min_raised_fraction,
                 contrast=contrast,
+                relative=relative,
             )
         else:
             notes.append(
@@ -400,17 +406,15 @@ def segment_image(
         if rims:
             notes.append(f"{rims} px of faint rims dropped")
     heights_usable = depth_stats is not None and depth_stats.ground_sigma_m <= _USABLE_SIGMA_M
-    if contrast is not None and heights_usable and shadow_noise_m > 0:
+    if contrast is not None and relative is not None and heights_usable and shadow_noise_m > 0:
         # R7e, after R7d: where heights are precise, a shaded face and its cast shadow
         labels, faces = _split_shadow_sides(
             labels,
             contrast,
-            height,
+            relative,
             max_noise_m=shadow_noise_m,
             min_height_m=min_height_m,
             flat_tol_m=flat_tol_m,
-            smoothing_px=height_smoothing_px,
-            ground_window_px=ground_window_px,
         )
         if faces:
             notes.append(f"{faces} px of shaded faces joined to lit ones")
@@ -429,19 +433,15 @@ def segment_image(
 def _split_shadow_sides(
     labels: np.ndarray,
     contrast: np.ndarray,
-    height: np.ndarray,
+    relative: np.ndarray,
     *,
     max_noise_m: float,
     min_height_m: float,
     flat_tol_m: float,
-    smoothing_px: int,
-    ground_window_px: int,
 ) -> tuple[np.ndarray, int]:
     """R7e on the heights the depth rules read: relative to R0's local ground, R0b's noise."""
     if not labels.any():
         return labels, 0
-    smoothed = smooth_height(height, window=smoothing_px)
-    relative = smoothed - local_ground(smoothed, window_px=ground_window_px)
     # the noise of the ground as the objects now stand (R0b's bands, every other column)
     noise = _row_band_sigma(relative, np.isfinite(relative) & (labels == 0))
     return split_shadow_sides(

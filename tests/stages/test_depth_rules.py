@@ -12,6 +12,7 @@ from stages._depth_rules import (
     drop_faint_depthless,
     gray_contrast,
 )
+from stages._heights import relative_height, smooth_height
 
 
 def test_depth_rule_flat_dark_shadow_is_background():
@@ -55,6 +56,24 @@ def test_depth_rules_validate():
         apply_depth_rules(mask, np.zeros((10, 10), np.float32), flat_tol_m=0.1)
     with pytest.raises(TypeError, match="float"):
         apply_depth_rules(mask, np.zeros((10, 10), np.int32))
+
+
+def test_depth_rules_read_a_given_relative_height_map_as_their_own():
+    # segment_image computes R0's relative heights once for the depth rules and R7e
+    shape = (60, 60)
+    rng = np.random.default_rng(3)
+    height = (0.004 * rng.standard_normal(shape)).astype(np.float32)
+    height[20:35, 15:40] += 0.05
+    height[:6, :10] = np.nan
+    mask = disk(shape, 45, 45, 6)
+    relative = relative_height(height, smoothing_px=5, ground_window_px=72)
+    assert np.array_equal(np.isnan(relative), np.isnan(smooth_height(height, window=5)))
+    own = apply_depth_rules(mask, height)
+    given = apply_depth_rules(mask, height, relative=relative)
+    assert np.array_equal(own[0], given[0])
+    assert own[1] == given[1]
+    with pytest.raises(ValueError, match="relative"):
+        apply_depth_rules(mask, height, relative=relative[:-1])
 
 
 def test_drop_faint_depthless_judges_only_objects_without_heights():
