@@ -27,6 +27,17 @@ into the ground's own texture to find what is missed. Last, each class's *ceilin
 object F1 when every missed rock of that class is painted into the labels from the truth
 (over everything, as a new object), all else kept -- an upper bound on what a rule that
 fixes that class alone can gain, not a promise that such a rule exists.
+
+A second table sorts the false objects (graded, unmatched) the same way, by the truth rock
+under most of the object:
+
+* ``ground`` -- less than a quarter of the object lies on truth rocks (texture, a shadow,
+  an invented rock);
+* ``on_missed`` -- the rock under it is missed (the object is its partial, fat or shared
+  cover, counted above as a miss too);
+* ``extra`` -- the rock under it is matched by another object (a second piece).
+
+Its ceiling is the F1 when every false object of that class is erased, all else kept.
 """
 
 from __future__ import annotations
@@ -40,12 +51,14 @@ import numpy as np
 from pipeline.metrics import match_objects, pool_segmentation_scores, segmentation_scores
 from stages.segment import segment_image
 
-__all__ = ["classify_misses", "main"]
+__all__ = ["classify_false_objects", "classify_misses", "main"]
 
 _MIN_TRUE_PX = 30
 _SHARED = 0.3
 _RING_PX = 4
 CLASSES = ("untouched", "shared", "partial", "fat")
+FALSE_CLASSES = ("ground", "on_missed", "extra")
+_ON_ROCKS = 0.25
 
 
 def _contrast(image: np.ndarray, rock: np.ndarray, ground: np.ndarray) -> float:
@@ -103,6 +116,42 @@ def classify_misses(
     return rows
 
 
+def classify_false_objects(pred: np.ndarray, true: np.ndarray, image: np.ndarray) -> list[dict]:
+    """One row per false object of a frame (graded, unmatched): its id, class, size and
+    gray contrast against the ground around it."""
+    matches = match_objects(pred, true, min_true_px=_MIN_TRUE_PX)
+    matched_pred = set(matches.pred_ids.tolist())
+    matched_true = set(matches.true_ids.tolist())
+    ignored = set(matches.ignored_pred_ids.tolist())
+    ground = true == 0
+    rows = []
+    for p in np.unique(pred[pred > 0]).tolist():
+        if p in matched_pred or p in ignored:
+            continue
+        obj = pred == p
+        under, counts = np.unique(true[obj], return_counts=True)
+        on_rocks = counts[under > 0]
+        if on_rocks.sum() < _ON_ROCKS * counts.sum():
+            kind = "ground"
+        else:
+            rock = int(under[under > 0][np.argmax(on_rocks)])
+            kind = "extra" if rock in matched_true else "on_missed"
+        rows.append(
+            {
+                "object": int(p),
+                "class": kind,
+                "px": int(counts.sum()),
+                "contrast": _contrast(image, obj, ground & ~obj),
+            }
+        )
+    return rows
+
+
+def _erased(pred: np.ndarray, objects: list[int]) -> np.ndarray:
+    """``pred`` without the objects ``objects``."""
+    return np.where(np.isin(pred, objects), 0, pred)
+
+
 def _painted(pred: np.ndarray, true: np.ndarray, rocks: list[int]) -> np.ndarray:
     """``pred`` with the truth rocks ``rocks`` painted over it as new objects."""
     out = pred.astype(np.int32, copy=True)
@@ -120,6 +169,13 @@ def _summary(rows: list[dict]) -> str:
         f"{len(rows):5d} {np.median(px):8.0f} {np.median(rng):8.2f} {np.sum(rng < 2.0):6d}"
         f"   {q1:5.1f} {q2:5.1f} {q3:5.1f}"
     )
+
+
+def _false_summary(rows: list[dict]) -> str:
+    px = np.array([r["px"] for r in rows])
+    contrast = np.abs([r["contrast"] for r in rows])
+    q1, q2, q3 = np.nanpercentile(contrast, [25, 50, 75])
+    return f"{len(rows):5d} {np.median(px):8.0f}   |contrast| {q1:5.1f} {q2:5.1f} {q3:5.1f}"
 
 
 def main() -> None:
@@ -140,6 +196,7 @@ def main() -> None:
         params.update(overrides)
         by_class: dict[str, list[dict]] = defaultdict(list)
         painted: dict[str, list[dict]] = defaultdict(list)
+        false_rows: dict[str, list[dict]] = defaultdict(list)
         for frame in run.frames():
             image = frame.product(run.camera.reference)
             pred = segment_image(
@@ -155,6 +212,12 @@ def main() -> None:
             for kind in CLASSES:
                 rocks = [row["rock"] for row in rows if row["class"] == kind]
                 painted[kind].append(segmentation_scores(_painted(pred, true, rocks), true))
+            false_objects = classify_false_objects(pred, true, image)
+            for row in false_objects:
+                false_rows[row["class"]].append(row)
+            for kind in FALSE_CLASSES:
+                objects = [row["object"] for row in false_objects if row["class"] == kind]
+                painted[kind].append(segmentation_scores(_erased(pred, objects), true))
         for kind in ("matched", *CLASSES):
             if by_class[kind]:
                 ceiling = pool_segmentation_scores(painted[kind])["f1"] if kind in painted else 0
@@ -163,6 +226,13 @@ def main() -> None:
         missed = [r for k in CLASSES for r in by_class[k]]
         if missed:
             print(f"{run.archive:9s} {'missed':10s} {_summary(missed)}")
+        for kind in FALSE_CLASSES:
+            if false_rows[kind]:
+                ceiling = pool_segmentation_scores(painted[kind])["f1"]
+                print(
+                    f"{run.archive:9s} {'false ' + kind:18s} {_false_summary(false_rows[kind])}"
+                    f"   ceiling F1 {ceiling:.3f}"
+                )
 
 
 if __name__ == "__main__":

@@ -52,3 +52,16 @@ def test_a_ceiling_paints_the_missed_rocks_in_as_new_objects():
     assert np.array_equal(painted[true == 2], np.full(100, 6))
     assert np.array_equal(painted[true == 5], np.full(100, 7))
     assert np.array_equal(painted[true == 1], pred[true == 1])
+
+
+def test_false_objects_are_sorted_by_the_rock_under_them():
+    pred, true, image, _ = _scene()
+    pred[40:50, 2:12] = 6  # on bare ground
+    pred[10:20, 12:14] = 7  # a sliver beside matched rock 1, all on ground
+    pred[18:20, 2:12] = 8  # a second piece of matched rock 1
+    rows = bench_misses.classify_false_objects(pred, true, image)
+    kinds = {row["object"]: row["class"] for row in rows}
+    assert kinds == {3: "on_missed", 5: "on_missed", 6: "ground", 7: "ground", 8: "extra"}
+    assert {row["object"]: row["px"] for row in rows}[6] == 100
+    erased = bench_misses._erased(pred, [6, 7])
+    assert not np.isin(erased, [6, 7]).any() and np.array_equal(erased == 3, pred == 3)
