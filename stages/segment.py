@@ -14,13 +14,13 @@ noisy-height vote), all documented rule by rule.
 
 ``method = 'sector-histogram+depth'`` (default) adds the depth stage's ``height`` (metres
 above the fitted ground plane) and ``disparity`` (rules R0-R3 in :mod:`stages._depth_rules`
-and :mod:`stages._height_vote`, R4 in :mod:`stages._regions`, R5-R5c in
+and :mod:`stages._height_vote`, R4 in :mod:`stages._regions`, R5-R5d in
 :mod:`stages._texture_rules`, R6-R7c in :mod:`stages._rock_parts`, R4b and R7d in
 :mod:`stages._outlines`, R7e in :mod:`stages._shadow_sides`, R8 in :mod:`stages._blobs`):
 raised pixels are object even when their gray equals the ground's, flat intensity objects
 (shadows, stains, texture blotches) are background, touching objects split at disparity
-jumps or, at one range, at narrow necks (R4b), streaks (ripple troughs) are dropped and so
-are, in a field of parallel streaks,
+jumps or, at one range, at narrow necks (R4b), streaks (ripple troughs) are dropped unless
+they stand clearly out of the ground (R5b, R5d) and so are, in a field of parallel streaks,
 objects that do not stand out of the ripple texture around them, objects whose other half
 lies just inside the thresholds grow into it when they stay compact (R7), a lighter and a
 darker half of one rock are joined (R7b), near the camera a lit face takes the raised part
@@ -367,7 +367,9 @@ def segment_image(
             trimmed > 0, min_area_px=min_area_px, fill=False, edges=_seams(trimmed)
         )
     if method == "sector-histogram+depth" and max_elongation > 0:
-        labels, streaks = drop_streaks(labels, max_elongation=max_elongation, contrast=contrast)
+        labels, streaks = drop_streaks(
+            labels, max_elongation=max_elongation, contrast=contrast, image=image
+        )
         if streaks:
             notes.append(f"{streaks} streak(s) longer than {max_elongation:g}x their width dropped")
     if texture is not None:
@@ -594,7 +596,7 @@ def _sector_product(name: str, dtype: str, long_name: str, units: str = "") -> P
 
 STAGE = Stage(
     name="segment",
-    version="28",
+    version="29",
     inputs=("left", "right", "disparity", "height"),
     outputs=(
         Product(
