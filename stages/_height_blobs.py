@@ -8,8 +8,9 @@ several times as often. Two cues tell the rocks among them
 (:func:`add_height_blobs`):
 
 * **height bump** -- the stereo windows leave a small rock as a bump of their own scale; the
-  map of rule R2d (:func:`stages._height_vote._height_bumps`: relative heights smoothed at
-  2 px minus at 6 px, in that map's robust noise on the ground) must peak at least
+  map of rule R2d (:func:`stages._height_vote._height_bumps`, here on R0's median-smoothed
+  relative heights: Gaussians at 2 px minus at 6 px, in that map's robust noise on the
+  ground) must peak at least
   ``min_bump`` (2, R2d's own floor) on the blob. A blotch lying on the ground makes none;
 * **crisp edges** -- a faceted rock has sharp outlines and lit facets, a blotch of the
   ground's texture fades into the ground. The gray level's fine detail (the image minus
@@ -128,7 +129,7 @@ def add_height_blobs(
         Reference gray image.
     relative : (M, N) ndarray of float32
         Heights above the local ground (R0 of :mod:`stages._depth_rules`), metres, NaN
-        invalid; blobs on invalid heights are never added.
+        invalid; the bump map is 0 there, so a blob without valid heights is never added.
     min_sigmas : float
         ``> 0``: R8's core contrast for the candidates, in ground spreads at their scale.
     min_area_px : int
