@@ -300,10 +300,8 @@ def _adaptive_coded(
     hys = np.array([rows // 2 for rows, _ in s["windows"]], dtype=np.int64)
     hxs = np.array([cols // 2 for _, cols in s["windows"]], dtype=np.int64)
     r32, o32 = _centred(ref), _centred(oth)
-    rs, ri, rsd = _ncc.window_stats(r32, hys, hxs)
-    os_, oi, _ = _ncc.window_stats(o32, hys, hxs)
     disparity, window = _ncc.adaptive_match(
-        r32, o32, lo, n_all, row_start, row_end, hys, hxs, rs, ri, rsd, os_, oi,
+        r32, o32, lo, n_all, row_start, row_end, hys, hxs,
         float(s["min_texture"]), float(s["min_ncc"]), _margins(s), float(s["lr_tolerance"]),
         s["subpixel"] == "blend",
     )  # fmt: skip
@@ -334,8 +332,8 @@ def _sgm_coded(
     hw = int(s["sgm_window"]) // 2
     r32, o32 = _centred(ref), _centred(oth)
     hws = np.array([hw], dtype=np.int64)
-    rs, ri, _ = _ncc.window_stats(r32, hws, hws)
-    os_, oi, _ = _ncc.window_stats(o32, hws, hws)
+    rs, ri, _ = _ncc.window_stats(r32, hws, hws, False)
+    os_, oi, _ = _ncc.window_stats(o32, hws, hws, False)
     cost = _ncc.ncc_cost_volume(
         r32, o32, lo, hi - lo + 1, hw,
         rs[0], ri[0], os_[0], oi[0],

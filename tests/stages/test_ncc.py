@@ -147,3 +147,50 @@ def test_border_curves_read_the_shifted_windows(d_min):
             else:
                 assert shifted[j, x] == -np.inf
         assert valid == list(range(first[x], last[x]))  # one contiguous range
+
+
+def _numpy_window_stats(image, hy, hx):
+    """Reference of one window's statistics: box sums over the whole window, numpy only."""
+    v = image.astype(np.int64)
+    h, w = v.shape
+    sums = np.zeros((h, w), np.float32)
+    inv = np.zeros((h, w), np.float32)
+    std = np.zeros((h, w), np.float32)
+    if h < 2 * hy + 1 or w < 2 * hx + 1:
+        return sums, inv, std
+    boxes = np.lib.stride_tricks.sliding_window_view(v, (2 * hy + 1, 2 * hx + 1))
+    n = (2 * hy + 1) * (2 * hx + 1)
+    s = boxes.sum(axis=(2, 3))
+    spread = n * (boxes * boxes).sum(axis=(2, 3)) - s * s
+    root = np.sqrt(spread.astype(np.float64))
+    inner = (slice(hy, h - hy), slice(hx, w - hx))
+    sums[inner] = s
+    with np.errstate(divide="ignore"):
+        inv[inner] = np.where(spread > 0, 1.0 / root, 0.0)
+    std[inner] = root / n
+    return sums, inv, std
+
+
+@pytest.mark.parametrize(("hy", "hx"), [(1, 1), (2, 4), (0, 3), (4, 13)])
+def test_window_stats_and_row_stats_equal_numpy_box_sums(hy, hx):
+    # the whole-frame kernel (sgm) and the row-by-row one (adaptive) give the same float32
+    # bits as box sums over each window; flat patches give zero inverse roots and stds
+    rng = np.random.default_rng(5)
+    image = rng.integers(-128, 128, (11, 23)).astype(np.int32)
+    image[:6, :9] = 7  # flat
+    sums, inv, std = _numpy_window_stats(image, hy, hx)
+    got = _ncc.window_stats(image, np.array([hy]), np.array([hx]))
+    for mine, expected in zip(got, (sums, inv, std), strict=True):
+        assert mine[0].tobytes() == expected.tobytes()
+    no_std = _ncc.window_stats(image, np.array([hy]), np.array([hx]), False)
+    assert no_std[1][0].tobytes() == inv.tobytes() and no_std[2].size == 0
+    h, w = image.shape
+    col, col2 = np.zeros(w, np.int64), np.zeros(w, np.int64)
+    row = [np.full(w, -1.0, np.float32) for _ in range(3)]
+    scratch = np.zeros(w + 1, np.int64), np.zeros(w + 1, np.int64)
+    n = (2 * hy + 1) * (2 * hx + 1)
+    for yc in range(hy, h - hy):
+        _ncc._advance_stat_columns(col, col2, image, yc, hy)
+        _ncc._row_stats(*row, col, col2, hx, n, *scratch)
+        for mine, expected in zip(row, (sums, inv, std), strict=True):
+            assert mine.tobytes() == expected[yc].tobytes()
