@@ -4,12 +4,13 @@ Private helpers of :mod:`stages._stereo`; see that module for the matching rules
 
 Layout and exactness. Images are int32 gray levels minus 128. Every window sum (of ``R``,
 ``R**2``, ``R*L``...) is an exact integer: box sums come from int64 integral images or
-column sums (per-window image statistics, whole frame or row by row) and from sliding int32 column/row sums of the products
-``R[y, x] * L[y, x + d]`` (the row kernel), which cannot overflow because centred products
-are at most 128**2 and a window of at most 255 x 255 px keeps every partial sum below 2**31
-(255**2 * 128**2 < 1.1e9). Window sums of gray levels (< 128 * 255**2 < 2**24) are stored
-as exact float32. Only the final ZNCC division is floating point, and it is done with the
-same operations for a pixel whatever the image or tile it sits in, so matching a tile gives
+column sums (per-window image statistics, whole frame or row by row) and from sliding
+int32 column/row sums of the products ``R[y, x] * L[y, x + d]`` (the row kernel), which
+cannot overflow because centred products are at most 128**2 and a window of at most
+255 x 255 px keeps every partial sum below 2**31 (255**2 * 128**2 < 1.1e9). Window sums of
+gray levels (< 128 * 255**2 < 2**24) are stored as exact float32. Only the final ZNCC
+division is floating point, and it is done with the same operations for a pixel whatever
+the image or tile it sits in, so matching a tile gives
 bit-identical results to matching the whole frame.
 
 Per image row the kernel keeps, for every window (half-height ``hy``, half-width ``hw``) and
@@ -761,6 +762,37 @@ def ncc_cost_volume(
             for j in range(n_disp):
                 column[j] = costs[j, x]
     return cost
+
+
+@njit(cache=True)
+def flag_occluded(coded, tolerance, code):  # pragma: no cover - numba
+    """In place: set the pixels :func:`occluded` flags to ``code`` (the rest unchanged)."""
+    hidden = occluded(coded, tolerance)
+    h, w = coded.shape
+    for y in range(h):
+        for x in range(w):
+            if hidden[y, x]:
+                coded[y, x] = code
+
+
+@njit(cache=True)
+def decode_status(coded):  # pragma: no cover - numba
+    """Disparity (NaN where not valid) and int8 status from the one-array coding of
+    :mod:`stages._stereo`: NaN no peak (1), -inf left-right rejected (2), +inf speckle
+    (3), finite valid (0)."""
+    h, w = coded.shape
+    disparity = np.empty((h, w), np.float32)
+    status = np.empty((h, w), np.int8)
+    for y in range(h):
+        for x in range(w):
+            v = coded[y, x]
+            if np.isfinite(v):
+                status[y, x] = 0
+                disparity[y, x] = v
+            else:
+                status[y, x] = 1 if np.isnan(v) else (2 if v < 0 else 3)
+                disparity[y, x] = np.nan
+    return disparity, status
 
 
 @njit(cache=True)

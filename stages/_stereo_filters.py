@@ -33,8 +33,9 @@ from typing import Any
 
 import cv2
 import numpy as np
+from numba import njit
 
-__all__ = ["prefilter_image", "remove_speckles", "sgbm_disparity"]
+__all__ = ["prefilter_image", "remove_speckles", "speckle_mask", "sgbm_disparity"]
 
 
 # ----------------------------------------------------------------------------- validation
@@ -128,6 +129,39 @@ def prefilter_image(image: np.ndarray, *, size: int) -> np.ndarray:
     return np.clip(high + 128, 0, 255).astype(np.uint8)
 
 
+@njit(cache=True)
+def _fixed_point(disparity, invalid_code):  # pragma: no cover - numba
+    """int16 disparity in 1/16 px (round half to even, as ``np.round``), ``invalid_code``
+    where not finite: OpenCV's speckle filter's input, in one pass."""
+    h, w = disparity.shape
+    fixed = np.empty((h, w), np.int16)
+    for y in range(h):
+        for x in range(w):
+            d = disparity[y, x]
+            fixed[y, x] = np.int16(np.rint(d * np.float32(16))) if np.isfinite(d) else invalid_code
+    return fixed
+
+
+@njit(cache=True)
+def _removed(disparity, marked, invalid_code):  # pragma: no cover - numba
+    """Finite pixels that the speckle filter marked invalid."""
+    h, w = disparity.shape
+    removed = np.zeros((h, w), np.bool_)
+    for y in range(h):
+        for x in range(w):
+            removed[y, x] = np.isfinite(disparity[y, x]) and marked[y, x] == invalid_code
+    return removed
+
+
+def speckle_mask(disparity: np.ndarray, *, max_size: int, max_diff: float) -> np.ndarray:
+    """(M, N) bool: the finite pixels of ``disparity`` (float32; NaN or +-inf invalid)
+    that :func:`remove_speckles` removes, without forming the cleaned map."""
+    invalid_code = np.int16(-32768)
+    marked = _fixed_point(disparity, invalid_code)
+    cv2.filterSpeckles(marked, int(invalid_code), int(max_size), max(1, round(max_diff * 16)))
+    return _removed(disparity, marked, invalid_code)
+
+
 def remove_speckles(
     disparity: np.ndarray, *, max_size: int, max_diff: float
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -150,16 +184,10 @@ def remove_speckles(
     removed : (M, N) ndarray of bool
         The pixels that were removed.
     """
-    d = np.asarray(disparity, dtype=np.float32)
+    d = np.ascontiguousarray(disparity, dtype=np.float32)
     if d.ndim != 2:
         raise ValueError(f"disparity must be 2-D, got shape {d.shape}")
-    valid = np.isfinite(d)
-    invalid_code = np.int16(-32768)
-    fixed = np.full(d.shape, invalid_code, np.int16)
-    fixed[valid] = np.round(d[valid] * 16).astype(np.int16)
-    marked = fixed.copy()
-    cv2.filterSpeckles(marked, int(invalid_code), int(max_size), max(1, round(max_diff * 16)))
-    removed = valid & (marked == invalid_code)
+    removed = speckle_mask(d, max_size=max_size, max_diff=max_diff)
     cleaned = np.where(removed, np.nan, d).astype(np.float32)
     return cleaned, removed
 

@@ -194,3 +194,36 @@ def test_window_stats_and_row_stats_equal_numpy_box_sums(hy, hx):
         _ncc._row_stats(*row, col, col2, hx, n, *scratch)
         for mine, expected in zip(row, (sums, inv, std), strict=True):
             assert mine.tobytes() == expected[yc].tobytes()
+
+
+def _coded_row_mix(seed):
+    rng = np.random.default_rng(seed)
+    coded = rng.uniform(0, 6, (9, 30)).astype(np.float32)
+    pick = rng.random(coded.shape)
+    coded[pick < 0.3] = np.nan
+    coded[(pick >= 0.3) & (pick < 0.4)] = -np.inf
+    coded[(pick >= 0.4) & (pick < 0.5)] = np.inf
+    return coded
+
+
+def test_decode_status_equals_the_numpy_masks():
+    coded = _coded_row_mix(8)
+    disparity, status = _ncc.decode_status(coded)
+    expected = np.zeros(coded.shape, np.int8)  # numpy reference, the passes it replaced
+    expected[np.isnan(coded)] = 1
+    expected[np.isneginf(coded)] = 2
+    expected[np.isposinf(coded)] = 3
+    np.testing.assert_array_equal(status, expected)
+    reference = np.where(expected == 0, coded, np.nan).astype(np.float32)
+    assert disparity.dtype == np.float32 and disparity.tobytes() == reference.tobytes()
+
+
+def test_flag_occluded_codes_what_occluded_flags_ignoring_codes():
+    # the coded map's NaN and +-inf are skipped like NaN in the plain disparity
+    coded = _coded_row_mix(9)
+    plain = np.where(np.isfinite(coded), coded, np.nan).astype(np.float32)
+    hidden = _ncc.occluded(plain, np.float32(1.0))
+    assert hidden.any()
+    expected = np.where(hidden, _ncc.LR_REJECTED, coded).astype(np.float32)
+    _ncc.flag_occluded(coded, np.float32(1.0), _ncc.LR_REJECTED)
+    assert coded.tobytes() == expected.tobytes()
