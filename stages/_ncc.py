@@ -224,13 +224,16 @@ def _row_scores(out, hs, n, hw, rs_row, ri_row, os_row, oi_row, d_min, as_cost):
     equals ``0.5 - 0.5 * num * ...`` bit for bit).
     """
     n_disp, w = out.shape
-    out[:, :] = 0.5 if as_cost else -2.0
+    outside = 0.5 if as_cost else -2.0
     for j in range(n_disp):
         d = d_min + j
         x0 = max(hw, hw - d)
         x1 = min(w - hw, w - hw - d)
         if x1 <= x0:
+            out[j, :] = outside
             continue
+        out[j, :x0] = outside  # only where the window does not fit: the rest is written
+        out[j, x1:] = outside
         row = out[j, x0:x1]
         sums = hs[j, x0:x1]
         r_sums = rs_row[x0:x1]
@@ -266,14 +269,16 @@ def _row_peaks(best_index, best_value, second, curves, x0, x1):  # pragma: no co
     index[:] = n_disp
     for j in range(n_disp - 1, -1, -1):  # descending: the smallest index reaching it wins
         row = curves[j, x0:x1]
+        jj = np.int32(j)  # as wide as the values: one vector of each per step
         for i in range(x1 - x0):
-            index[i] = j if row[i] == top[i] else index[i]
+            index[i] = jj if row[i] == top[i] else index[i]
     runner[:] = -np.inf
     for j in range(n_disp):
         row = curves[j, x0:x1]
+        jj = np.int32(j)
         for i in range(x1 - x0):
             v = row[i]
-            far = j < index[i] - 1 or j > index[i] + 1
+            far = (jj < index[i] - 1) | (jj > index[i] + 1)
             runner[i] = v if far and v > runner[i] else runner[i]
 
 
@@ -520,7 +525,7 @@ def adaptive_match(
     hs = np.zeros((n_win, n_all, w), np.int32)
     all_curves = np.full((n_all, w), -2.0, np.float32)
     curve = np.empty(n_all, np.float32)
-    row_best = np.zeros(w, np.int64)
+    row_best = np.zeros(w, np.int32)
     row_top = np.zeros(w, np.float32)
     row_second = np.zeros(w, np.float32)
     left_index = np.full(w, -1, np.int64)
@@ -649,7 +654,7 @@ def adaptive_match(
                         if j1 - j0 < 3:
                             continue
                         source = shifted
-                    best = row_best[x]
+                    best = np.int64(row_best[x])
                     best_value = row_top[x]
                     second = row_second[x]
                 elif interior:

@@ -54,7 +54,7 @@ def _tied_curves(shape, seed):
 
 def test_row_peaks_equal_the_per_pixel_peak():
     curves = _tied_curves((9, 40), seed=0)
-    best = np.full(40, -7, np.int64)
+    best = np.full(40, -7, np.int32)  # as adaptive_match keeps it
     top = np.zeros(40, np.float32)
     second = np.zeros(40, np.float32)
     _ncc._row_peaks(best, top, second, curves, 3, 37)
