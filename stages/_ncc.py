@@ -750,7 +750,12 @@ def ncc_cost_volume(
     (H, W, D) volume that aggregation reads is transposed.
     """
     h, w = ref.shape
-    cost = np.full((h, w, n_disp), 0.5, np.float32)
+    # 0.5 only where the rows below do not write: the border rows and columns
+    cost = np.empty((h, w, n_disp), np.float32)
+    cost[: min(hw, h)] = 0.5
+    cost[max(h - hw, hw) :] = 0.5
+    cost[:, : min(hw, w)] = 0.5
+    cost[:, max(w - hw, hw) :] = 0.5
     cs = np.zeros((n_disp, w), np.int32)
     hs = np.zeros((n_disp, w), np.int32)
     costs = np.empty((n_disp, w), np.float32)

@@ -15,6 +15,49 @@ _DIRECTIONS_8 = np.array(
 )
 
 
+@njit(cache=True, fastmath={"nnan", "ninf", "nsz", "reassoc"})
+def _min(values):  # pragma: no cover - numba
+    # A minimum is exact in any order, so letting LLVM vectorise it changes no result (the
+    # values are finite sums of costs >= 0: no NaN, no -0 to tell from +0).
+    best = values[0]
+    for j in range(1, values.size):
+        best = min(best, values[j])
+    return best
+
+
+@njit(cache=True, inline="always")
+def _path_step(out, cost, pred, pred_min, p1, p2):  # pragma: no cover - numba
+    """``out[j] = cost[j] + min(pred[j], pred[j -+ 1] + p1, pred_min + p2) - pred_min``.
+
+    The minimum is taken in the same order of comparisons as one disparity at a time
+    (centre, lower, upper neighbour, jump), written as selects so that the interior
+    disparities vectorise; the ends, with one neighbour, are done apart.
+    """
+    n_disp = out.size
+    jump = pred_min + p2
+    m = pred[0]
+    if n_disp > 1:
+        upper = pred[1] + p1
+        m = upper if upper < m else m
+    m = jump if jump < m else m
+    out[0] = cost[0] + m - pred_min
+    for j in range(1, n_disp - 1):
+        m = pred[j]
+        lower = pred[j - 1] + p1
+        m = lower if lower < m else m
+        upper = pred[j + 1] + p1
+        m = upper if upper < m else m
+        m = jump if jump < m else m
+        out[j] = cost[j] + m - pred_min
+    if n_disp > 1:
+        j = n_disp - 1
+        m = pred[j]
+        lower = pred[j - 1] + p1
+        m = lower if lower < m else m
+        m = jump if jump < m else m
+        out[j] = cost[j] + m - pred_min
+
+
 @njit(cache=True)
 def _aggregate_direction(cost, total, dy, dx, p1, p2):  # pragma: no cover - numba
     """Add the path costs along direction (dy, dx) to ``total``."""
@@ -29,38 +72,18 @@ def _aggregate_direction(cost, total, dy, dx, p1, p2):  # pragma: no cover - num
         py = y - dy
         for x in range(x_start, x_stop, x_step):
             px = x - dx
-            has_pred = 0 <= py < h and 0 <= px < w
-            if has_pred:
+            out = current[x]
+            if 0 <= py < h and 0 <= px < w:
                 if dy == 0:
-                    pred = current[px]
-                    pred_min = cur_min[px]
+                    _path_step(out, cost[y, x], current[px], cur_min[px], p1, p2)
                 else:
-                    pred = previous[px]
-                    pred_min = prev_min[px]
-                jump = pred_min + p2
-                best = np.float32(np.inf)
-                for j in range(n_disp):
-                    m = pred[j]
-                    if j > 0 and pred[j - 1] + p1 < m:
-                        m = pred[j - 1] + p1
-                    if j + 1 < n_disp and pred[j + 1] + p1 < m:
-                        m = pred[j + 1] + p1
-                    if jump < m:
-                        m = jump
-                    value = cost[y, x, j] + m - pred_min
-                    current[x, j] = value
-                    if value < best:
-                        best = value
+                    _path_step(out, cost[y, x], previous[px], prev_min[px], p1, p2)
             else:
-                best = np.float32(np.inf)
-                for j in range(n_disp):
-                    value = cost[y, x, j]
-                    current[x, j] = value
-                    if value < best:
-                        best = value
-            cur_min[x] = best
+                out[:] = cost[y, x]
+            cur_min[x] = _min(out)
+            acc = total[y, x]
             for j in range(n_disp):
-                total[y, x, j] += current[x, j]
+                acc[j] += out[j]
         previous, current = current, previous
         prev_min, cur_min = cur_min, prev_min
 
