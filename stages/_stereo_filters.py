@@ -118,15 +118,40 @@ def prefilter_image(image: np.ndarray, *, size: int) -> np.ndarray:
     img = _coerce_image(image, "image")
     _check_prefilter_size("size", size)
     half = int(size) // 2
-    n = int(size) * int(size)
-    padded = np.pad(img.astype(np.int64), half, mode="symmetric")  # = cv2.BORDER_REFLECT
-    integral = np.zeros((padded.shape[0] + 1, padded.shape[1] + 1), np.int64)
-    np.cumsum(np.cumsum(padded, axis=0), axis=1, out=integral[1:, 1:])
-    k = int(size)
-    box = integral[k:, k:] - integral[:-k, k:] - integral[k:, :-k] + integral[:-k, :-k]
-    # 2 (I - S/n) rounded half up, in integers: floor((4 (n I - S) + n) / (2 n))
-    high = (4 * (n * img.astype(np.int64) - box) + n) // (2 * n)
-    return np.clip(high + 128, 0, 255).astype(np.uint8)
+    padded = np.pad(img, half, mode="symmetric")  # = cv2.BORDER_REFLECT
+    return _high_pass(padded, int(size))
+
+
+@njit(cache=True)
+def _high_pass(padded, size):  # pragma: no cover - numba
+    """``clip(128 + floor((4 (n I - S) + n) / (2 n)), 0, 255)`` of the unpadded pixels:
+    ``S`` the box sum (int64 integral image of the padded uint8 image), ``n = size**2``,
+    i.e. 2 (I - S / n) rounded half up, all in integers."""
+    k = size
+    n = k * k
+    half = k // 2
+    ph, pw = padded.shape
+    h = ph - k + 1
+    w = pw - k + 1
+    integral = np.zeros((ph + 1, pw + 1), np.int64)
+    for y in range(ph):
+        row = np.int64(0)
+        above = integral[y]
+        out = integral[y + 1]
+        src = padded[y]
+        for x in range(pw):
+            row += np.int64(src[x])
+            out[x + 1] = above[x + 1] + row
+    high = np.empty((h, w), np.uint8)
+    for y in range(h):
+        top = integral[y]
+        bottom = integral[y + k]
+        centre = padded[y + half]
+        for x in range(w):
+            box = bottom[x + k] - top[x + k] - bottom[x] + top[x]
+            value = (4 * (n * np.int64(centre[x + half]) - box) + n) // (2 * n) + 128
+            high[y, x] = min(255, max(0, value))
+    return high
 
 
 @njit(cache=True)

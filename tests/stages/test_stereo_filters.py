@@ -113,3 +113,21 @@ def test_speckle_mask_equals_the_numpy_passes():
     cleaned, removed = remove_speckles(d, max_size=8, max_diff=0.25)
     np.testing.assert_array_equal(removed, expected)
     np.testing.assert_array_equal(cleaned, np.where(expected, np.nan, d))
+
+
+@pytest.mark.parametrize(("shape", "size"), [((40, 50), 15), ((5, 7), 9), ((12, 11), 3)])
+def test_prefilter_kernel_equals_the_integer_numpy_passes(shape, size):
+    # the integer formula with numpy's integral image (the passes the kernel replaced):
+    # same bits, also for images smaller than the box and for saturated highs
+    rng = np.random.default_rng(size)
+    image = rng.integers(0, 256, shape).astype(np.uint8)
+    image[: shape[0] // 2, : shape[1] // 2] = 255
+    n, half = size * size, size // 2
+    padded = np.pad(image.astype(np.int64), half, mode="symmetric")
+    integral = np.zeros((padded.shape[0] + 1, padded.shape[1] + 1), np.int64)
+    np.cumsum(np.cumsum(padded, axis=0), axis=1, out=integral[1:, 1:])
+    k = size
+    box = integral[k:, k:] - integral[:-k, k:] - integral[k:, :-k] + integral[:-k, :-k]
+    high = (4 * (n * image.astype(np.int64) - box) + n) // (2 * n)
+    expected = np.clip(high + 128, 0, 255).astype(np.uint8)
+    assert prefilter_image(image, size=size).tobytes() == expected.tobytes()
