@@ -304,11 +304,12 @@ def _left_best(left_index, left_value, curves, hw, d_min):  # pragma: no cover -
         values = curves[j, xl0 - d : xl1 - d]
         best_value = left_value[xl0:xl1]
         best_index = left_index[xl0:xl1]
+        jj = np.int32(j)
         for i in range(xl1 - xl0):
             v = values[i]
             better = v >= best_value[i]
             best_value[i] = v if better else best_value[i]
-            best_index[i] = j if better else best_index[i]
+            best_index[i] = jj if better else best_index[i]
 
 
 @njit(cache=True)
@@ -528,7 +529,7 @@ def adaptive_match(
     row_best = np.zeros(w, np.int32)
     row_top = np.zeros(w, np.float32)
     row_second = np.zeros(w, np.float32)
-    left_index = np.full(w, -1, np.int64)
+    left_index = np.full(w, -1, np.int32)  # int32: vectorises with the float32 values
     left_value = np.full(w, -np.inf, np.float32)
     pending = np.empty(w, np.int64)
     all_shifted = np.full((n_all, w), -np.inf, np.float32)
@@ -690,7 +691,7 @@ def adaptive_match(
                     if not left_ready:
                         _left_best(left_index, left_value, curves, hw, d_min)
                         left_ready = True
-                    lr_best = left_index[xl]
+                    lr_best = np.int64(left_index[xl])
                 else:
                     # same tie rule as _left_best: of equal values the largest index wins
                     lr_best = -1

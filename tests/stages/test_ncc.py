@@ -68,7 +68,7 @@ def test_row_peaks_equal_the_per_pixel_peak():
 def test_left_best_is_the_left_reference_argmax(d_min):
     n_disp, w, hw = 7, 30, 2
     curves = _tied_curves((n_disp, w), seed=1)
-    index = np.zeros(w, np.int64)
+    index = np.zeros(w, np.int32)  # as adaptive_match keeps it
     value = np.zeros(w, np.float32)
     _ncc._left_best(index, value, curves, hw, d_min)
     for xl in range(w):
