@@ -17,6 +17,14 @@ catalog's) to every method. ``adaptive``'s larger windows search each row's band
 depth stage derives from the rendered camera's pose (``depth.floor_margin``,
 ``depth.ceiling_ratio``, clipped to 0..63); ``--set floor_margin=1 ceiling_ratio=0`` searches
 all 64 disparities in every row, as before depth stage version 4.
+
+``--rundir DIR [DIR ...]`` times the whole depth stage instead (``stages.depth.run_depth``:
+matching, filters, ground fit, range, height, residual) on the frames of finished runs, with
+each run's recorded depth parameters and camera: CPU ms per frame, mean and median over
+the run's frames after one warm-up frame::
+
+    PYTHONPATH=. .venv/bin/python benchmarks/bench_depth_speed.py \
+        --rundir runs/eval/mojave runs/eval/lava runs/eval/lab runs/eval/dunes
 """
 
 from __future__ import annotations
@@ -30,6 +38,7 @@ import statistics  # noqa: E402
 import time  # noqa: E402
 
 import cv2  # noqa: E402
+import numpy as np  # noqa: E402
 from _overrides import matching_settings  # noqa: E402  (benchmarks/ is on sys.path)
 
 from pipeline._baselines import sgbm_disparity  # noqa: E402
@@ -51,6 +60,34 @@ def _median_seconds(fn, repeats: int) -> float:
     return statistics.median(times)
 
 
+def _stage_per_run(rundirs: list[str]) -> None:
+    from _rundir import open_run  # benchmarks/ is on sys.path
+
+    from pipeline.stage import FrameContext
+    from stages import depth
+
+    print("whole depth stage (run_depth), 1 thread, CPU ms per frame after one warm-up frame")
+    print(f"{'run':<28}{'method':<10}{'frames':>7}{'mean':>8}{'median':>8}")
+    for rundir in rundirs:
+        run = open_run(rundir)
+        params = {**depth.STAGE.defaults(), **run.run["stages"]["depth"]["params"]}
+        frame_ids = [str(v) for v in run.products["frame"].values]
+        lefts = np.asarray(run.products["left"].values)
+        rights = np.asarray(run.products["right"].values)
+        times = []
+        for i in [0, *range(len(frame_ids))]:  # the first call compiles / loads numba caches
+            context = FrameContext(frame_id=frame_ids[i], archive=run.archive, camera=run.camera)
+            inputs = {"left": lefts[i], "right": rights[i]}
+            t0 = time.process_time()
+            depth.run_depth(inputs, frame=context, params=params)
+            times.append(time.process_time() - t0)
+        times = times[1:]
+        print(
+            f"{str(rundir)[-28:]:<28}{params['method']:<10}{len(times):>7}"
+            f"{statistics.mean(times) * 1e3:8.1f}{statistics.median(times) * 1e3:8.1f}"
+        )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=5)
@@ -58,7 +95,13 @@ def main() -> None:
     parser.add_argument("--archetypes", default="mojave,lava,lab,dunes")
     parser.add_argument("--methods", default="adaptive,sgm")
     parser.add_argument("--set", nargs="*", default=[], help="match_disparity keyword=value")
+    parser.add_argument(
+        "--rundir", nargs="+", help="time the whole depth stage on these finished runs instead"
+    )
     args = parser.parse_args()
+    if args.rundir:
+        _stage_per_run(args.rundir)
+        return
     settings, band_params = matching_settings(args.set)
     cv2.setNumThreads(1)
     methods = args.methods.split(",")

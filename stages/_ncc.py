@@ -3,13 +3,14 @@
 Private helpers of :mod:`stages._stereo`; see that module for the matching rules.
 
 Layout and exactness. Images are int32 gray levels minus 128. Every window sum (of ``R``,
-``R**2``, ``R*L``...) is an exact integer: box sums come from int64 integral images
-(per-window image statistics) and from sliding int32 column/row sums of the products
-``R[y, x] * L[y, x + d]`` (the row kernel), which cannot overflow because centred products
-are at most 128**2 and a window of at most 255 x 255 px keeps every partial sum below 2**31
-(255**2 * 128**2 < 1.1e9). Window sums of gray levels (< 128 * 255**2 < 2**24) are stored
-as exact float32. Only the final ZNCC division is floating point, and it is done with the
-same operations for a pixel whatever the image or tile it sits in, so matching a tile gives
+``R**2``, ``R*L``...) is an exact integer: box sums come from int64 integral images or
+column sums (per-window image statistics, whole frame or row by row) and from sliding
+int32 column/row sums of the products ``R[y, x] * L[y, x + d]`` (the row kernel), which
+cannot overflow because centred products are at most 128**2 and a window of at most
+255 x 255 px keeps every partial sum below 2**31 (255**2 * 128**2 < 1.1e9). Window sums of
+gray levels (< 128 * 255**2 < 2**24) are stored as exact float32. Only the final ZNCC
+division is floating point, and it is done with the same operations for a pixel whatever
+the image or tile it sits in, so matching a tile gives
 bit-identical results to matching the whole frame.
 
 Per image row the kernel keeps, for every window (half-height ``hy``, half-width ``hw``) and
@@ -31,14 +32,20 @@ NO_PEAK = np.float32(np.nan)
 LR_REJECTED = np.float32(-np.inf)
 
 
-@njit(cache=True)
-def window_stats(image, hys, hxs):  # pragma: no cover - numba
+@njit(cache=True, error_model="numpy")
+def window_stats(image, hys, hxs, with_std=True):  # pragma: no cover - numba
     """Per-window sums, ``1 / sqrt(n*sum(v^2) - sum(v)^2)`` and standard deviations.
 
     ``image`` is a centred int32 image (H, W), ``hys, hxs`` the windows' half-heights and
     half-widths (K,). Returns three float32 arrays (K, H, W), zero where the window does not fit
-    in the image or is flat. The sums are exact (integers below 2**24).
+    in the image or is flat; with ``with_std = False`` (the other image, whose texture no
+    test reads) the third is (K, 0, 0). The sums are exact (integers below 2**24).
     """
+    # The spread is an exact integer and never negative (Cauchy-Schwarz), so the root of a
+    # flat window is 0 and its std 0 / n = 0 without a branch; only the inverse needs a
+    # select. error_model="numpy" drops the zero-division check of 1 / root, which is
+    # discarded there: the loop vectorises, with the same correctly rounded sqrt and
+    # divisions as one pixel at a time.
     h, w = image.shape
     n_win = hys.size
     integral = np.zeros((h + 1, w + 1), np.int64)
@@ -54,25 +61,37 @@ def window_stats(image, hys, hxs):  # pragma: no cover - numba
             integral2[y + 1, x + 1] = integral2[y, x + 1] + row2
     sums = np.zeros((n_win, h, w), np.float32)
     inv = np.zeros((n_win, h, w), np.float32)
-    std = np.zeros((n_win, h, w), np.float32)
+    std = np.zeros((n_win, h, w) if with_std else (n_win, 0, 0), np.float32)
     for k in range(n_win):
         hy = hys[k]
         hx = hxs[k]
         n = (2 * hy + 1) * (2 * hx + 1)
+        m = w - 2 * hx
+        if m <= 0:
+            continue
         for y in range(hy, h - hy):
-            y0 = y - hy
-            y1 = y + hy + 1
-            for x in range(hx, w - hx):
-                x0 = x - hx
-                x1 = x + hx + 1
-                s = integral[y1, x1] - integral[y0, x1] - integral[y1, x0] + integral[y0, x0]
-                s2 = integral2[y1, x1] - integral2[y0, x1] - integral2[y1, x0] + integral2[y0, x0]
+            # one window per x: columns x .. x + 2 hx of the integral rows y - hy, y + hy + 1
+            top = integral[y - hy]
+            bottom = integral[y + hy + 1]
+            top2 = integral2[y - hy]
+            bottom2 = integral2[y + hy + 1]
+            out_sums = sums[k, y, hx : w - hx]
+            out_inv = inv[k, y, hx : w - hx]
+            for x in range(m):
+                x1 = x + 2 * hx + 1
+                s = bottom[x1] - top[x1] - bottom[x] + top[x]
+                s2 = bottom2[x1] - top2[x1] - bottom2[x] + top2[x]
                 spread = n * s2 - s * s
-                sums[k, y, x] = s
-                if spread > 0:
-                    root = np.sqrt(np.float64(spread))
-                    inv[k, y, x] = 1.0 / root
-                    std[k, y, x] = root / n
+                root = np.sqrt(np.float64(spread))
+                out_sums[x] = s
+                out_inv[x] = 1.0 / root if spread > 0 else 0.0
+            if with_std:
+                out_std = std[k, y, hx : w - hx]
+                for x in range(m):
+                    x1 = x + 2 * hx + 1
+                    s = bottom[x1] - top[x1] - bottom[x] + top[x]
+                    s2 = bottom2[x1] - top2[x1] - bottom2[x] + top2[x]
+                    out_std[x] = np.sqrt(np.float64(n * s2 - s * s)) / n
     return sums, inv, std
 
 
@@ -205,13 +224,16 @@ def _row_scores(out, hs, n, hw, rs_row, ri_row, os_row, oi_row, d_min, as_cost):
     equals ``0.5 - 0.5 * num * ...`` bit for bit).
     """
     n_disp, w = out.shape
-    out[:, :] = 0.5 if as_cost else -2.0
+    outside = 0.5 if as_cost else -2.0
     for j in range(n_disp):
         d = d_min + j
         x0 = max(hw, hw - d)
         x1 = min(w - hw, w - hw - d)
         if x1 <= x0:
+            out[j, :] = outside
             continue
+        out[j, :x0] = outside  # only where the window does not fit: the rest is written
+        out[j, x1:] = outside
         row = out[j, x0:x1]
         sums = hs[j, x0:x1]
         r_sums = rs_row[x0:x1]
@@ -247,14 +269,16 @@ def _row_peaks(best_index, best_value, second, curves, x0, x1):  # pragma: no co
     index[:] = n_disp
     for j in range(n_disp - 1, -1, -1):  # descending: the smallest index reaching it wins
         row = curves[j, x0:x1]
+        jj = np.int32(j)  # as wide as the values: one vector of each per step
         for i in range(x1 - x0):
-            index[i] = j if row[i] == top[i] else index[i]
+            index[i] = jj if row[i] == top[i] else index[i]
     runner[:] = -np.inf
     for j in range(n_disp):
         row = curves[j, x0:x1]
+        jj = np.int32(j)
         for i in range(x1 - x0):
             v = row[i]
-            far = j < index[i] - 1 or j > index[i] + 1
+            far = (jj < index[i] - 1) | (jj > index[i] + 1)
             runner[i] = v if far and v > runner[i] else runner[i]
 
 
@@ -280,11 +304,12 @@ def _left_best(left_index, left_value, curves, hw, d_min):  # pragma: no cover -
         values = curves[j, xl0 - d : xl1 - d]
         best_value = left_value[xl0:xl1]
         best_index = left_index[xl0:xl1]
+        jj = np.int32(j)
         for i in range(xl1 - xl0):
             v = values[i]
             better = v >= best_value[i]
             best_value[i] = v if better else best_value[i]
-            best_index[i] = j if better else best_index[i]
+            best_index[i] = jj if better else best_index[i]
 
 
 @njit(cache=True)
@@ -363,6 +388,65 @@ def _peak(curve, j0, j1):  # pragma: no cover - numba
 
 
 @njit(cache=True)
+def _advance_stat_columns(col, col2, image, yc, hy):  # pragma: no cover - numba
+    """Bring the column sums of ``v`` and ``v**2`` over the rows ``yc - hy .. yc + hy`` of
+    ``image`` (W,) each, int64, to centre row ``yc`` (from ``yc - 1``; started at ``hy``)."""
+    w = col.size
+    if yc == hy:
+        col[:] = 0
+        col2[:] = 0
+        for yy in range(2 * hy + 1):
+            row = image[yy]
+            for x in range(w):
+                v = np.int64(row[x])
+                col[x] += v
+                col2[x] += v * v
+        return
+    add = image[yc + hy]
+    sub = image[yc - hy - 1]
+    for x in range(w):
+        a = np.int64(add[x])
+        b = np.int64(sub[x])
+        col[x] += a - b
+        col2[x] += a * a - b * b
+
+
+@njit(cache=True, error_model="numpy")
+def _row_stats(sums, inv, std, col, col2, hx, n, prefix, prefix2):  # pragma: no cover - numba
+    """One row of :func:`window_stats` (window ``2 hx + 1`` wide, ``n`` pixels) from the
+    column sums of :func:`_advance_stat_columns`: the same integers, the same float
+    operations, so the same float32 values. ``std`` may be empty (not formed); ``prefix``,
+    ``prefix2`` are (W + 1,) int64 scratch."""
+    w = col.size
+    m = w - 2 * hx
+    sums[:] = 0
+    inv[:] = 0
+    if std.size:
+        std[:] = 0
+    if m <= 0:
+        return
+    prefix[0] = 0
+    prefix2[0] = 0
+    for x in range(w):
+        prefix[x + 1] = prefix[x] + col[x]
+        prefix2[x + 1] = prefix2[x] + col2[x]
+    out_sums = sums[hx : w - hx]
+    out_inv = inv[hx : w - hx]
+    for x in range(m):
+        s = prefix[x + 2 * hx + 1] - prefix[x]
+        spread = n * (prefix2[x + 2 * hx + 1] - prefix2[x]) - s * s
+        root = np.sqrt(np.float64(spread))
+        out_sums[x] = s
+        out_inv[x] = 1.0 / root if spread > 0 else 0.0
+    if std.size:
+        out_std = std[hx : w - hx]
+        for x in range(m):
+            s = prefix[x + 2 * hx + 1] - prefix[x]
+            spread = n * (prefix2[x + 2 * hx + 1] - prefix2[x]) - s * s
+            out_std[x] = np.sqrt(np.float64(spread)) / n
+
+
+@njit(cache=True)
 def _kept_range(row_start, row_end, hys, h):  # pragma: no cover - numba
     """Per window and centre row: first disparity index whose column sums are kept up to
     date, and the end of the indices whose window sums the rows it serves need.
@@ -406,11 +490,6 @@ def adaptive_match(
     row_end,
     hys,
     hxs,
-    ref_sums,
-    ref_inv,
-    ref_std,
-    other_sums,
-    other_inv,
     min_texture,
     min_ncc,
     margins,
@@ -419,13 +498,17 @@ def adaptive_match(
 ):  # pragma: no cover - numba
     """Adaptive-window ZNCC matching with subpixel peak and left-right check.
 
-    Parameters are centred float32 images (H, W), the first disparity and the number of
+    Parameters are centred int32 images (H, W), the first disparity and the number of
     disparities, the first and one past the last disparity index each window searches in
     each row, (K, H) each (the row's floor and ceiling, ``0 <= row_start``, ``row_start + 3
-    <= row_end <= n_all``), the window half-widths in increasing order (K,), per-window
-    statistics of shape (K, H, W) from :func:`window_stats`, the least peak margin per
+    <= row_end <= n_all``), the window half-heights and half-widths in increasing order
+    (K,), the least texture (gray-level std), the least ZNCC, the least peak margin per
     window (K,), the left-right tolerance (px) and ``blend``, the subpixel estimator of
     :func:`subpixel_offset` (False: parabola; True: parabola and V averaged).
+
+    The windows' statistics (:func:`window_stats`) are formed row by row as each window's
+    centre row advances (:func:`_row_stats`), not as (K, H, W) arrays: the same values,
+    without allocating and filling five frames per window that are read one row at a time.
 
     Returns
     -------
@@ -443,10 +526,10 @@ def adaptive_match(
     hs = np.zeros((n_win, n_all, w), np.int32)
     all_curves = np.full((n_all, w), -2.0, np.float32)
     curve = np.empty(n_all, np.float32)
-    row_best = np.zeros(w, np.int64)
+    row_best = np.zeros(w, np.int32)
     row_top = np.zeros(w, np.float32)
     row_second = np.zeros(w, np.float32)
-    left_index = np.full(w, -1, np.int64)
+    left_index = np.full(w, -1, np.int32)  # int32: vectorises with the float32 values
     left_value = np.full(w, -np.inf, np.float32)
     pending = np.empty(w, np.int64)
     all_shifted = np.full((n_all, w), -np.inf, np.float32)
@@ -462,6 +545,13 @@ def adaptive_match(
     # along the row are only formed in rows where a textured pixel still needs the window:
     # the larger windows are needed by few rows where the small ones match nearly everywhere.
     sums_row = np.full(n_win, -1, np.int64)
+    # each window's statistics at its centre row: reference sums, inverse roots and std,
+    # other image's sums and inverse roots (see window_stats), and their column sums
+    stat_rows = np.zeros((5, n_win, w), np.float32)
+    stat_cols = np.zeros((4, n_win, w), np.int64)
+    prefix = np.empty(w + 1, np.int64)
+    prefix2 = np.empty(w + 1, np.int64)
+    no_std = np.empty(0, np.float32)
     for y in range(h):
         for k in range(n_win):
             if 2 * hys[k] + 1 > h:
@@ -472,6 +562,17 @@ def adaptive_match(
                 _advance_column_sums_t(cs[k, j_keep:], ref, other, yc, hys[k], d_lo + j_keep)
                 centre_row[k] = yc
                 sums_row[k] = -1  # window sums are formed on first need in the row
+                n_k = (2 * hys[k] + 1) * (2 * hxs[k] + 1)
+                _advance_stat_columns(stat_cols[0, k], stat_cols[1, k], ref, yc, hys[k])
+                _advance_stat_columns(stat_cols[2, k], stat_cols[3, k], other, yc, hys[k])
+                _row_stats(
+                    stat_rows[0, k], stat_rows[1, k], stat_rows[2, k], stat_cols[0, k],
+                    stat_cols[1, k], hxs[k], n_k, prefix, prefix2,
+                )  # fmt: skip
+                _row_stats(
+                    stat_rows[3, k], stat_rows[4, k], no_std, stat_cols[2, k], stat_cols[3, k],
+                    hxs[k], n_k, prefix, prefix2,
+                )  # fmt: skip
         n_pending = 0
         for x in range(w):
             pending[n_pending] = x
@@ -497,10 +598,11 @@ def adaptive_match(
             curves = all_curves[js:je]
             shifted = all_shifted[js:je]
             hs_k = hs[k, js:je]
-            rs_row = ref_sums[k, yc]
-            ri_row = ref_inv[k, yc]
-            os_row = other_sums[k, yc]
-            oi_row = other_inv[k, yc]
+            rs_row = stat_rows[0, k]
+            ri_row = stat_rows[1, k]
+            std_row = stat_rows[2, k]
+            os_row = stat_rows[3, k]
+            oi_row = stat_rows[4, k]
             textured = 0
             kept = 0
             if w < 2 * hw + 1:
@@ -509,7 +611,7 @@ def adaptive_match(
                 x = pending[i]
                 pending[kept] = x
                 kept += 1
-                if ref_std[k, yc, min(max(x, hw), w - 1 - hw)] >= min_texture:
+                if std_row[min(max(x, hw), w - 1 - hw)] >= min_texture:
                     textured += 1
             n_pending = kept
             if textured == 0:
@@ -539,7 +641,7 @@ def adaptive_match(
                 pending[kept] = x
                 kept += 1  # stays pending unless accepted below
                 x_ref = min(max(x, hw), w - 1 - hw)  # nearest centre with the window inside
-                if ref_std[k, yc, x_ref] < min_texture:
+                if std_row[x_ref] < min_texture:
                     continue
                 interior = x == x_ref and hw - x - d_min <= 0 and w - hw - x - d_min >= n_disp
                 if use_row:
@@ -553,7 +655,7 @@ def adaptive_match(
                         if j1 - j0 < 3:
                             continue
                         source = shifted
-                    best = row_best[x]
+                    best = np.int64(row_best[x])
                     best_value = row_top[x]
                     second = row_second[x]
                 elif interior:
@@ -589,7 +691,7 @@ def adaptive_match(
                     if not left_ready:
                         _left_best(left_index, left_value, curves, hw, d_min)
                         left_ready = True
-                    lr_best = left_index[xl]
+                    lr_best = np.int64(left_index[xl])
                 else:
                     # same tie rule as _left_best: of equal values the largest index wins
                     lr_best = -1
@@ -649,7 +751,12 @@ def ncc_cost_volume(
     (H, W, D) volume that aggregation reads is transposed.
     """
     h, w = ref.shape
-    cost = np.full((h, w, n_disp), 0.5, np.float32)
+    # 0.5 only where the rows below do not write: the border rows and columns
+    cost = np.empty((h, w, n_disp), np.float32)
+    cost[: min(hw, h)] = 0.5
+    cost[max(h - hw, hw) :] = 0.5
+    cost[:, : min(hw, w)] = 0.5
+    cost[:, max(w - hw, hw) :] = 0.5
     cs = np.zeros((n_disp, w), np.int32)
     hs = np.zeros((n_disp, w), np.int32)
     costs = np.empty((n_disp, w), np.float32)
@@ -666,6 +773,37 @@ def ncc_cost_volume(
             for j in range(n_disp):
                 column[j] = costs[j, x]
     return cost
+
+
+@njit(cache=True)
+def flag_occluded(coded, tolerance, code):  # pragma: no cover - numba
+    """In place: set the pixels :func:`occluded` flags to ``code`` (the rest unchanged)."""
+    hidden = occluded(coded, tolerance)
+    h, w = coded.shape
+    for y in range(h):
+        for x in range(w):
+            if hidden[y, x]:
+                coded[y, x] = code
+
+
+@njit(cache=True)
+def decode_status(coded):  # pragma: no cover - numba
+    """Disparity (NaN where not valid) and int8 status from the one-array coding of
+    :mod:`stages._stereo`: NaN no peak (1), -inf left-right rejected (2), +inf speckle
+    (3), finite valid (0)."""
+    h, w = coded.shape
+    disparity = np.empty((h, w), np.float32)
+    status = np.empty((h, w), np.int8)
+    for y in range(h):
+        for x in range(w):
+            v = coded[y, x]
+            if np.isfinite(v):
+                status[y, x] = 0
+                disparity[y, x] = v
+            else:
+                status[y, x] = 1 if np.isnan(v) else (2 if v < 0 else 3)
+                disparity[y, x] = np.nan
+    return disparity, status
 
 
 @njit(cache=True)

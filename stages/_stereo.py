@@ -132,8 +132,8 @@ from ._stereo_filters import (
     _coerce_range,
     _is_int,
     prefilter_image,
-    remove_speckles,
     sgbm_disparity,
+    speckle_mask,
 )
 
 __all__ = [
@@ -300,10 +300,8 @@ def _adaptive_coded(
     hys = np.array([rows // 2 for rows, _ in s["windows"]], dtype=np.int64)
     hxs = np.array([cols // 2 for _, cols in s["windows"]], dtype=np.int64)
     r32, o32 = _centred(ref), _centred(oth)
-    rs, ri, rsd = _ncc.window_stats(r32, hys, hxs)
-    os_, oi, _ = _ncc.window_stats(o32, hys, hxs)
     disparity, window = _ncc.adaptive_match(
-        r32, o32, lo, n_all, row_start, row_end, hys, hxs, rs, ri, rsd, os_, oi,
+        r32, o32, lo, n_all, row_start, row_end, hys, hxs,
         float(s["min_texture"]), float(s["min_ncc"]), _margins(s), float(s["lr_tolerance"]),
         s["subpixel"] == "blend",
     )  # fmt: skip
@@ -334,8 +332,8 @@ def _sgm_coded(
     hw = int(s["sgm_window"]) // 2
     r32, o32 = _centred(ref), _centred(oth)
     hws = np.array([hw], dtype=np.int64)
-    rs, ri, _ = _ncc.window_stats(r32, hws, hws)
-    os_, oi, _ = _ncc.window_stats(o32, hws, hws)
+    rs, ri, _ = _ncc.window_stats(r32, hws, hws, False)
+    os_, oi, _ = _ncc.window_stats(o32, hws, hws, False)
     cost = _ncc.ncc_cost_volume(
         r32, o32, lo, hi - lo + 1, hw,
         rs[0], ri[0], os_[0], oi[0],
@@ -438,26 +436,19 @@ def _match_coded(
     if s["method"] != "opencv-sgbm" and s["prefilter"]:
         ref = prefilter_image(ref, size=s["prefilter"])
         oth = prefilter_image(oth, size=s["prefilter"])
-    coded = _MATCHERS[s["method"]](ref, oth, lo, hi, s, band)
+    # the matchers return a fresh float32 array, coded in place below; both filters read
+    # only its finite pixels, so the codes need not be masked first
+    coded = np.ascontiguousarray(_MATCHERS[s["method"]](ref, oth, lo, hi, s, band), np.float32)
     if s["method"] != "opencv-sgbm":
-        finite = np.where(np.isfinite(coded), coded, np.nan).astype(np.float32)
-        hidden = _ncc.occluded(finite, np.float32(max(s["lr_tolerance"], 0.5)))
-        coded = np.where(hidden, _ncc.LR_REJECTED, coded).astype(np.float32)
+        _ncc.flag_occluded(coded, np.float32(max(s["lr_tolerance"], 0.5)), _ncc.LR_REJECTED)
     if s["speckle_size"] > 0:
-        finite = np.where(np.isfinite(coded), coded, np.nan).astype(np.float32)
-        _, removed = remove_speckles(
-            finite, max_size=s["speckle_size"], max_diff=s["speckle_range"]
-        )
-        coded = np.where(removed, _SPECKLE_CODE, coded).astype(np.float32)
+        removed = speckle_mask(coded, max_size=s["speckle_size"], max_diff=s["speckle_range"])
+        coded[removed] = _SPECKLE_CODE
     return coded
 
 
 def _decode(coded: np.ndarray) -> Matching:
-    status = np.full(coded.shape, STATUS_VALID, np.int8)
-    status[np.isnan(coded)] = STATUS_NO_PEAK
-    status[np.isneginf(coded)] = STATUS_LR_REJECTED
-    status[np.isposinf(coded)] = STATUS_SPECKLE
-    disparity = np.where(status == STATUS_VALID, coded, np.nan).astype(np.float32)
+    disparity, status = _ncc.decode_status(np.ascontiguousarray(coded, np.float32))
     return Matching(disparity=disparity, status=status)
 
 

@@ -33,8 +33,9 @@ from typing import Any
 
 import cv2
 import numpy as np
+from numba import njit
 
-__all__ = ["prefilter_image", "remove_speckles", "sgbm_disparity"]
+__all__ = ["prefilter_image", "remove_speckles", "speckle_mask", "sgbm_disparity"]
 
 
 # ----------------------------------------------------------------------------- validation
@@ -117,15 +118,73 @@ def prefilter_image(image: np.ndarray, *, size: int) -> np.ndarray:
     img = _coerce_image(image, "image")
     _check_prefilter_size("size", size)
     half = int(size) // 2
-    n = int(size) * int(size)
-    padded = np.pad(img.astype(np.int64), half, mode="symmetric")  # = cv2.BORDER_REFLECT
-    integral = np.zeros((padded.shape[0] + 1, padded.shape[1] + 1), np.int64)
-    np.cumsum(np.cumsum(padded, axis=0), axis=1, out=integral[1:, 1:])
-    k = int(size)
-    box = integral[k:, k:] - integral[:-k, k:] - integral[k:, :-k] + integral[:-k, :-k]
-    # 2 (I - S/n) rounded half up, in integers: floor((4 (n I - S) + n) / (2 n))
-    high = (4 * (n * img.astype(np.int64) - box) + n) // (2 * n)
-    return np.clip(high + 128, 0, 255).astype(np.uint8)
+    padded = np.pad(img, half, mode="symmetric")  # = cv2.BORDER_REFLECT
+    return _high_pass(padded, int(size))
+
+
+@njit(cache=True)
+def _high_pass(padded, size):  # pragma: no cover - numba
+    """``clip(128 + floor((4 (n I - S) + n) / (2 n)), 0, 255)`` of the unpadded pixels:
+    ``S`` the box sum (int64 integral image of the padded uint8 image), ``n = size**2``,
+    i.e. 2 (I - S / n) rounded half up, all in integers."""
+    k = size
+    n = k * k
+    half = k // 2
+    ph, pw = padded.shape
+    h = ph - k + 1
+    w = pw - k + 1
+    integral = np.zeros((ph + 1, pw + 1), np.int64)
+    for y in range(ph):
+        row = np.int64(0)
+        above = integral[y]
+        out = integral[y + 1]
+        src = padded[y]
+        for x in range(pw):
+            row += np.int64(src[x])
+            out[x + 1] = above[x + 1] + row
+    high = np.empty((h, w), np.uint8)
+    for y in range(h):
+        top = integral[y]
+        bottom = integral[y + k]
+        centre = padded[y + half]
+        for x in range(w):
+            box = bottom[x + k] - top[x + k] - bottom[x] + top[x]
+            value = (4 * (n * np.int64(centre[x + half]) - box) + n) // (2 * n) + 128
+            high[y, x] = min(255, max(0, value))
+    return high
+
+
+@njit(cache=True)
+def _fixed_point(disparity, invalid_code):  # pragma: no cover - numba
+    """int16 disparity in 1/16 px (round half to even, as ``np.round``), ``invalid_code``
+    where not finite: OpenCV's speckle filter's input, in one pass."""
+    h, w = disparity.shape
+    fixed = np.empty((h, w), np.int16)
+    for y in range(h):
+        for x in range(w):
+            d = disparity[y, x]
+            fixed[y, x] = np.int16(np.rint(d * np.float32(16))) if np.isfinite(d) else invalid_code
+    return fixed
+
+
+@njit(cache=True)
+def _removed(disparity, marked, invalid_code):  # pragma: no cover - numba
+    """Finite pixels that the speckle filter marked invalid."""
+    h, w = disparity.shape
+    removed = np.zeros((h, w), np.bool_)
+    for y in range(h):
+        for x in range(w):
+            removed[y, x] = np.isfinite(disparity[y, x]) and marked[y, x] == invalid_code
+    return removed
+
+
+def speckle_mask(disparity: np.ndarray, *, max_size: int, max_diff: float) -> np.ndarray:
+    """(M, N) bool: the finite pixels of ``disparity`` (float32; NaN or +-inf invalid)
+    that :func:`remove_speckles` removes, without forming the cleaned map."""
+    invalid_code = np.int16(-32768)
+    marked = _fixed_point(disparity, invalid_code)
+    cv2.filterSpeckles(marked, int(invalid_code), int(max_size), max(1, round(max_diff * 16)))
+    return _removed(disparity, marked, invalid_code)
 
 
 def remove_speckles(
@@ -150,16 +209,10 @@ def remove_speckles(
     removed : (M, N) ndarray of bool
         The pixels that were removed.
     """
-    d = np.asarray(disparity, dtype=np.float32)
+    d = np.ascontiguousarray(disparity, dtype=np.float32)
     if d.ndim != 2:
         raise ValueError(f"disparity must be 2-D, got shape {d.shape}")
-    valid = np.isfinite(d)
-    invalid_code = np.int16(-32768)
-    fixed = np.full(d.shape, invalid_code, np.int16)
-    fixed[valid] = np.round(d[valid] * 16).astype(np.int16)
-    marked = fixed.copy()
-    cv2.filterSpeckles(marked, int(invalid_code), int(max_size), max(1, round(max_diff * 16)))
-    removed = valid & (marked == invalid_code)
+    removed = speckle_mask(d, max_size=max_size, max_diff=max_diff)
     cleaned = np.where(removed, np.nan, d).astype(np.float32)
     return cleaned, removed
 

@@ -81,13 +81,24 @@ def range_from_disparity(disparity: np.ndarray, *, focal_px: float, baseline_m: 
     range : (M, N) ndarray of float32
         Metres; NaN where the disparity is invalid or not > 0 (at or beyond infinity).
     """
-    d = _coerce_disparity(disparity).astype(np.float64)
+    d = _coerce_disparity(disparity)
     for name, value in (("focal_px", focal_px), ("baseline_m", baseline_m)):
         if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
             raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
-    with np.errstate(divide="ignore", invalid="ignore"):
-        z = np.where(d > 0, focal_px * baseline_m / d, np.nan)
-    return z.astype(np.float32)
+    return _range_kernel(d, float(focal_px * baseline_m))
+
+
+@njit(cache=True, error_model="numpy")
+def _range_kernel(disparity, k):  # pragma: no cover - numba
+    # (f b) / d in float64 rounded to float32 once, as np.where(d > 0, f * b / d, nan)
+    # would, without its float64 frames
+    h, w = disparity.shape
+    out = np.empty((h, w), np.float32)
+    for y in range(h):
+        for x in range(w):
+            d = np.float64(disparity[y, x])
+            out[y, x] = np.float32(k / d) if d > 0 else np.float32(np.nan)
+    return out
 
 
 def disparity_from_range(range_m: np.ndarray, *, focal_px: float, baseline_m: float):
@@ -103,18 +114,21 @@ def disparity_from_range(range_m: np.ndarray, *, focal_px: float, baseline_m: fl
 
 @njit(cache=True)
 def _forward_warp(image, disparity):  # pragma: no cover - numba
+    # Gray levels and disparities are read as float64 (exact for uint8, float32 and float64
+    # inputs, so no converted copies are needed); the z-buffer is one row's, reset per row.
     h, w = image.shape
     out = np.full((h, w), np.nan, np.float32)
-    zbuf = np.full((h, w), -np.inf, np.float64)
+    zrow = np.empty(w, np.float64)
     for y in range(h):
+        zrow[:] = -np.inf
         for x in range(w):
-            d0 = disparity[y, x]
+            d0 = np.float64(disparity[y, x])
             if not np.isfinite(d0):
                 continue
             u0 = x + d0
             joined = False
             if x + 1 < w:
-                d1 = disparity[y, x + 1]
+                d1 = np.float64(disparity[y, x + 1])
                 if np.isfinite(d1) and abs(d1 - d0) <= 1.0:
                     # a continuous surface between two neighbours: fill the left columns
                     # the segment covers, interpolating gray level and disparity
@@ -127,15 +141,14 @@ def _forward_warp(image, disparity):  # pragma: no cover - numba
                     for c in range(c0, c1 + 1):
                         t = 0.0 if span == 0 else (c - u0) / span
                         key = d0 + t * (d1 - d0)
-                        if key > zbuf[y, c]:
-                            zbuf[y, c] = key
-                            out[y, c] = image[y, x] + t * (
-                                np.float64(image[y, x + 1]) - image[y, x]
-                            )
+                        if key > zrow[c]:
+                            zrow[c] = key
+                            g0 = np.float64(image[y, x])
+                            out[y, c] = g0 + t * (np.float64(image[y, x + 1]) - g0)
             if not joined:
                 c = int(math.floor(u0 + 0.5))
-                if 0 <= c < w and abs(c - u0) < 0.5 and d0 > zbuf[y, c]:
-                    zbuf[y, c] = d0
+                if 0 <= c < w and abs(c - u0) < 0.5 and d0 > zrow[c]:
+                    zrow[c] = d0
                     out[y, c] = image[y, x]
     return out
 
@@ -168,7 +181,13 @@ def pseudo_left(right: np.ndarray, disparity: np.ndarray) -> np.ndarray:
         raise ValueError(
             f"right image and disparity must have the same shape, got {img.shape} and {d.shape}"
         )
-    return _forward_warp(img.astype(np.float32), d.astype(np.float64))
+    # the kernel reads uint8, float32 and float64 exactly as float64; other dtypes go
+    # through the float32 gray levels and float64 disparities it was written for
+    if img.dtype not in (np.uint8, np.float32):
+        img = img.astype(np.float32)
+    if d.dtype not in (np.float32, np.float64):
+        d = d.astype(np.float64)
+    return _forward_warp(img, d)
 
 
 def residual(left: np.ndarray, pseudo: np.ndarray) -> np.ndarray:
@@ -177,7 +196,7 @@ def residual(left: np.ndarray, pseudo: np.ndarray) -> np.ndarray:
     ps = np.asarray(pseudo, dtype=np.float32)
     if lft.shape != ps.shape:
         raise ValueError(f"left and pseudo must have the same shape, got {lft.shape}, {ps.shape}")
-    return (lft - ps).astype(np.float32)
+    return np.subtract(lft, ps, dtype=np.float32)
 
 
 # ----------------------------------------------------------------------------- ground plane
@@ -311,7 +330,8 @@ def fit_ground_plane(
     -------
     GroundFit
     """
-    d = _coerce_disparity(disparity).astype(np.float64)
+    # no float64 copy of the frame: float32 (or float64) values compare and convert alike
+    d = _coerce_disparity(disparity)
     cam = _coerce_camera(camera)
     if not (math.isfinite(inlier_px) and inlier_px > 0):
         raise ValueError(f"inlier_px must be a finite number > 0, got {inlier_px!r}")
@@ -326,7 +346,7 @@ def fit_ground_plane(
     if n_valid > sample_px:
         flat = flat[np.sort(rng.choice(n_valid, size=sample_px, replace=False))]
     ys_s, xs_s = np.divmod(flat, shape[1])
-    xs, ys, ds = xs_s.astype(float), ys_s.astype(float), d[ys_s, xs_s]
+    xs, ys, ds = xs_s.astype(float), ys_s.astype(float), d[ys_s, xs_s].astype(np.float64)
     coef, source = None, "none"
     if cam.has_pose:
         assert cam.height_m is not None and cam.pitch_deg is not None
@@ -346,13 +366,29 @@ def fit_ground_plane(
         coef, _ = _refine(xs, ys, ds, start, inlier_px)
         source = "ransac"
     plane = plane_from_disparity_coefficients(coef, camera=cam, shape=shape)
-    # one row and one column of coordinates, broadcast: the same sums per pixel as grids
-    xx = np.arange(shape[1], dtype=np.float64)[None, :]
-    yy = np.arange(shape[0], dtype=np.float64)[:, None]
-    inliers = valid & (np.abs(coef[0] * xx + coef[1] * yy + coef[2] - d) <= inlier_px)
     if not np.all(np.isfinite(plane)):
         return none
-    return GroundFit(plane, inliers, float(np.count_nonzero(inliers)) / n_valid, source)
+    inliers, count = _plane_inliers(d, *(float(v) for v in coef), float(inlier_px))
+    return GroundFit(plane, inliers, float(count) / n_valid, source)
+
+
+@njit(cache=True)
+def _plane_inliers(disparity, alpha, beta, gamma, inlier_px):  # pragma: no cover - numba
+    """Valid pixels within ``inlier_px`` of the plane's disparity and their count: per pixel
+    ``|((alpha x + beta y) + gamma) - d| <= inlier_px`` in float64, the operations and order
+    of the broadcast numpy expression it replaces."""
+    h, w = disparity.shape
+    inliers = np.zeros((h, w), np.bool_)
+    count = 0
+    for y in range(h):
+        row = beta * np.float64(y)
+        for x in range(w):
+            d = np.float64(disparity[y, x])
+            near = abs(alpha * np.float64(x) + row + gamma - d) <= inlier_px
+            inside = np.isfinite(d) and d > 0 and near
+            inliers[y, x] = inside
+            count += inside
+    return inliers, count
 
 
 def height_above_plane(points: np.ndarray, plane: np.ndarray) -> np.ndarray:
@@ -371,8 +407,8 @@ def height_from_disparity(
 
     ``height_above_plane(camera.camera_points(disparity), plane)`` without the (M, N, 3)
     points: the same operations per pixel in the same order, so the same float32 bits
-    (``tests/stages/test_geometry.py`` compares them), at half the CPU (the depth stage's
-    height product, ~2 ms less per 500x500 frame).
+    (``tests/stages/test_geometry.py`` compares them), in one numba pass without float64
+    frames (the depth stage's height product).
 
     Parameters
     ----------
@@ -388,26 +424,33 @@ def height_from_disparity(
         NaN where the disparity is invalid.
     """
     cam = _coerce_camera(camera)
-    d = np.asarray(disparity, dtype=np.float64)
+    d = np.asarray(disparity)
+    if d.dtype not in (np.float32, np.float64):  # the kernel reads these exactly as float64
+        d = d.astype(np.float64)
     if d.ndim != 2:
         raise ValueError(f"disparity must be a 2-D array, got shape {d.shape}")
     a, b, c, e = (float(v) for v in plane)
-    d = np.where(d > 0, d, np.nan)
     cx, cy = cam.principal_point(d.shape)
-    z = cam.k_m_px / d
+    return _height_kernel(d, cam.k_m_px, cam.focal_px, float(cx), float(cy), a, b, c, e)
+
+
+@njit(cache=True, error_model="numpy")
+def _height_kernel(disparity, k, f, cx, cy, a, b, c, e):  # pragma: no cover - numba
     # x = (col - cx) z / f and y = (row - cy) z / f as in Camera.camera_points, then
-    # ((x a + y b) + z c) + e as in height_above_plane, each step in place
-    x = (np.arange(d.shape[1], dtype=np.float64) - cx) * z
-    x /= cam.focal_px
-    y = (np.arange(d.shape[0], dtype=np.float64) - cy)[:, None] * z
-    y /= cam.focal_px
-    x *= a
-    y *= b
-    x += y
-    z *= c
-    x += z
-    x += e
-    return x.astype(np.float32)
+    # ((x a + y b) + z c) + e as in height_above_plane: the same float64 operations in the
+    # same order per pixel, rounded to float32 once; NaN where d is not > 0
+    h, w = disparity.shape
+    out = np.empty((h, w), np.float32)
+    for y in range(h):
+        row = np.float64(y) - cy
+        for x in range(w):
+            d = np.float64(disparity[y, x])
+            z = k / d
+            px = (np.float64(x) - cx) * z / f
+            py = row * z / f
+            height = px * a + py * b + z * c + e
+            out[y, x] = np.float32(height) if d > 0 else np.float32(np.nan)
+    return out
 
 
 # ----------------------------------------------------------------------------- search range

@@ -11,6 +11,7 @@ from hypothesis import strategies as st
 from scipy import ndimage
 
 from pipeline.camera import Camera
+from stages import geometry
 from stages.geometry import (
     derive_max_disparity,
     derive_row_ceiling,
@@ -222,3 +223,89 @@ def test_row_ceiling_admits_objects_up_to_the_ratio_height():
     assert derive_row_ceiling(Camera(focal_px=100.0, baseline_m=0.1), shape=SHAPE) is None
     with pytest.raises(ValueError, match="ratio"):
         derive_row_ceiling(CAMERA, shape=SHAPE, ratio=0.5)
+
+
+# ------------------------------------------------------------ numba passes against numpy
+# The depth stage's per-pixel products are numba passes; each must give the bits of the
+# numpy expression (or plain-Python loop) it replaced.
+
+
+def _odd_disparities(seed, shape=(7, 23)):
+    rng = np.random.default_rng(seed)
+    d = rng.uniform(-1.0, 9.0, shape).astype(np.float32)
+    d[rng.random(shape) < 0.2] = np.nan
+    d[0, :5] = (0.0, -0.0, np.inf, 1e-30, -np.inf)
+    return d
+
+
+def test_range_kernel_equals_the_numpy_expression():
+    d = _odd_disparities(0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        expected = np.where(d > 0, 430.0 * 0.07 / d.astype(np.float64), np.nan)
+    got = range_from_disparity(d, focal_px=430.0, baseline_m=0.07)
+    assert got.dtype == np.float32
+    assert got.tobytes() == expected.astype(np.float32).tobytes()
+
+
+def test_plane_inliers_equal_the_broadcast_numpy_test():
+    d = _odd_disparities(1)
+    alpha, beta, gamma = 0.013, 0.31, 1.7
+    xx = np.arange(d.shape[1], dtype=np.float64)[None, :]
+    yy = np.arange(d.shape[0], dtype=np.float64)[:, None]
+    d64 = d.astype(np.float64)
+    with np.errstate(invalid="ignore"):
+        expected = (np.isfinite(d64) & (d64 > 0)) & (
+            np.abs(alpha * xx + beta * yy + gamma - d64) <= 2.0
+        )
+    inliers, count = geometry._plane_inliers(d, alpha, beta, gamma, 2.0)
+    assert expected.any() and not expected.all()
+    np.testing.assert_array_equal(inliers, expected)
+    assert count == np.count_nonzero(expected)
+
+
+def _python_forward_warp(image, disparity):
+    """The pseudo-left warp as plain Python loops over float64 copies, with a full-frame
+    z-buffer (the layout the kernel had before it kept one row)."""
+    image = image.astype(np.float32).astype(np.float64)
+    disparity = disparity.astype(np.float64)
+    h, w = image.shape
+    out = np.full((h, w), np.nan, np.float32)
+    zbuf = np.full((h, w), -np.inf)
+    for y in range(h):
+        for x in range(w):
+            d0 = disparity[y, x]
+            if not np.isfinite(d0):
+                continue
+            u0 = x + d0
+            joined = False
+            if x + 1 < w and np.isfinite(disparity[y, x + 1]):
+                d1 = disparity[y, x + 1]
+                if abs(d1 - d0) <= 1.0:
+                    joined = True
+                    u1 = x + 1 + d1
+                    lo, hi = min(u0, u1), max(u0, u1)
+                    for c in range(max(0, math.ceil(lo)), min(w - 1, math.floor(hi)) + 1):
+                        t = 0.0 if u1 == u0 else (c - u0) / (u1 - u0)
+                        key = d0 + t * (d1 - d0)
+                        if key > zbuf[y, c]:
+                            zbuf[y, c] = key
+                            out[y, c] = image[y, x] + t * (image[y, x + 1] - image[y, x])
+            if not joined:
+                c = math.floor(u0 + 0.5)
+                if 0 <= c < w and abs(c - u0) < 0.5 and d0 > zbuf[y, c]:
+                    zbuf[y, c] = d0
+                    out[y, c] = image[y, x]
+    return out
+
+
+@pytest.mark.parametrize("image_dtype", [np.uint8, np.float32, np.float64])
+def test_forward_warp_equals_python_loops(image_dtype):
+    # uint8 and float32 images and float32 disparities are read without converted copies
+    rng = np.random.default_rng(2)
+    image = rng.integers(0, 256, (6, 30)).astype(image_dtype)
+    d = np.round(rng.uniform(0, 5, (6, 30)) * 8).astype(np.float32) / 8
+    d[:, 10:14] += 3.0  # a nearer patch: occludes, z-buffer decides
+    d[rng.random(d.shape) < 0.15] = np.nan
+    expected = _python_forward_warp(image, d)
+    for disparity in (d, d.astype(np.float64)):
+        assert pseudo_left(image, disparity).tobytes() == expected.tobytes()

@@ -54,7 +54,7 @@ def _tied_curves(shape, seed):
 
 def test_row_peaks_equal_the_per_pixel_peak():
     curves = _tied_curves((9, 40), seed=0)
-    best = np.full(40, -7, np.int64)
+    best = np.full(40, -7, np.int32)  # as adaptive_match keeps it
     top = np.zeros(40, np.float32)
     second = np.zeros(40, np.float32)
     _ncc._row_peaks(best, top, second, curves, 3, 37)
@@ -68,7 +68,7 @@ def test_row_peaks_equal_the_per_pixel_peak():
 def test_left_best_is_the_left_reference_argmax(d_min):
     n_disp, w, hw = 7, 30, 2
     curves = _tied_curves((n_disp, w), seed=1)
-    index = np.zeros(w, np.int64)
+    index = np.zeros(w, np.int32)  # as adaptive_match keeps it
     value = np.zeros(w, np.float32)
     _ncc._left_best(index, value, curves, hw, d_min)
     for xl in range(w):
@@ -147,3 +147,83 @@ def test_border_curves_read_the_shifted_windows(d_min):
             else:
                 assert shifted[j, x] == -np.inf
         assert valid == list(range(first[x], last[x]))  # one contiguous range
+
+
+def _numpy_window_stats(image, hy, hx):
+    """Reference of one window's statistics: box sums over the whole window, numpy only."""
+    v = image.astype(np.int64)
+    h, w = v.shape
+    sums = np.zeros((h, w), np.float32)
+    inv = np.zeros((h, w), np.float32)
+    std = np.zeros((h, w), np.float32)
+    if h < 2 * hy + 1 or w < 2 * hx + 1:
+        return sums, inv, std
+    boxes = np.lib.stride_tricks.sliding_window_view(v, (2 * hy + 1, 2 * hx + 1))
+    n = (2 * hy + 1) * (2 * hx + 1)
+    s = boxes.sum(axis=(2, 3))
+    spread = n * (boxes * boxes).sum(axis=(2, 3)) - s * s
+    root = np.sqrt(spread.astype(np.float64))
+    inner = (slice(hy, h - hy), slice(hx, w - hx))
+    sums[inner] = s
+    with np.errstate(divide="ignore"):
+        inv[inner] = np.where(spread > 0, 1.0 / root, 0.0)
+    std[inner] = root / n
+    return sums, inv, std
+
+
+@pytest.mark.parametrize(("hy", "hx"), [(1, 1), (2, 4), (0, 3), (4, 13)])
+def test_window_stats_and_row_stats_equal_numpy_box_sums(hy, hx):
+    # the whole-frame kernel (sgm) and the row-by-row one (adaptive) give the same float32
+    # bits as box sums over each window; flat patches give zero inverse roots and stds
+    rng = np.random.default_rng(5)
+    image = rng.integers(-128, 128, (11, 23)).astype(np.int32)
+    image[:6, :9] = 7  # flat
+    sums, inv, std = _numpy_window_stats(image, hy, hx)
+    got = _ncc.window_stats(image, np.array([hy]), np.array([hx]))
+    for mine, expected in zip(got, (sums, inv, std), strict=True):
+        assert mine[0].tobytes() == expected.tobytes()
+    no_std = _ncc.window_stats(image, np.array([hy]), np.array([hx]), False)
+    assert no_std[1][0].tobytes() == inv.tobytes() and no_std[2].size == 0
+    h, w = image.shape
+    col, col2 = np.zeros(w, np.int64), np.zeros(w, np.int64)
+    row = [np.full(w, -1.0, np.float32) for _ in range(3)]
+    scratch = np.zeros(w + 1, np.int64), np.zeros(w + 1, np.int64)
+    n = (2 * hy + 1) * (2 * hx + 1)
+    for yc in range(hy, h - hy):
+        _ncc._advance_stat_columns(col, col2, image, yc, hy)
+        _ncc._row_stats(*row, col, col2, hx, n, *scratch)
+        for mine, expected in zip(row, (sums, inv, std), strict=True):
+            assert mine.tobytes() == expected[yc].tobytes()
+
+
+def _coded_row_mix(seed):
+    rng = np.random.default_rng(seed)
+    coded = rng.uniform(0, 6, (9, 30)).astype(np.float32)
+    pick = rng.random(coded.shape)
+    coded[pick < 0.3] = np.nan
+    coded[(pick >= 0.3) & (pick < 0.4)] = -np.inf
+    coded[(pick >= 0.4) & (pick < 0.5)] = np.inf
+    return coded
+
+
+def test_decode_status_equals_the_numpy_masks():
+    coded = _coded_row_mix(8)
+    disparity, status = _ncc.decode_status(coded)
+    expected = np.zeros(coded.shape, np.int8)  # numpy reference, the passes it replaced
+    expected[np.isnan(coded)] = 1
+    expected[np.isneginf(coded)] = 2
+    expected[np.isposinf(coded)] = 3
+    np.testing.assert_array_equal(status, expected)
+    reference = np.where(expected == 0, coded, np.nan).astype(np.float32)
+    assert disparity.dtype == np.float32 and disparity.tobytes() == reference.tobytes()
+
+
+def test_flag_occluded_codes_what_occluded_flags_ignoring_codes():
+    # the coded map's NaN and +-inf are skipped like NaN in the plain disparity
+    coded = _coded_row_mix(9)
+    plain = np.where(np.isfinite(coded), coded, np.nan).astype(np.float32)
+    hidden = _ncc.occluded(plain, np.float32(1.0))
+    assert hidden.any()
+    expected = np.where(hidden, _ncc.LR_REJECTED, coded).astype(np.float32)
+    _ncc.flag_occluded(coded, np.float32(1.0), _ncc.LR_REJECTED)
+    assert coded.tobytes() == expected.tobytes()

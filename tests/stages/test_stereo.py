@@ -226,10 +226,8 @@ def _kernel(right, left, lo, hi, row_start, row_end=None, windows="5,9"):
     hys = np.array([r // 2 for r, _ in s["windows"]], np.int64)
     hxs = np.array([c // 2 for _, c in s["windows"]], np.int64)
     r32, o32 = _stereo._centred(right), _stereo._centred(left)
-    rs, ri, rsd = _ncc.window_stats(r32, hys, hxs)
-    os_, oi, _ = _ncc.window_stats(o32, hys, hxs)
     return _ncc.adaptive_match(
-        r32, o32, lo, hi - lo + 1, row_start, row_end, hys, hxs, rs, ri, rsd, os_, oi,
+        r32, o32, lo, hi - lo + 1, row_start, row_end, hys, hxs,
         1.0, 0.1, _stereo._margins(s), 1.0, True,
     )  # fmt: skip
 

@@ -3,13 +3,19 @@ and OpenCV's StereoSGBM."""
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 from scipy import ndimage
 from stereo_scenes import shifted_pair, texture, u8
 
 from stages._stereo import match_disparity
-from stages._stereo_filters import prefilter_image, remove_speckles, sgbm_disparity
+from stages._stereo_filters import (
+    prefilter_image,
+    remove_speckles,
+    sgbm_disparity,
+    speckle_mask,
+)
 
 
 def _shaded_pair(seed=5, shape=(80, 160), d=6):
@@ -83,3 +89,45 @@ def test_speckles_are_removed_and_large_regions_kept():
     assert removed.sum() == 9 and np.all(removed[5:8, 5:8])
     assert np.all(np.isnan(cleaned[5:8, 5:8]))
     assert np.all(cleaned[15:30, 15:30] == 3.0)
+
+
+def _numpy_speckles(disparity, max_size, max_diff):
+    """Reference: the speckle filter's numpy input and output passes (before the kernels)."""
+    valid = np.isfinite(disparity)
+    fixed = np.full(disparity.shape, -32768, np.int16)
+    fixed[valid] = np.round(disparity[valid] * 16).astype(np.int16)
+    cv2.filterSpeckles(fixed, -32768, max_size, max(1, round(max_diff * 16)))
+    return valid & (fixed == -32768)
+
+
+def test_speckle_mask_equals_the_numpy_passes():
+    # half-sixteenths round to even, as np.round; NaN and +-inf are all invalid input
+    rng = np.random.default_rng(7)
+    d = (np.round(rng.uniform(0, 4, (40, 50)) * 32) / 32).astype(np.float32)
+    d[rng.random(d.shape) < 0.2] = np.nan
+    d[rng.random(d.shape) < 0.05] = np.inf
+    d[rng.random(d.shape) < 0.05] = -np.inf
+    expected = _numpy_speckles(d, 8, 0.25)
+    assert expected.any() and not expected.all()
+    np.testing.assert_array_equal(speckle_mask(d, max_size=8, max_diff=0.25), expected)
+    cleaned, removed = remove_speckles(d, max_size=8, max_diff=0.25)
+    np.testing.assert_array_equal(removed, expected)
+    np.testing.assert_array_equal(cleaned, np.where(expected, np.nan, d))
+
+
+@pytest.mark.parametrize(("shape", "size"), [((40, 50), 15), ((5, 7), 9), ((12, 11), 3)])
+def test_prefilter_kernel_equals_the_integer_numpy_passes(shape, size):
+    # the integer formula with numpy's integral image (the passes the kernel replaced):
+    # same bits, also for images smaller than the box and for saturated highs
+    rng = np.random.default_rng(size)
+    image = rng.integers(0, 256, shape).astype(np.uint8)
+    image[: shape[0] // 2, : shape[1] // 2] = 255
+    n, half = size * size, size // 2
+    padded = np.pad(image.astype(np.int64), half, mode="symmetric")
+    integral = np.zeros((padded.shape[0] + 1, padded.shape[1] + 1), np.int64)
+    np.cumsum(np.cumsum(padded, axis=0), axis=1, out=integral[1:, 1:])
+    k = size
+    box = integral[k:, k:] - integral[:-k, k:] - integral[k:, :-k] + integral[:-k, :-k]
+    high = (4 * (n * image.astype(np.int64) - box) + n) // (2 * n)
+    expected = np.clip(high + 128, 0, 255).astype(np.uint8)
+    assert prefilter_image(image, size=size).tobytes() == expected.tobytes()
