@@ -18,6 +18,7 @@ from scipy import ndimage
 
 from pipeline.camera import Camera
 
+from ._border import border_largest_bound, height_width_ratio
 from ._footprint import (
     _dilate_diamond,
     footprint_dimensions,
@@ -327,6 +328,7 @@ def describe_objects(
     fringe_reach_px: int = 3,
     fringe_smoothing_px: int = 7,
     fringe_dark_ratio: float = 0.15,
+    border_height_quantile: float = 0.9,
 ) -> dict[str, np.ndarray]:
     """Descriptor columns of every object of a label image.
 
@@ -374,6 +376,11 @@ def describe_objects(
         the object are too dark for stereo (their heights are the ground's next to them) and
         count as of unknown height for the fringe decision (:func:`too_dark_to_match`);
         0 reads every pixel's height.
+    border_height_quantile : float
+        In [0, 1): an object cut by the image border is classed with the larger of its
+        visible width and its height over this quantile of height / width of the frame's
+        objects seen whole (:mod:`stages._border`; at least 5 of them, 0.03 m wide or
+        more); 0 classes it on its visible width.
 
     Returns
     -------
@@ -393,6 +400,11 @@ def describe_objects(
         raise ValueError(
             "fringe_dark_ratio must be a share of the ground ring's gray in [0, 1) (0: off), "
             f"got {fringe_dark_ratio!r}"
+        )
+    if not 0.0 <= border_height_quantile < 1.0:
+        raise ValueError(
+            "border_height_quantile must be a quantile in [0, 1) (0: off), got "
+            f"{border_height_quantile!r}"
         )
     if not isinstance(camera, Camera):
         raise TypeError(f"camera must be a pipeline.camera.Camera, got {type(camera).__name__}")
@@ -545,10 +557,50 @@ def describe_objects(
         )
     if not rows_out:
         return _empty_columns()
+    if border_height_quantile > 0:
+        _class_border_objects(
+            rows_out,
+            quantile=border_height_quantile,
+            sample_max_m=sample_max_m,
+            rover_clearance_m=rover_clearance_m,
+        )
     return {
         name: np.array([row[name] for row in rows_out], dtype=str if kind == "str" else kind)
         for name, kind in DESCRIPTOR_COLUMNS.items()
     }
+
+
+def _class_border_objects(
+    rows: list[dict[str, object]],
+    *,
+    quantile: float,
+    sample_max_m: float,
+    rover_clearance_m: float,
+) -> None:
+    """Class the border-cut objects of one frame's rows again, in place, with the largest
+    dimension bounded from their height (:mod:`stages._border`)."""
+    whole = [
+        r for r in rows if not r["touches_border"] and math.isfinite(float(r["length_m"]))
+    ]  # seen whole and measured on depth (a finite length)
+    ratio = height_width_ratio(
+        np.array([float(r["height_max_m"]) for r in whole]),
+        np.array([float(r["width_m"]) for r in whole]),
+        quantile=quantile,
+    )
+    if not math.isfinite(ratio):
+        return
+    for r in rows:
+        if not r["touches_border"]:
+            continue
+        width, length = float(r["width_m"]), float(r["length_m"])
+        largest = max(width, length) if math.isfinite(length) else width
+        h_max = float(r["height_max_m"])
+        r["size_class"] = classify_size(
+            border_largest_bound(largest, h_max, ratio=ratio),
+            h_max,
+            sample_max_m=sample_max_m,
+            rover_clearance_m=rover_clearance_m,
+        )
 
 
 _BACKGROUND_OCCLUSION_SHARE = 0.1

@@ -13,7 +13,8 @@ object's pixels without its ground-level fringes (:func:`ground_fringe_keep`: a 
 segmented with the rock lies on the ground) on a disparity fitted to the pixels kept,
 constant along each image row (:func:`footprint_disparity`). For an object that touches the
 image border they are of the visible part only, a lower bound (``touches_border``); its
-``size_class`` is then 'obstacle' only if the visible part already exceeds the limits.
+``size_class`` then also reads a lower bound of the whole rock's width from its visible
+height (:mod:`stages._border`).
 
 A fringe pixel is one whose height, alone *and* averaged over a 7x7 box of the object
 (``fringe_smoothing_px``), stays under 4 mm: one by one a third of a flat shadow's noisy

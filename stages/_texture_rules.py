@@ -1,4 +1,4 @@
-"""Rules R5-R5c: objects that are ground texture -- streaks and pieces of ripple fields.
+"""Rules R5-R5d: objects that are ground texture -- streaks and pieces of ripple fields.
 
 They act on labelled objects (:func:`stages._regions.label_objects`), as R4 (split at
 depth edges, :mod:`stages._regions`) and R6-R7c (attached shadows, halves and faces of
@@ -13,6 +13,18 @@ rocks, :mod:`stages._rock_parts`) do:
   barely cross the threshold (median 1.2-2.1 bands on the dunes frames) and striations are
   longer. On the catalog frames R5 dropped 11 true rocks of mojave and 13 of lava; with
   R5b mojave keeps 7 more (2 more false positives), lava 7 more (1 more), dunes none.
+* **R5d rocks clear of their ground** -- R5b's bands are the sector's thresholds, which a
+  rough patch of the sector widens: flat rocks on mojave's blotchy soil lay 1.4-2 bands out
+  but 7-13 robust spreads (1.4826 MAD) of the smooth ground right around them. So an
+  elongated object no longer than R5b's limit is also kept when its mean gray lies at least
+  8 spreads of the ground 1-4 px around it from that ground's median: a striation or a
+  trough is part of the ground's texture, within a few of its spreads. Of the objects R5
+  dropped on the catalog frames and seeds 2-3 (4 archives, 17 runs; a diagnostic on R5's
+  input, not in the repository) this kept 10 true rocks and 2 other objects; 6 spreads kept
+  12 and 9, elongations up to 5 or 6 kept 18 and 8, 19 and 9. With ``bench_segment.py
+  --rundir``: lab seed 2 4 more true rocks (0.947 -> 0.959), mojave seed 2 and lava seeds 3
+  and 4 one more each, no false positive anywhere; the catalog frames and the dunes runs
+  are unchanged (6 spreads: one invented rock on dunes seed 7).
 * **R5c ripple fields** -- dune ripples near the camera have real relief (about 2 height
   sigmas, so they pass the depth vote) and their shading crosses the thresholds in pieces
   that are not elongated, or lie in the matcher's blind band along the frame's border; seen
@@ -95,6 +107,10 @@ _RIPPLE_GRADIENT_COHERENCE = 0.8
 _TEXTURE_RING_PX = 8
 # R5b: a clear object at most this many times longer than wide may be a far rock edge-on.
 _CLEAR_ELONGATION = 4.0
+# R5d: an elongated object (up to _CLEAR_ELONGATION) this many robust spreads of the ground
+# within _SPREAD_RING_PX of it away from that ground's median is a rock
+_CLEAR_SPREADS = 8.0
+_SPREAD_RING_PX = 4
 # R5c at range: where at least this many streaks longer than any rock (_CLEAR_ELONGATION)
 # lie within _RIPPLE_RADIUS_PX and this many rows of an object (the image row is the range
 # on the ground), it must also stand _RIPPLE_TEXTURE_RATIO times beyond their gray level.
@@ -206,6 +222,8 @@ def drop_streaks(
     contrast: np.ndarray | None = None,
     clear_contrast: float = CLEAR_CONTRAST,
     clear_elongation: float = _CLEAR_ELONGATION,
+    image: np.ndarray | None = None,
+    clear_spreads: float = _CLEAR_SPREADS,
 ) -> tuple[np.ndarray, int]:
     """Remove objects longer than ``max_elongation`` times their width; renumber densely.
 
@@ -224,6 +242,13 @@ def drop_streaks(
         ``>= 1`` threshold bands.
     clear_elongation : float
         ``> 1``; at or below ``max_elongation`` no object is kept this way.
+    image : (M, N) ndarray of uint8, optional
+        Reference gray image; when given, an elongated object no longer than
+        ``clear_elongation`` whose mean gray lies at least ``clear_spreads`` robust spreads
+        of its ring of ground from that ring's median is kept too (rule R5d).
+    clear_spreads : float
+        ``> 0``; R5d's distance, in robust spreads (1.4826 MAD, at least one gray level) of
+        the ground 1 to ``_SPREAD_RING_PX`` pixels around the object.
 
     Returns
     -------
@@ -238,24 +263,49 @@ def drop_streaks(
             "need clear_contrast >= 1 and clear_elongation > 1, got "
             f"{clear_contrast} and {clear_elongation}"
         )
+    if not clear_spreads > 0:
+        raise ValueError(f"clear_spreads must be > 0, got {clear_spreads}")
+    for name, values in (("contrast", contrast), ("image", image)):
+        if values is not None and values.shape != labels.shape:
+            raise ValueError(
+                f"{name} {values.shape} and labels {labels.shape} must have one shape"
+            )
     ratio = elongation(labels)
     streak = ratio > max_elongation
-    if contrast is not None:
-        if contrast.shape != labels.shape:
-            raise ValueError(
-                f"contrast {contrast.shape} and labels {labels.shape} must have one shape"
-            )
+    if contrast is not None or image is not None:
         candidates = np.flatnonzero(streak & (ratio <= clear_elongation))
         boxes = _object_boxes(labels, int(labels.max())) if candidates.size else None
         for k in candidates:
             y0, y1, x0, x1 = boxes[k]
-            window = np.s_[y0 : y1 + 1, x0 : x1 + 1]
-            if np.median(np.abs(contrast[window][labels[window] == k])) >= clear_contrast:
-                streak[k] = False
+            inside = labels[y0 : y1 + 1, x0 : x1 + 1] == k
+            if contrast is not None:
+                window = contrast[y0 : y1 + 1, x0 : x1 + 1]
+                if np.median(np.abs(window[inside])) >= clear_contrast:
+                    streak[k] = False  # R5b
+                    continue
+            if image is not None and _ring_spreads(image, labels, boxes[k], k) >= clear_spreads:
+                streak[k] = False  # R5d
     if not streak.any():
         return labels, 0
     kept = np.where(_lookup(streak, labels), 0, labels)
     return _renumber(kept, 1), int(streak.sum())
+
+
+def _ring_spreads(image: np.ndarray, labels: np.ndarray, box: np.ndarray, k: int) -> float:
+    """R5d: how many robust spreads of its ring of ground object ``k``'s mean gray lies from
+    that ring's median (0 when the ring has fewer than 10 pixels: no evidence)."""
+    rows, cols = labels.shape
+    y0, y1 = max(0, int(box[0]) - _SPREAD_RING_PX), min(rows, int(box[1]) + 1 + _SPREAD_RING_PX)
+    x0, x1 = max(0, int(box[2]) - _SPREAD_RING_PX), min(cols, int(box[3]) + 1 + _SPREAD_RING_PX)
+    window = labels[y0:y1, x0:x1]
+    inside = window == k
+    grown = cv2.dilate(inside.view(np.uint8), _ring_kernel(_SPREAD_RING_PX)).view(bool)
+    ring = image[y0:y1, x0:x1][grown & (window == 0)].astype(np.float64)
+    if ring.size < 10:
+        return 0.0
+    level = float(np.median(ring))
+    spread = max(1.4826 * float(np.median(np.abs(ring - level))), 1.0)
+    return abs(float(image[y0:y1, x0:x1][inside].mean()) - level) / spread
 
 
 def drop_ripple_pieces(

@@ -86,6 +86,7 @@ def describe_frame(
     fringe_height_m: float = 0.004,
     fringe_reach_px: int = 3,
     fringe_smoothing_px: int = 7,
+    border_height_quantile: float = 0.9,
 ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict[str, Any]]:
     """Descriptors, relations and per-frame figures of one frame.
 
@@ -126,6 +127,10 @@ def describe_frame(
     fringe_smoothing_px : int
         Odd, >= 1: the heights that decide it are first averaged over this box of the
         object's pixels (1: each pixel alone).
+    border_height_quantile : float
+        In [0, 1): objects cut by the image border are classed with their width bounded
+        from below by their height over this quantile of height / width of the frame's
+        objects seen whole (0: their visible width alone; see :mod:`stages._border`).
 
     Returns
     -------
@@ -152,6 +157,7 @@ def describe_frame(
         fringe_height_m=fringe_height_m,
         fringe_reach_px=fringe_reach_px,
         fringe_smoothing_px=fringe_smoothing_px,
+        border_height_quantile=border_height_quantile,
     )
     disp = np.asarray(disparity, dtype=np.float64)
     rel = relate_objects(
@@ -245,7 +251,7 @@ def run_describe(
 
 STAGE = Stage(
     name="describe",
-    version="7",
+    version="8",
     inputs=("left", "right", "labels", "disparity", "range", "height", "ground_plane"),
     outputs=(
         Product(
@@ -337,6 +343,14 @@ STAGE = Stage(
             7,
             "... judged on heights averaged over this odd box of the object's pixels (1: off)",
             minimum=1,
+        ),
+        Param(
+            "border_height_quantile",
+            float,
+            0.9,
+            "border-cut rocks: width >= height / this quantile of whole rocks' h/w (0: off)",
+            minimum=0,
+            maximum=0.99,
         ),
     ),
     run=run_describe,

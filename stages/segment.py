@@ -9,19 +9,20 @@ is in :mod:`stages._sectors` (histograms, modes, interpolation), :mod:`stages._c
 components, split), :mod:`stages._texture_rules` (streaks), :mod:`stages._rock_parts` (shadows,
 halves), :mod:`stages._outlines` (necks, rims), :mod:`stages._shadow_sides` (shaded faces),
 :mod:`stages._height_grow` (raised rests), :mod:`stages._blobs` (compact blobs),
+:mod:`stages._height_blobs` (faint blobs standing as height bumps),
 :mod:`stages._depth_rules` (height rules) and :mod:`stages._height_vote` (the
 noisy-height vote), all documented rule by rule.
 
 ``method = 'sector-histogram+depth'`` (default) adds the depth stage's ``height`` (metres
 above the fitted ground plane) and ``disparity`` (rules R0-R3 in :mod:`stages._depth_rules`
-and :mod:`stages._height_vote`, R4 in :mod:`stages._regions`, R5-R5c in
+and :mod:`stages._height_vote`, R4 in :mod:`stages._regions`, R5-R5d in
 :mod:`stages._texture_rules`, R6-R7c in :mod:`stages._rock_parts`, R4b and R7d in
 :mod:`stages._outlines`, R7e in :mod:`stages._shadow_sides`, R7f in :mod:`stages._height_grow`,
-R8 in :mod:`stages._blobs`):
+R8 in :mod:`stages._blobs`, R8b in :mod:`stages._height_blobs`):
 raised pixels are object even when their gray equals the ground's, flat intensity objects
 (shadows, stains, texture blotches) are background, touching objects split at disparity
-jumps or, at one range, at narrow necks (R4b), streaks (ripple troughs) are dropped and so
-are, in a field of parallel streaks,
+jumps or, at one range, at narrow necks (R4b), streaks (ripple troughs) are dropped unless
+they stand clearly out of the ground (R5b, R5d) and so are, in a field of parallel streaks,
 objects that do not stand out of the ripple texture around them, objects whose other half
 lies just inside the thresholds grow into it when they stay compact (R7), a lighter and a
 darker half of one rock are joined (R7b), near the camera a lit face takes the raised part
@@ -64,6 +65,7 @@ from ._depth_rules import (
     gray_contrast,
 )
 from ._depth_rules import _UNUSABLE_SIGMA_M as _USABLE_SIGMA_M
+from ._height_blobs import add_height_blobs
 from ._height_grow import grow_raised_parts
 from ._heights import DepthRuleStats, relative_height
 from ._outlines import split_at_necks, trim_faint_rims
@@ -169,6 +171,7 @@ def segment_image(
     face_bands: float = 0.5,
     neck_ratio: float = 0.5,
     blob_sigmas: float = 0.0,
+    height_blob_sigmas: float = 0.0,
     rim_fraction: float = 0.3,
     shadow_noise_m: float = 0.0075,
     height_grow_fraction: float = 0.5,
@@ -245,6 +248,11 @@ def segment_image(
         Depth method only, ``>= 0``: compact blobs this many ground spreads (at their own
         scale) darker or lighter than the ground that no object touches are added (rule R8
         of :mod:`stages._blobs`); 0 disables.
+    height_blob_sigmas : float
+        Depth method only, ``>= 0``: after R8, compact blobs this many ground spreads out
+        that no object touches are added when they stand as a height bump and their edges
+        are crisper than the ground's texture (rule R8b of :mod:`stages._height_blobs`);
+        0 disables, and so do heights the depth rules do not use or find unusable.
 
     Returns
     -------
@@ -284,8 +292,11 @@ def segment_image(
         raise ValueError(
             f"height_grow_fraction must be in [0, 1] (0 disables), got {height_grow_fraction}"
         )
-    if not blob_sigmas >= 0:
-        raise ValueError(f"blob_sigmas must be >= 0 (0 disables), got {blob_sigmas}")
+    if not blob_sigmas >= 0 or not height_blob_sigmas >= 0:
+        raise ValueError(
+            "blob_sigmas and height_blob_sigmas must be >= 0 (0 disables), got "
+            f"{blob_sigmas} and {height_blob_sigmas}"
+        )
     if not weak_bands >= 0 or weak_growth_px < 0 or join_gap_px < 0 or not face_bands >= 0:
         raise ValueError(
             "weak_bands, weak_growth_px, join_gap_px and face_bands must be >= 0 (0 disables), "
@@ -380,7 +391,9 @@ def segment_image(
             trimmed > 0, min_area_px=min_area_px, fill=False, edges=_seams(trimmed)
         )
     if method == "sector-histogram+depth" and max_elongation > 0:
-        labels, streaks = drop_streaks(labels, max_elongation=max_elongation, contrast=contrast)
+        labels, streaks = drop_streaks(
+            labels, max_elongation=max_elongation, contrast=contrast, image=image
+        )
         if streaks:
             notes.append(f"{streaks} streak(s) longer than {max_elongation:g}x their width dropped")
     if texture is not None:
@@ -451,6 +464,14 @@ def segment_image(
         )
         if blobs:
             notes.append(f"{blobs} compact blob(s) no threshold reached added")
+    if relative is not None and heights_usable and height_blob_sigmas > 0:
+        # R8b, after R8: fainter blobs, kept on the heights' and the edges' word (R2d's
+        # bump map means nothing where the heights are unusable)
+        labels, bumps = add_height_blobs(
+            labels, image, relative, min_sigmas=height_blob_sigmas, min_area_px=min_area_px
+        )
+        if bumps:
+            notes.append(f"{bumps} faint blob(s) standing as height bumps added")
     return Segmentation(
         labels=labels, sectors=analysis, depth=depth_stats, streaks_dropped=streaks, notes=notes
     )
@@ -620,7 +641,7 @@ def _sector_product(name: str, dtype: str, long_name: str, units: str = "") -> P
 
 STAGE = Stage(
     name="segment",
-    version="29",
+    version="31",
     inputs=("left", "right", "disparity", "height"),
     outputs=(
         Product(
@@ -744,6 +765,14 @@ STAGE = Stage(
             float,
             0.0,
             "depth: add compact blobs this many ground spreads out at their scale; 0 = off",
+            None,
+            0,
+        ),
+        Param(
+            "height_blob_sigmas",
+            float,
+            0.0,
+            "depth: add fainter blobs this many spreads out that stand as height bumps; 0 = off",
             None,
             0,
         ),

@@ -288,7 +288,7 @@ def test_size_frequency_figures():
 
 
 def test_stage_declaration_and_run():
-    assert STAGE.name == "describe" and STAGE.version == "7"
+    assert STAGE.name == "describe" and STAGE.version == "8"
     assert STAGE.inputs == (
         "left", "right", "labels", "disparity", "range", "height", "ground_plane"
     )
@@ -341,3 +341,21 @@ def test_object_without_depth_stands_on_the_ground_plane():
     # would read highest, so this wide, low plate reads at most its own height
     assert 0.0 <= row["height_m"] <= plate_h + 2 * pixel_m
     assert row["size_class"] == "obstacle"
+
+
+def test_border_cut_rock_is_classed_from_its_height():
+    # regression: a rock cut by the image border was classed on its visible width alone, a
+    # lower bound; on runs/eval/mojave mojave_0008 object 28 (0.109 m wide, 0.020 m seen)
+    # was a sample. Five whole plates 0.08 m wide and 0.024-0.040 m high (height / width
+    # at most 0.5) and a plate cut by the left border, 0.07 m high
+    heights = (0.024, 0.028, 0.032, 0.036, 0.040)
+    xs = (-0.4, -0.2, 0.0, 0.2, 0.4)
+    whole = [(x, 1.6, 0.08, h, 60) for x, h in zip(xs, heights, strict=True)]
+    (desc, _, _), (labels, _) = _run([*whole, (-0.80, 1.6, 0.14, 0.07, 60)])
+    cut = _row(desc, 6)
+    assert cut["touches_border"] and cut["width_m"] < 0.10 and cut["height_max_m"] < 0.10
+    assert cut["size_class"] == "obstacle"
+    for k in range(1, 6):  # the whole plates keep their class
+        assert not _row(desc, k)["touches_border"] and _row(desc, k)["size_class"] == "sample"
+    (desc, _, _), _ = _run([*whole, (-0.80, 1.6, 0.14, 0.07, 60)], border_height_quantile=0)
+    assert _row(desc, 6)["size_class"] == "sample"

@@ -1,4 +1,4 @@
-"""Tests of stages/_texture_rules.py: elongation, streaks (R5, R5b), ripple fields (R5c)."""
+"""Tests of stages/_texture_rules.py: elongation, streaks (R5, R5b, R5d), ripple fields (R5c)."""
 
 from __future__ import annotations
 
@@ -62,6 +62,33 @@ def test_drop_streaks_keeps_a_clear_flat_rock_but_not_a_faint_trough_or_a_long_s
         drop_streaks(labels, max_elongation=3.0, contrast=contrast[:10])
     with pytest.raises(ValueError, match="clear_elongation"):
         drop_streaks(labels, max_elongation=3.0, contrast=contrast, clear_elongation=1.0)
+
+
+def test_drop_streaks_keeps_an_elongated_object_far_out_of_its_ring_of_ground():
+    # rule R5d: flat mojave rocks (3.0-3.6x wider than tall) 2 bands out of a wide sector
+    # threshold but 10-27 spreads out of the smooth ground around them were dropped as streaks
+    rng = np.random.default_rng(5)
+    image = rng.normal(100.0, 3.0, (80, 100)).clip(0, 255).astype(np.uint8)
+    labels = np.zeros(image.shape, np.int32)
+    labels[10:17, 10:35] = 1  # a flat light rock, 3.6x: 60 gray levels = 13 spreads out
+    labels[30:37, 10:35] = 2  # a faint streak of the same shape: 12 levels = 2.7 spreads
+    labels[50:54, 10:70] = 3  # a long clear streak, 15x: longer than any rock
+    image[labels == 1] = 160
+    image[labels == 2] = 112
+    image[labels == 3] = 160
+    contrast = np.where(labels > 0, np.float32(2.0), np.float32(0.0))  # R5b: not clear
+    kept, dropped = drop_streaks(labels, max_elongation=3.0, contrast=contrast, image=image)
+    assert dropped == 2
+    assert kept[12, 20] == 1 and not kept[30:37].any() and not kept[50:54].any()
+    # the same rock on ground as textured as it is bright is a streak
+    rough = rng.normal(100.0, 30.0, image.shape).clip(0, 255).astype(np.uint8)
+    rough[labels == 1] = 160
+    _, dropped = drop_streaks(labels, max_elongation=3.0, image=rough)
+    assert dropped == 3
+    with pytest.raises(ValueError, match="image"):
+        drop_streaks(labels, max_elongation=3.0, image=image[:10])
+    with pytest.raises(ValueError, match="clear_spreads"):
+        drop_streaks(labels, max_elongation=3.0, image=image, clear_spreads=0.0)
 
 
 def _ripples(shape, angle_deg, *, period=20.0, length=60):
