@@ -8,8 +8,8 @@ is in :mod:`stages._sectors` (histograms, modes, interpolation), :mod:`stages._c
 (background by continuity, phantom peaks, thresholds), :mod:`stages._regions` (masks,
 components, split), :mod:`stages._texture_rules` (streaks), :mod:`stages._rock_parts` (shadows,
 halves), :mod:`stages._outlines` (necks, rims), :mod:`stages._shadow_sides` (shaded faces),
-:mod:`stages._blobs` (compact blobs), :mod:`stages._height_blobs` (faint blobs standing
-as height bumps),
+:mod:`stages._height_grow` (raised rests), :mod:`stages._blobs` (compact blobs),
+:mod:`stages._height_blobs` (faint blobs standing as height bumps),
 :mod:`stages._depth_rules` (height rules) and :mod:`stages._height_vote` (the
 noisy-height vote), all documented rule by rule.
 
@@ -17,8 +17,8 @@ noisy-height vote), all documented rule by rule.
 above the fitted ground plane) and ``disparity`` (rules R0-R3 in :mod:`stages._depth_rules`
 and :mod:`stages._height_vote`, R4 in :mod:`stages._regions`, R5-R5d in
 :mod:`stages._texture_rules`, R6-R7c in :mod:`stages._rock_parts`, R4b and R7d in
-:mod:`stages._outlines`, R7e in :mod:`stages._shadow_sides`, R8 in :mod:`stages._blobs`,
-R8b in :mod:`stages._height_blobs`):
+:mod:`stages._outlines`, R7e in :mod:`stages._shadow_sides`, R7f in :mod:`stages._height_grow`,
+R8 in :mod:`stages._blobs`, R8b in :mod:`stages._height_blobs`):
 raised pixels are object even when their gray equals the ground's, flat intensity objects
 (shadows, stains, texture blotches) are background, touching objects split at disparity
 jumps or, at one range, at narrow necks (R4b), streaks (ripple troughs) are dropped unless
@@ -26,7 +26,8 @@ they stand clearly out of the ground (R5b, R5d) and so are, in a field of parall
 objects that do not stand out of the ripple texture around them, objects whose other half
 lies just inside the thresholds grow into it when they stay compact (R7), a lighter and a
 darker half of one rock are joined (R7b), near the camera a lit face takes the raised part
-of a dark neighbour and the flat rest, its cast shadow, goes (R7e), and the intensity decision
+of a dark neighbour and the flat rest, its cast shadow, goes (R7e), a large raised object
+grows over the raised rest of its rock on its gray side (R7f), and the intensity decision
 stands where depth is invalid -- for the whole frame when fewer than
 ``min_depth_valid_fraction`` of its heights are valid. How much the height rules trust
 single pixels depends on the measured height noise of the ground (precise, noisy and
@@ -65,6 +66,7 @@ from ._depth_rules import (
 )
 from ._depth_rules import _UNUSABLE_SIGMA_M as _USABLE_SIGMA_M
 from ._height_blobs import add_height_blobs
+from ._height_grow import grow_raised_parts
 from ._heights import DepthRuleStats, relative_height
 from ._outlines import split_at_necks, trim_faint_rims
 from ._regions import depth_edges, label_objects, threshold_mask
@@ -172,6 +174,7 @@ def segment_image(
     height_blob_sigmas: float = 0.0,
     rim_fraction: float = 0.3,
     shadow_noise_m: float = 0.0075,
+    height_grow_fraction: float = 0.5,
 ) -> Segmentation:
     """Segment one reference image into background and numbered objects.
 
@@ -236,6 +239,11 @@ def segment_image(
         Depth method only, ``>= 0`` metres: in rows whose ground height noise is at most this,
         a light object takes the raised part of a dark neighbour and the flat rest (its cast
         shadow) is dropped (rule R7e of :mod:`stages._shadow_sides`); 0 disables.
+    height_grow_fraction : float
+        Depth method only, in ``[0, 1]``: in rows whose ground height noise is at most 7.5
+        mm, a large object standing clearly above the ground grows over connected
+        background pixels raised above this fraction of its core height and on its side of
+        the ground's gray level (rule R7f of :mod:`stages._height_grow`); 0 disables.
     blob_sigmas : float
         Depth method only, ``>= 0``: compact blobs this many ground spreads (at their own
         scale) darker or lighter than the ground that no object touches are added (rule R8
@@ -280,6 +288,10 @@ def segment_image(
         )
     if not shadow_noise_m >= 0:
         raise ValueError(f"shadow_noise_m must be >= 0 (0 disables), got {shadow_noise_m}")
+    if not 0 <= height_grow_fraction <= 1:
+        raise ValueError(
+            f"height_grow_fraction must be in [0, 1] (0 disables), got {height_grow_fraction}"
+        )
     if not blob_sigmas >= 0 or not height_blob_sigmas >= 0:
         raise ValueError(
             "blob_sigmas and height_blob_sigmas must be >= 0 (0 disables), got "
@@ -432,6 +444,19 @@ def segment_image(
         )
         if faces:
             notes.append(f"{faces} px of shaded faces joined to lit ones")
+    if contrast is not None and relative is not None and heights_usable and height_grow_fraction:
+        # R7f, after R7e (whose joined faces count as the object's own): the raised rest
+        noise = _row_band_sigma(relative, np.isfinite(relative) & (labels == 0))
+        labels, raised = grow_raised_parts(
+            labels,
+            contrast,
+            relative,
+            noise,
+            fraction=height_grow_fraction,
+            min_height_m=min_height_m,
+        )
+        if raised:
+            notes.append(f"{raised} px of raised rock joined to partial objects")
     if method == "sector-histogram+depth" and blob_sigmas > 0:
         # R8, after every rule: only rocks no object touches are added
         labels, blobs = add_compact_blobs(
@@ -616,7 +641,7 @@ def _sector_product(name: str, dtype: str, long_name: str, units: str = "") -> P
 
 STAGE = Stage(
     name="segment",
-    version="30",
+    version="31",
     inputs=("left", "right", "disparity", "height"),
     outputs=(
         Product(
@@ -767,6 +792,15 @@ STAGE = Stage(
             "depth: rows this precise (m) split a lit rock's dark neighbour by height; 0 = off",
             None,
             0,
+        ),
+        Param(
+            "height_grow_fraction",
+            float,
+            0.5,
+            "depth: near raised objects grow over pixels above this x their core height; 0 = off",
+            None,
+            0,
+            1,
         ),
         Param(
             "tile_px",

@@ -1,0 +1,116 @@
+"""Tests of stages/_height_grow.py: a partial near rock grows over its raised rest (R7f)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from stages._height_grow import grow_raised_parts
+
+SHAPE = (60, 80)
+ROCK_M = 0.04  # a near rock's height, 10 sigmas of 4 mm
+NOISE_M = 0.004
+
+
+def partial_rock_scene(*, rest_contrast: float = -0.6, found_cols: int = 18):
+    """A dark rock, rows 15-44 and columns 20-49, standing ``ROCK_M`` high; only its left
+    ``found_cols`` columns are object 1 (past the low threshold, contrast -2), the rest is
+    ``rest_contrast`` bands from the ground's gray level (within the thresholds)."""
+    labels = np.zeros(SHAPE, np.int32)
+    contrast = np.zeros(SHAPE, np.float32)
+    relative = np.zeros(SHAPE, np.float32)
+    rows, cols = slice(15, 45), slice(20, 50)
+    relative[rows, cols] = ROCK_M
+    contrast[rows, cols] = rest_contrast
+    found = slice(20, 20 + found_cols)
+    contrast[rows, found] = -2.0
+    labels[rows, found] = 1
+    return labels, contrast, relative, np.full(SHAPE[0], NOISE_M)
+
+
+def test_partial_rock_grows_over_its_raised_rest_on_its_gray_side():
+    labels, contrast, relative, noise = partial_rock_scene()
+    out, grown = grow_raised_parts(labels, contrast, relative, noise)
+    # the raised footprint (12 columns, R7f's farthest growth), no ground pixel, but for
+    # its two outer corners: their window holds more ground (contrast 0) than rock
+    assert set(np.unique(out)) == {0, 1}
+    assert not (out > 0)[relative == 0].any()
+    missed = np.argwhere((relative > 0) & (out == 0))
+    assert missed.tolist() == [[15, 49], [44, 49]] and grown == 30 * 12 - 2
+
+
+def test_raised_fringe_on_the_other_gray_side_is_not_taken():
+    # the stereo fringe: raised ground around the rock whose gray scatters both ways; the
+    # 5x5 mean of a checkerboard of +-1 bands is near the ground's level
+    labels, contrast, relative, noise = partial_rock_scene(found_cols=30)
+    relative[10:50, 15:55] = np.maximum(relative[10:50, 15:55], 0.03)
+    checker = np.indices(SHAPE).sum(axis=0) % 2 * 2.0 - 1.0
+    ring = (relative > 0) & (labels == 0)
+    contrast[ring] = checker[ring]
+    out, grown = grow_raised_parts(labels, contrast, relative, noise)
+    assert grown == 0 and np.array_equal(out, labels)
+
+
+def test_rest_lighter_than_the_ground_does_not_join_a_dark_object():
+    labels, contrast, relative, noise = partial_rock_scene(rest_contrast=0.6)
+    out, grown = grow_raised_parts(labels, contrast, relative, noise)
+    assert grown == 0 and np.array_equal(out, labels)
+
+
+def test_small_object_low_core_or_noisy_rows_are_not_grown():
+    labels, contrast, relative, noise = partial_rock_scene(found_cols=4)  # 120 px < 150
+    assert grow_raised_parts(labels, contrast, relative, noise)[1] == 0
+    labels, contrast, relative, noise = partial_rock_scene()
+    # 4.5 sigmas of a 9 mm row noise: too noisy a row, and too low a core
+    assert grow_raised_parts(labels, contrast, relative, np.full(SHAPE[0], 0.009))[1] == 0
+    assert grow_raised_parts(labels, contrast, relative * 0.45, noise)[1] == 0
+
+
+def test_growth_stops_at_half_the_core_height_and_after_max_steps():
+    labels, contrast, relative, noise = partial_rock_scene()
+    relative[15:45, 44:50] = 0.4 * ROCK_M  # the far part lies below half the core
+    out, grown = grow_raised_parts(labels, contrast, relative, noise)
+    # less the two outer corners' 2 px each that the opening with a disk rounds off
+    assert grown == 30 * 6 - 4 and np.all(out[17:43, 20:44] == 1) and not out[:, 44:].any()
+    labels, contrast, relative, noise = partial_rock_scene()
+    out, grown = grow_raised_parts(labels, contrast, relative, noise, max_steps=3)
+    assert grown == 30 * 3 and np.all(out[15:45, 20:41] == 1) and not out[:, 41:].any()
+
+
+def test_pixels_of_other_objects_are_kept_and_highest_core_grows_first():
+    labels, contrast, relative, noise = partial_rock_scene()
+    labels[15:45, 44:50] = 2  # a lower dark object on the rock's right edge
+    relative[15:45, 44:50] = 0.8 * ROCK_M
+    out, grown = grow_raised_parts(labels, contrast, relative, noise)
+    assert grown == 30 * 6 - 4  # the corners next to object 2 rounded off
+    assert np.all(out[17:43, 20:44] == 1) and np.all(out[15:45, 44:50] == 2)
+
+
+def test_zero_fraction_disables_and_bad_arguments_are_refused():
+    labels, contrast, relative, noise = partial_rock_scene()
+    out, grown = grow_raised_parts(labels, contrast, relative, noise, fraction=0)
+    assert grown == 0 and out is labels
+    with pytest.raises(ValueError, match="fraction must be in"):
+        grow_raised_parts(labels, contrast, relative, noise, fraction=1.5)
+    with pytest.raises(ValueError, match="one value per row"):
+        grow_raised_parts(labels, contrast, relative, noise[:-1])
+    with pytest.raises(ValueError, match="must have one shape"):
+        grow_raised_parts(labels, contrast[:-1], relative, noise)
+
+
+def test_invalid_heights_are_not_grown_over():
+    labels, contrast, relative, noise = partial_rock_scene()
+    relative[15:45, 44:50] = np.nan
+    out, grown = grow_raised_parts(labels, contrast, relative, noise)
+    assert grown == 30 * 6 - 4 and not out[:, 44:].any()
+
+
+def test_raised_ground_above_the_top_row_and_thin_strands_are_not_taken():
+    labels, contrast, relative, noise = partial_rock_scene(found_cols=30)
+    # raised, dark ground behind the rock (above its top row) and a 2-px strand to its right
+    relative[5:15, 20:50] = ROCK_M
+    contrast[5:15, 20:50] = -0.6
+    relative[28:30, 50:60] = ROCK_M
+    contrast[28:30, 50:60] = -0.6
+    out, grown = grow_raised_parts(labels, contrast, relative, noise)
+    assert grown == 0 and np.array_equal(out, labels)
