@@ -236,18 +236,24 @@ def _blob_statistics(
 @njit(cache=True)
 def _blob_pass(blob_ids, z, ring, interior, peaks, counts):  # pragma: no cover - numba
     rows, cols = blob_ids.shape
+    # blob 0's ring count in a register: ``counts[1, 0] += 1`` on most ring pixels makes
+    # each wait for the last store
+    ground_ring = 0
     for y in range(rows):
         for x in range(cols):
             k = blob_ids[y, x]
+            if k == 0:
+                if ring[y, x]:
+                    ground_ring += 1
+                continue
             if ring[y, x]:
                 counts[1, k] += 1
-            if k == 0:
-                continue
             if z[y, x] > peaks[k]:
                 peaks[k] = z[y, x]
             counts[0, k] += 1
             if interior[y, x]:
                 counts[2, k] += 1
+    counts[1, 0] += ground_ring
 
 
 def _ground_level(image: np.ndarray, ground_px: int) -> np.ndarray:

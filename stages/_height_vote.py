@@ -185,12 +185,23 @@ def _object_counts(
 @njit(cache=True)
 def _count_pass(components, valid, counts):  # pragma: no cover - numba
     rows, cols = components.shape
+    # label 0's counts in registers: ``counts[0, 0] += 1`` on most pixels makes each wait
+    # for the last store (several times slower)
+    ground = 0
+    ground_valid = 0
     for y in range(rows):
         for x in range(cols):
             k = components[y, x]
-            counts[0, k] += 1
-            if valid[y, x]:
-                counts[1, k] += 1
+            if k == 0:
+                ground += 1
+                if valid[y, x]:
+                    ground_valid += 1
+            else:
+                counts[0, k] += 1
+                if valid[y, x]:
+                    counts[1, k] += 1
+    counts[0, 0] += ground
+    counts[1, 0] += ground_valid
 
 
 @njit(cache=True)
