@@ -62,6 +62,8 @@ lava, but switched on there dunes runs gain 1-5 and mojave runs 9-15 more false 
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import cv2
 import numpy as np
 from numba import njit
@@ -69,7 +71,7 @@ from numba import njit
 from ._regions import _box_window, _label_sums, _lookup, _object_boxes
 from ._sectors import sector_edges
 
-__all__ = ["add_compact_blobs"]
+__all__ = ["BlobScales", "add_compact_blobs", "blob_scales"]
 
 # Gaussian scale of the blob search, px: a 30-150 px rock keeps its contrast, 2-5 px
 # blotches lose most of theirs
@@ -112,6 +114,7 @@ def add_compact_blobs(
     min_interior: float = _MIN_INTERIOR,
     max_ring: float = _MAX_RING,
     light_factor: float = _LIGHT_FACTOR,
+    _scales: BlobScales | None = None,
 ) -> tuple[np.ndarray, int]:
     """Rule R8: add compact blobs darker or lighter than the ground at their own scale.
 
@@ -137,6 +140,9 @@ def add_compact_blobs(
         In ``[0, 1]``; shape and isolation tests of a region (module docstring).
     light_factor : float
         ``>= 1``; lighter blobs need ``light_factor * min_sigmas``.
+    _scales : BlobScales, optional
+        :func:`blob_scales` of this very ``image`` (R8 and R8b share them); computed here
+        when absent or made of another image or settings.
 
     Returns
     -------
@@ -168,11 +174,9 @@ def add_compact_blobs(
             f"{min_solidity}, {min_interior} and {max_ring}"
         )
     labels = labels.astype(np.int32, copy=True)
-    pixels = image.astype(np.float32)
-    ground = _ground_level(image, ground_px)
-    at_scale = cv2.GaussianBlur(pixels, (0, 0), sigma_px) - ground
-    # the rock's own gray, only lightly smoothed: its outline, not the blob's
-    fine = cv2.GaussianBlur(pixels, (0, 0), 0.8) - ground
+    if _scales is None or _scales.key != (sigma_px, ground_px) or _scales.image is not image:
+        _scales = blob_scales(image, sigma_px=sigma_px, ground_px=ground_px)
+    at_scale, fine = _scales.at_scale, _scales.fine
     taken = labels > 0
     ring = _dilate(taken, margin_px)
     spread = _tile_spread(at_scale, ~ring, tile_px)
@@ -219,6 +223,39 @@ def add_compact_blobs(
             next_id += 1
             added += 1
     return labels, added
+
+
+@dataclass(frozen=True)
+class BlobScales:
+    """The image-only maps of R8's search (step 1), computed once per frame.
+
+    Attributes
+    ----------
+    image : (M, N) ndarray of uint8
+        The image they were made of (compared by identity).
+    key : tuple of (float, int)
+        ``(sigma_px, ground_px)``.
+    at_scale, fine : (M, N) ndarray of float32
+        The image smoothed at ``sigma_px`` and at 0.8 px, minus the ground level.
+    """
+
+    image: np.ndarray
+    key: tuple[float, int]
+    at_scale: np.ndarray
+    fine: np.ndarray
+
+
+def blob_scales(
+    image: np.ndarray, *, sigma_px: float = _SIGMA_PX, ground_px: int = _GROUND_PX
+) -> BlobScales:
+    """R8's contrast maps of ``image`` (uint8, 2-D), for :func:`add_compact_blobs` calls on
+    one frame (R8, then R8b's candidates) to share; settings as there."""
+    pixels = image.astype(np.float32)
+    ground = _ground_level(image, ground_px)
+    at_scale = cv2.GaussianBlur(pixels, (0, 0), sigma_px) - ground
+    # the rock's own gray, only lightly smoothed: its outline, not the blob's
+    fine = cv2.GaussianBlur(pixels, (0, 0), 0.8) - ground
+    return BlobScales(image=image, key=(sigma_px, ground_px), at_scale=at_scale, fine=fine)
 
 
 def _blob_statistics(

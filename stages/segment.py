@@ -55,7 +55,7 @@ import numpy as np
 from pipeline.compute import compute
 from pipeline.stage import FrameContext, Param, Product, Stage, StageResult
 
-from ._blobs import add_compact_blobs
+from ._blobs import add_compact_blobs, blob_scales
 from ._continuity import SectorAnalysis, analyse_sectors
 from ._depth_rules import (
     _NOISY_SIGMA_M,
@@ -457,18 +457,27 @@ def segment_image(
         )
         if raised:
             notes.append(f"{raised} px of raised rock joined to partial objects")
-    if method == "sector-histogram+depth" and blob_sigmas > 0:
+    run_r8 = method == "sector-histogram+depth" and blob_sigmas > 0
+    run_r8b = relative is not None and heights_usable and height_blob_sigmas > 0
+    # R8 and R8b's candidates search one image: its smoothed maps are made once
+    scales = blob_scales(image) if run_r8 and run_r8b else None
+    if run_r8:
         # R8, after every rule: only rocks no object touches are added
         labels, blobs = add_compact_blobs(
-            labels, image, min_sigmas=blob_sigmas, min_area_px=min_area_px
+            labels, image, min_sigmas=blob_sigmas, min_area_px=min_area_px, _scales=scales
         )
         if blobs:
             notes.append(f"{blobs} compact blob(s) no threshold reached added")
-    if relative is not None and heights_usable and height_blob_sigmas > 0:
+    if run_r8b:
         # R8b, after R8: fainter blobs, kept on the heights' and the edges' word (R2d's
         # bump map means nothing where the heights are unusable)
         labels, bumps = add_height_blobs(
-            labels, image, relative, min_sigmas=height_blob_sigmas, min_area_px=min_area_px
+            labels,
+            image,
+            relative,
+            min_sigmas=height_blob_sigmas,
+            min_area_px=min_area_px,
+            _scales=scales,
         )
         if bumps:
             notes.append(f"{bumps} faint blob(s) standing as height bumps added")
