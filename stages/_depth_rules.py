@@ -104,6 +104,7 @@ import numpy as np
 from ._height_vote import (
     _VOTE_VALID_FRACTION,
     _VOTE_VALID_PX,
+    BumpWeights,
     _object_counts,
     noisy_depth_rules,
 )
@@ -161,6 +162,7 @@ def apply_depth_rules(
     min_raised_fraction: float = 0.1,
     contrast: np.ndarray | None = None,
     relative: np.ndarray | None = None,
+    _weights: BumpWeights | None = None,
 ) -> tuple[np.ndarray, DepthRuleStats]:
     """Combine an intensity mask with height above ground (rules R0-R3 of the module doc).
 
@@ -190,6 +192,8 @@ def apply_depth_rules(
         ``relative_height(height, smoothing_px=..., ground_window_px=...)`` when the caller
         has it already (:func:`stages.segment.segment_image` reads it again for R7e);
         computed here otherwise.
+    _weights : BumpWeights, optional
+        Kept by R2d's bump map (noisy heights) for the frame's later ones (R8b).
 
     Returns
     -------
@@ -229,7 +233,9 @@ def apply_depth_rules(
         # the vote reads single unsmoothed heights: measure their noise the same way
         raw_relative = height - local_ground(height, window_px=ground_window_px)
         raw_sigma = _robust_sigma(raw_relative[np.isfinite(raw_relative) & ~mask])
-        return noisy_depth_rules(mask, raw_relative, raw_sigma, contrast=contrast)
+        return noisy_depth_rules(
+            mask, raw_relative, raw_sigma, contrast=contrast, _weights=_weights
+        )
     raise_m = max(min_height_m, _RAISE_SIGMAS * sigma)
     flat_m = min(max(flat_tol_m, 2.0 * sigma), 0.5 * raise_m)
     # R0b: far rows are noisier than the frame as a whole (height noise grows with range^2);

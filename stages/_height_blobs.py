@@ -61,7 +61,7 @@ import numpy as np
 from numba import njit
 
 from ._blobs import BlobScales, add_compact_blobs
-from ._height_vote import _height_bumps
+from ._height_vote import BumpWeights, _height_bumps
 
 __all__ = ["add_height_blobs", "detail_ratio"]
 
@@ -119,6 +119,7 @@ def add_height_blobs(
     min_bump: float = _MIN_BUMP,
     min_texture: float = _MIN_TEXTURE,
     _scales: BlobScales | None = None,
+    _weights: BumpWeights | None = None,
 ) -> tuple[np.ndarray, int]:
     """Rule R8b: add faint compact blobs that stand as a height bump with crisp edges.
 
@@ -141,6 +142,8 @@ def add_height_blobs(
         ``>= 0``: the blob's fine gray detail over the detail around it.
     _scales : BlobScales, optional
         R8's image maps of ``image`` (:func:`stages._blobs.blob_scales`), shared with R8.
+    _weights : BumpWeights, optional
+        The frame's bump-map weights, shared with R2d.
 
     Returns
     -------
@@ -163,7 +166,9 @@ def add_height_blobs(
     )
     if n_found == 0:
         return found, 0
-    bumps = _height_bumps(relative.astype(np.float32, copy=False), labels > 0)
+    bumps = _height_bumps(
+        relative.astype(np.float32, copy=False), labels > 0, _weights=_weights
+    )
     detail, around = detail_ratio(image)
     count = n_found + 1
     peak, pixels, detail_sum, around_sum = _blob_cues(found, first, count, bumps, detail, around)

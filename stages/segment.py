@@ -67,6 +67,7 @@ from ._depth_rules import (
 from ._depth_rules import _UNUSABLE_SIGMA_M as _USABLE_SIGMA_M
 from ._height_blobs import add_height_blobs
 from ._height_grow import grow_raised_parts
+from ._height_vote import BumpWeights
 from ._heights import DepthRuleStats, relative_height
 from ._outlines import split_at_necks, trim_faint_rims
 from ._regions import depth_edges, label_objects, threshold_mask
@@ -325,6 +326,8 @@ def segment_image(
     strong = mask  # past a threshold (R7 grows into the other pixels only)
 
     notes: list[str] = []
+    # R2d's bump-map weights, kept for R8b's map (both read the height map's valid pixels)
+    bump_weights = BumpWeights()
     depth_stats = None
     edges = None
     contrast = None
@@ -355,6 +358,7 @@ def segment_image(
                 min_raised_fraction=min_raised_fraction,
                 contrast=contrast,
                 relative=relative,
+                _weights=bump_weights,
             )
         else:
             notes.append(
@@ -478,6 +482,7 @@ def segment_image(
             min_sigmas=height_blob_sigmas,
             min_area_px=min_area_px,
             _scales=scales,
+            _weights=bump_weights,
         )
         if bumps:
             notes.append(f"{bumps} faint blob(s) standing as height bumps added")
