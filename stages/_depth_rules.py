@@ -284,7 +284,11 @@ def apply_depth_rules(
 
 
 def _row_band_sigma(
-    relative: np.ndarray, usable: np.ndarray, *, bands: int = _ROW_BANDS
+    relative: np.ndarray,
+    usable: np.ndarray,
+    *,
+    bands: int = _ROW_BANDS,
+    _memo: dict[tuple[int, int], tuple[np.ndarray, float]] | None = None,
 ) -> np.ndarray:
     """Robust height noise per row (rule R0b).
 
@@ -297,6 +301,10 @@ def _row_band_sigma(
     bands : int
         Horizontal bands of rows; each gets the MAD sigma of its usable heights in every
         other column (0 with fewer than 50), interpolated linearly between band centres.
+    _memo : dict, optional
+        Each band's sampled ``usable`` pixels and sigma, kept across calls on one
+        ``relative`` (R7e, then R7f): a band whose pixels did not change is not measured
+        again. Empty on the first call; never shared between height maps.
 
     Returns
     -------
@@ -309,9 +317,16 @@ def _row_band_sigma(
     values = np.zeros(bands)
     for band, (start, stop) in enumerate(zip(edges[:-1], edges[1:], strict=True)):
         # every other column: plenty of heights for a MAD, half the cost
-        heights = relative[start:stop, ::2][usable[start:stop, ::2]]
+        sampled = usable[start:stop, ::2]
+        known = _memo.get((start, stop)) if _memo is not None else None
+        if known is not None and np.array_equal(known[0], sampled):
+            values[band] = known[1]
+            continue
+        heights = relative[start:stop, ::2][sampled]
         if heights.size >= 50:
             values[band] = _robust_sigma(heights)
+        if _memo is not None:
+            _memo[(start, stop)] = (sampled.copy(), values[band])
     return np.interp(np.arange(rows), centres, values)
 
 

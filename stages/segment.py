@@ -436,26 +436,26 @@ def segment_image(
         if rims:
             notes.append(f"{rims} px of faint rims dropped")
     heights_usable = depth_stats is not None and depth_stats.ground_sigma_m <= _USABLE_SIGMA_M
-    if contrast is not None and relative is not None and heights_usable and shadow_noise_m > 0:
+    row_noise = _RowNoise(relative) if relative is not None else None
+    if contrast is not None and row_noise is not None and heights_usable and shadow_noise_m > 0:
         # R7e, after R7d: where heights are precise, a shaded face and its cast shadow
         labels, faces = _split_shadow_sides(
             labels,
             contrast,
-            relative,
+            row_noise,
             max_noise_m=shadow_noise_m,
             min_height_m=min_height_m,
             flat_tol_m=flat_tol_m,
         )
         if faces:
             notes.append(f"{faces} px of shaded faces joined to lit ones")
-    if contrast is not None and relative is not None and heights_usable and height_grow_fraction:
+    if contrast is not None and row_noise is not None and heights_usable and height_grow_fraction:
         # R7f, after R7e (whose joined faces count as the object's own): the raised rest
-        noise = _row_band_sigma(relative, np.isfinite(relative) & (labels == 0))
         labels, raised = grow_raised_parts(
             labels,
             contrast,
-            relative,
-            noise,
+            row_noise.relative,
+            row_noise(labels),
             fraction=height_grow_fraction,
             min_height_m=min_height_m,
         )
@@ -491,10 +491,25 @@ def segment_image(
     )
 
 
+class _RowNoise:
+    """R0b's band noise of the ground as the objects stand (every other column), for R7e
+    and R7f: a band is measured again only when its ground pixels changed between them."""
+
+    def __init__(self, relative: np.ndarray) -> None:
+        self.relative = relative
+        self._valid = np.isfinite(relative)
+        self._memo: dict[tuple[int, int], tuple[np.ndarray, float]] = {}
+
+    def __call__(self, labels: np.ndarray) -> np.ndarray:
+        """Per row of ``labels`` (0 ground), the noise of the valid ground heights, m."""
+        usable = self._valid & (labels == 0)
+        return _row_band_sigma(self.relative, usable, _memo=self._memo)
+
+
 def _split_shadow_sides(
     labels: np.ndarray,
     contrast: np.ndarray,
-    relative: np.ndarray,
+    row_noise: _RowNoise,
     *,
     max_noise_m: float,
     min_height_m: float,
@@ -503,13 +518,11 @@ def _split_shadow_sides(
     """R7e on the heights the depth rules read: relative to R0's local ground, R0b's noise."""
     if not labels.any():
         return labels, 0
-    # the noise of the ground as the objects now stand (R0b's bands, every other column)
-    noise = _row_band_sigma(relative, np.isfinite(relative) & (labels == 0))
     return split_shadow_sides(
         labels,
         contrast,
-        relative,
-        noise,
+        row_noise.relative,
+        row_noise(labels),
         max_noise_m=max_noise_m,
         min_height_m=min_height_m,
         flat_tol_m=flat_tol_m,
