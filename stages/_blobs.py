@@ -346,24 +346,62 @@ def _grow(
     # (level 0, outside the cores, is 0)
     levels = _lookup(np.clip(np.round(level), 0, 255).astype(np.uint8), core_ids)
     reach = cv2.dilate(levels, np.ones((2 * grow_px + 1, 2 * grow_px + 1), np.uint8))
-    # reach is uint8: compared as float32, not multiplied into float64
-    past = (reach > 0) & (contrast >= np.float32(_GROW_SHARE) * reach.astype(np.float32)) & free
+    past = _reachable(reach, contrast, free)
     n_parts, parts = cv2.connectedComponents(past.view(np.uint8), connectivity=8)
     seeded = np.zeros(n_parts, bool)
     seeded[parts[cores & past]] = True
     seeded[0] = False
     # blotches of ground texture touching a rock hang off it by a pixel or two
-    filled = _fill_holes(_lookup(seeded, parts))
+    filled = _fill_seeded_holes(seeded, parts)
     opened = cv2.morphologyEx(filled.view(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
     return opened > 0
 
 
-def _fill_holes(mask: np.ndarray) -> np.ndarray:
-    """``mask`` with every background pocket it encloses (8-connected outline) filled."""
-    outside = np.pad(~mask, 1, constant_values=True).astype(np.uint8)
+def _reachable(reach: np.ndarray, contrast: np.ndarray, free: np.ndarray) -> np.ndarray:
+    """``(reach > 0) & (contrast >= 0.5 * reach) & free`` (reach uint8 compared as float32,
+    contrast float32), in one compiled pass instead of five whole-frame temporaries
+    (``test_blobs.py`` compares them)."""
+    out = np.empty(reach.shape, bool)
+    _reach_pass(
+        np.ascontiguousarray(reach),
+        np.ascontiguousarray(contrast, dtype=np.float32),
+        np.ascontiguousarray(free),
+        out,
+    )
+    return out
+
+
+@njit(cache=True)
+def _reach_pass(reach, contrast, free, out):  # pragma: no cover - numba
+    share = np.float32(_GROW_SHARE)
+    rows, cols = reach.shape
+    for y in range(rows):
+        for x in range(cols):
+            r = reach[y, x]
+            out[y, x] = r > 0 and free[y, x] and contrast[y, x] >= share * np.float32(r)
+
+
+def _fill_seeded_holes(seeded: np.ndarray, parts: np.ndarray) -> np.ndarray:
+    """``seeded[parts]`` with every background pocket it encloses (8-connected outline)
+    filled; the padded flood image is written straight from the parts (one compiled pass
+    for the lookup, the padding and the negation; ``test_blobs.py`` compares)."""
+    outside = np.empty((parts.shape[0] + 2, parts.shape[1] + 2), np.uint8)
+    _pad_outside(seeded, np.ascontiguousarray(parts), outside)
     # flood the background from the border; what it cannot reach is enclosed
     cv2.floodFill(outside, None, (0, 0), 2, flags=4)
-    return (outside[1:-1, 1:-1] != 2)
+    return outside[1:-1, 1:-1] != 2
+
+
+@njit(cache=True)
+def _pad_outside(seeded, parts, outside):  # pragma: no cover - numba
+    rows, cols = parts.shape
+    outside[0, :] = 1
+    outside[rows + 1, :] = 1
+    for y in range(rows):
+        outside[y + 1, 0] = 1
+        outside[y + 1, cols + 1] = 1
+        for x in range(cols):
+            outside[y + 1, x + 1] = 0 if seeded[parts[y, x]] else 1
 
 
 def _is_solid(region: np.ndarray, *, min_solidity: float) -> bool:

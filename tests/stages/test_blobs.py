@@ -7,7 +7,12 @@ import numpy as np
 import pytest
 from object_masks import disk
 
-from stages._blobs import _blob_statistics, add_compact_blobs
+from stages._blobs import (
+    _blob_statistics,
+    _fill_seeded_holes,
+    _reachable,
+    add_compact_blobs,
+)
 
 SHAPE = (160, 160)
 
@@ -124,3 +129,27 @@ def test_blob_statistics_equal_their_numpy_twin():
         np.testing.assert_array_equal(
             inner, np.bincount(blob_ids[interior], minlength=n_blobs)
         )
+
+
+def test_reachable_and_seeded_fill_equal_their_numpy_twins():
+    # the twins: the whole-frame expressions and the pad-and-flood the passes replaced
+    rng = np.random.default_rng(8)
+    for _ in range(20):
+        shape = tuple(rng.integers(1, 50, 2))
+        reach = rng.integers(0, 40, shape).astype(np.uint8)
+        reach[rng.random(shape) < 0.3] = 0
+        contrast = rng.normal(5, 10, shape).astype(np.float32)
+        contrast[rng.random(shape) < 0.05] = np.nan
+        free = rng.random(shape) < 0.8
+        past = _reachable(reach, contrast, free)
+        np.testing.assert_array_equal(
+            past,
+            (reach > 0) & (contrast >= np.float32(0.5) * reach.astype(np.float32)) & free,
+        )
+        n_parts, parts = cv2.connectedComponents(past.view(np.uint8), connectivity=8)
+        seeded = rng.random(n_parts) < 0.6
+        seeded[0] = False
+        mask = seeded[parts]
+        outside = np.pad(~mask, 1, constant_values=True).astype(np.uint8)
+        cv2.floodFill(outside, None, (0, 0), 2, flags=4)
+        np.testing.assert_array_equal(_fill_seeded_holes(seeded, parts), outside[1:-1, 1:-1] != 2)
