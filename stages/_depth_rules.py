@@ -115,7 +115,7 @@ from ._heights import (
     local_ground,
     relative_height,
 )
-from ._regions import CLEAR_CONTRAST, _coerce_mask, _lookup, _renumber
+from ._regions import CLEAR_CONTRAST, _coerce_mask, _label_areas, _lookup, _renumber
 
 # Ground height noise (MAD sigma, metres) above which single heights are not trusted.
 _NOISY_SIGMA_M = 0.005
@@ -262,7 +262,7 @@ def apply_depth_rules(
     count, components = cv2.connectedComponents(remaining.view(np.uint8), connectivity=8)
     n_valid = np.bincount(components[readable], minlength=count)
     n_raised = np.bincount(components[raised], minlength=count)
-    n_pixels = np.bincount(components.ravel(), minlength=count)
+    n_pixels = _label_areas(components, count)
     n_low = np.bincount(components[readable & (relative < 0.5 * raise_m)], minlength=count)
     lying = (
         (n_valid >= 0.5 * n_pixels)
