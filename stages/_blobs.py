@@ -187,9 +187,10 @@ def add_compact_blobs(
     outside = ~ring
     for sign in (-1.0, 1.0):
         # contrast on this side of the ground positive
-        z_side, fine_side = (-z, -fine) if sign < 0 else (z, fine)
-        cores = (z_side >= min_sigmas) & outside
-        grown = _grow(cores, fine_side, free, grow_px)
+        # (-z >= min_sigmas is z <= -min_sigmas: negation is exact, and the helpers take
+        # the sign rather than whole-frame negated copies)
+        cores = ((z <= -min_sigmas) if sign < 0 else (z >= min_sigmas)) & outside
+        grown = _grow(cores, fine, free, grow_px, sign=sign)
         # overlapping regions of one side are one blob
         n_blobs, blob_ids = cv2.connectedComponents(grown.view(np.uint8), connectivity=8)
         if n_blobs == 1:
@@ -197,7 +198,9 @@ def add_compact_blobs(
         # the interior test for all blobs at once: one blob's 3x3 neighbourhood holds no
         # other blob's pixels (they would be one blob), and the frame's edge erodes nothing
         interior = cv2.erode(grown.view(np.uint8), np.ones((3, 3), np.uint8)).view(bool)
-        peaks, areas, touching, inner = _blob_statistics(blob_ids, n_blobs, z_side, ring, interior)
+        peaks, areas, touching, inner = _blob_statistics(
+            blob_ids, n_blobs, z, ring, interior, sign=sign
+        )
         need = min_sigmas * (light_factor if sign > 0 else 1.0)
         candidate = (
             (peaks >= need)
@@ -216,7 +219,7 @@ def add_compact_blobs(
             c0, c1 = max(box[1].start - far, 0), box[1].stop + far
             region = blob_ids[r0:r1, c0:c1] == blob
             if not _is_solid(region, min_solidity=min_solidity) or not _stands_alone(
-                region, fine_side[r0:r1, c0:c1], free[r0:r1, c0:c1], max_ring=max_ring
+                region, fine[r0:r1, c0:c1], free[r0:r1, c0:c1], max_ring=max_ring, sign=sign
             ):
                 continue
             labels[r0:r1, c0:c1][region] = next_id
@@ -259,19 +262,25 @@ def blob_scales(
 
 
 def _blob_statistics(
-    blob_ids: np.ndarray, n_blobs: int, z: np.ndarray, ring: np.ndarray, interior: np.ndarray
+    blob_ids: np.ndarray,
+    n_blobs: int,
+    z: np.ndarray,
+    ring: np.ndarray,
+    interior: np.ndarray,
+    *,
+    sign: float = 1.0,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Per blob 0..n_blobs-1: peak of ``z`` (-inf for 0), pixels, whether a ``ring`` pixel
-    is its, and its ``interior`` pixels; one compiled pass instead of an ``ufunc.at`` and
-    three ``bincount`` of masked copies (``test_blobs.py`` compares them)."""
+    """Per blob 0..n_blobs-1: peak of ``sign * z`` (-inf for 0), pixels, whether a ``ring``
+    pixel is its, and its ``interior`` pixels; one compiled pass instead of an ``ufunc.at``
+    and three ``bincount`` of masked copies (``test_blobs.py`` compares them)."""
     peaks = np.full(n_blobs, -np.inf)
     counts = np.zeros((3, n_blobs), np.int64)
-    _blob_pass(blob_ids, np.ascontiguousarray(z), ring, interior, peaks, counts)
+    _blob_pass(blob_ids, np.ascontiguousarray(z), float(sign), ring, interior, peaks, counts)
     return peaks, counts[0], counts[1] > 0, counts[2]
 
 
 @njit(cache=True)
-def _blob_pass(blob_ids, z, ring, interior, peaks, counts):  # pragma: no cover - numba
+def _blob_pass(blob_ids, z, sign, ring, interior, peaks, counts):  # pragma: no cover - numba
     rows, cols = blob_ids.shape
     # blob 0's ring count in a register: ``counts[1, 0] += 1`` on most ring pixels makes
     # each wait for the last store
@@ -285,8 +294,10 @@ def _blob_pass(blob_ids, z, ring, interior, peaks, counts):  # pragma: no cover 
                 continue
             if ring[y, x]:
                 counts[1, k] += 1
-            if z[y, x] > peaks[k]:
-                peaks[k] = z[y, x]
+            # sign +-1: an exact negation, as of a negated copy
+            value = sign * z[y, x]
+            if value > peaks[k]:
+                peaks[k] = value
             counts[0, k] += 1
             if interior[y, x]:
                 counts[2, k] += 1
@@ -332,21 +343,23 @@ def _tile_spread(values: np.ndarray, use: np.ndarray, tile_px: int) -> np.ndarra
 
 
 def _grow(
-    cores: np.ndarray, contrast: np.ndarray, free: np.ndarray, grow_px: int
+    cores: np.ndarray, contrast: np.ndarray, free: np.ndarray, grow_px: int, *, sign: float = 1.0
 ) -> np.ndarray:
-    """The union of the cores' regions (module docstring, step 3), all cores at once."""
+    """The union of the cores' regions (module docstring, step 3), all cores at once;
+    contrast on the blobs' side is ``sign * contrast`` (+-1)."""
     n_cores, core_ids = cv2.connectedComponents(cores.view(np.uint8), connectivity=8)
     if n_cores == 1:
         return np.zeros(cores.shape, bool)
     counts, sums = _label_sums(core_ids, contrast, n_cores)
-    level = sums / np.maximum(counts, 1)
+    # a sum of negated values is the negated sum (rounding is symmetric)
+    level = (sign * sums) / np.maximum(counts, 1)
     level[0] = 0.0
     # each pixel within grow_px of a core needs half the contrast of the strongest one
     # whole gray levels: a uint8 dilation is several times faster than a float one
     # (level 0, outside the cores, is 0)
     levels = _lookup(np.clip(np.round(level), 0, 255).astype(np.uint8), core_ids)
     reach = cv2.dilate(levels, np.ones((2 * grow_px + 1, 2 * grow_px + 1), np.uint8))
-    past = _reachable(reach, contrast, free)
+    past = _reachable(reach, contrast, free, sign=sign)
     n_parts, parts = cv2.connectedComponents(past.view(np.uint8), connectivity=8)
     seeded = np.zeros(n_parts, bool)
     seeded[parts[cores & past]] = True
@@ -357,14 +370,17 @@ def _grow(
     return opened > 0
 
 
-def _reachable(reach: np.ndarray, contrast: np.ndarray, free: np.ndarray) -> np.ndarray:
-    """``(reach > 0) & (contrast >= 0.5 * reach) & free`` (reach uint8 compared as float32,
-    contrast float32), in one compiled pass instead of five whole-frame temporaries
-    (``test_blobs.py`` compares them)."""
+def _reachable(
+    reach: np.ndarray, contrast: np.ndarray, free: np.ndarray, *, sign: float = 1.0
+) -> np.ndarray:
+    """``(reach > 0) & (sign * contrast >= 0.5 * reach) & free`` (reach uint8 compared as
+    float32, contrast float32, sign +-1), in one compiled pass instead of five whole-frame
+    temporaries (``test_blobs.py`` compares them)."""
     out = np.empty(reach.shape, bool)
     _reach_pass(
         np.ascontiguousarray(reach),
         np.ascontiguousarray(contrast, dtype=np.float32),
+        np.float32(sign),
         np.ascontiguousarray(free),
         out,
     )
@@ -372,13 +388,13 @@ def _reachable(reach: np.ndarray, contrast: np.ndarray, free: np.ndarray) -> np.
 
 
 @njit(cache=True)
-def _reach_pass(reach, contrast, free, out):  # pragma: no cover - numba
+def _reach_pass(reach, contrast, sign, free, out):  # pragma: no cover - numba
     share = np.float32(_GROW_SHARE)
     rows, cols = reach.shape
     for y in range(rows):
         for x in range(cols):
             r = reach[y, x]
-            out[y, x] = r > 0 and free[y, x] and contrast[y, x] >= share * np.float32(r)
+            out[y, x] = r > 0 and free[y, x] and sign * contrast[y, x] >= share * np.float32(r)
 
 
 def _fill_seeded_holes(seeded: np.ndarray, parts: np.ndarray) -> np.ndarray:
@@ -416,10 +432,13 @@ def _is_solid(region: np.ndarray, *, min_solidity: float) -> bool:
 
 
 def _stands_alone(
-    region: np.ndarray, contrast: np.ndarray, free: np.ndarray, *, max_ring: float
+    region: np.ndarray, contrast: np.ndarray, free: np.ndarray, *, max_ring: float, sign: float
 ) -> bool:
-    """The isolation test of one region (module docstring, step 4)."""
+    """The isolation test of one region (module docstring, step 4), on ``sign * contrast``
+    (+-1: the mean of negated values is the negated mean)."""
     near, far = _RING_PX
     ring = _dilate(region, far) & ~_dilate(region, near - 1) & free
-    own = float(contrast[region].mean())
-    return not ring.any() or float(contrast[ring].mean()) <= max_ring * max(own, 1.0)
+    own = sign * float(contrast[region].mean())
+    if not ring.any():
+        return True
+    return sign * float(contrast[ring].mean()) <= max_ring * max(own, 1.0)

@@ -122,6 +122,12 @@ def test_blob_statistics_equal_their_numpy_twin():
         expected = np.full(n_blobs, -np.inf)
         np.maximum.at(expected, owners, z[grown])
         np.testing.assert_array_equal(peaks, expected)
+        # the dark side: the peaks of a negated copy
+        expected = np.full(n_blobs, -np.inf)
+        np.maximum.at(expected, owners, -z[grown])
+        np.testing.assert_array_equal(
+            _blob_statistics(blob_ids, n_blobs, z, ring, interior, sign=-1.0)[0], expected
+        )
         np.testing.assert_array_equal(areas, np.bincount(owners, minlength=n_blobs))
         np.testing.assert_array_equal(
             touching, np.bincount(blob_ids[ring], minlength=n_blobs) > 0
@@ -145,6 +151,10 @@ def test_reachable_and_seeded_fill_equal_their_numpy_twins():
         np.testing.assert_array_equal(
             past,
             (reach > 0) & (contrast >= np.float32(0.5) * reach.astype(np.float32)) & free,
+        )
+        np.testing.assert_array_equal(
+            _reachable(reach, contrast, free, sign=-1.0),
+            (reach > 0) & (-contrast >= np.float32(0.5) * reach.astype(np.float32)) & free,
         )
         n_parts, parts = cv2.connectedComponents(past.view(np.uint8), connectivity=8)
         seeded = rng.random(n_parts) < 0.6
