@@ -11,6 +11,7 @@ from stages._blobs import (
     _blob_statistics,
     _fill_seeded_holes,
     _reachable,
+    _tile_spread,
     add_compact_blobs,
 )
 
@@ -163,3 +164,22 @@ def test_reachable_and_seeded_fill_equal_their_numpy_twins():
         outside = np.pad(~mask, 1, constant_values=True).astype(np.uint8)
         cv2.floodFill(outside, None, (0, 0), 2, flags=4)
         np.testing.assert_array_equal(_fill_seeded_holes(seeded, parts), outside[1:-1, 1:-1] != 2)
+
+
+def test_tile_spread_memo_measures_changed_tiles_alike():
+    # R8b's search reuses R8's tile spreads where no free pixel changed
+    rng = np.random.default_rng(9)
+    values = rng.normal(0, 4, (130, 170)).astype(np.float32)
+    use = rng.random(values.shape) < 0.9
+    memo: dict = {}
+    for _ in range(4):
+        np.testing.assert_array_equal(
+            _tile_spread(values, use, 30, _memo=memo), _tile_spread(values, use, 30)
+        )
+        y, x = rng.integers(0, 120), rng.integers(0, 160)
+        use = use.copy()
+        use[y : y + 12, x : x + 9] = False
+    # another tiling starts afresh
+    np.testing.assert_array_equal(
+        _tile_spread(values, use, 20, _memo=memo), _tile_spread(values, use, 20)
+    )
