@@ -51,7 +51,10 @@ R8's isolation, solidity, light-factor or growth settings changed for the candid
 2.5-4, texture 1.2-1.8): +0.0022 to +0.0045.
 Switched on elsewhere: mojave catalog 0.912 -> 0.911 (tp +6, fp +8); lab unchanged
 (heights unusable); dunes catalog unchanged. Cost, 6 lava catalog frames, one process:
-about 25 ms of CPU per frame (R8's search again 14, the bump map 5, the detail maps 3).
+about 25 ms of CPU per frame (R8's search again 14, the bump map 5, the detail maps 3);
+10-14 ms on the 12 catalog frames since R8b shares R8's image maps and unchanged tile
+spreads (:class:`stages._blobs.BlobScales`) and R2d's bump-map weights
+(:class:`stages._height_vote.BumpWeights`), the same labels.
 """
 
 from __future__ import annotations
