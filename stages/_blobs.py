@@ -62,6 +62,8 @@ lava, but switched on there dunes runs gain 1-5 and mojave runs 9-15 more false 
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
+
 import cv2
 import numpy as np
 from numba import njit
@@ -69,7 +71,7 @@ from numba import njit
 from ._regions import _box_window, _label_sums, _lookup, _object_boxes
 from ._sectors import sector_edges
 
-__all__ = ["add_compact_blobs"]
+__all__ = ["BlobScales", "add_compact_blobs", "blob_scales"]
 
 # Gaussian scale of the blob search, px: a 30-150 px rock keeps its contrast, 2-5 px
 # blotches lose most of theirs
@@ -112,6 +114,7 @@ def add_compact_blobs(
     min_interior: float = _MIN_INTERIOR,
     max_ring: float = _MAX_RING,
     light_factor: float = _LIGHT_FACTOR,
+    _scales: BlobScales | None = None,
 ) -> tuple[np.ndarray, int]:
     """Rule R8: add compact blobs darker or lighter than the ground at their own scale.
 
@@ -137,6 +140,9 @@ def add_compact_blobs(
         In ``[0, 1]``; shape and isolation tests of a region (module docstring).
     light_factor : float
         ``>= 1``; lighter blobs need ``light_factor * min_sigmas``.
+    _scales : BlobScales, optional
+        :func:`blob_scales` of this very ``image`` (R8 and R8b share them); computed here
+        when absent or made of another image or settings.
 
     Returns
     -------
@@ -168,14 +174,12 @@ def add_compact_blobs(
             f"{min_solidity}, {min_interior} and {max_ring}"
         )
     labels = labels.astype(np.int32, copy=True)
-    pixels = image.astype(np.float32)
-    ground = _ground_level(image, ground_px)
-    at_scale = cv2.GaussianBlur(pixels, (0, 0), sigma_px) - ground
-    # the rock's own gray, only lightly smoothed: its outline, not the blob's
-    fine = cv2.GaussianBlur(pixels, (0, 0), 0.8) - ground
+    if _scales is None or _scales.key != (sigma_px, ground_px) or _scales.image is not image:
+        _scales = blob_scales(image, sigma_px=sigma_px, ground_px=ground_px)
+    at_scale, fine = _scales.at_scale, _scales.fine
     taken = labels > 0
     ring = _dilate(taken, margin_px)
-    spread = _tile_spread(at_scale, ~ring, tile_px)
+    spread = _tile_spread(at_scale, ~ring, tile_px, _memo=_scales.tiles)
     z = at_scale / np.maximum(spread, _MIN_SPREAD)
     free = ~taken
     added = 0
@@ -183,9 +187,10 @@ def add_compact_blobs(
     outside = ~ring
     for sign in (-1.0, 1.0):
         # contrast on this side of the ground positive
-        z_side, fine_side = (-z, -fine) if sign < 0 else (z, fine)
-        cores = (z_side >= min_sigmas) & outside
-        grown = _grow(cores, fine_side, free, grow_px)
+        # (-z >= min_sigmas is z <= -min_sigmas: negation is exact, and the helpers take
+        # the sign rather than whole-frame negated copies)
+        cores = ((z <= -min_sigmas) if sign < 0 else (z >= min_sigmas)) & outside
+        grown = _grow(cores, fine, free, grow_px, sign=sign)
         # overlapping regions of one side are one blob
         n_blobs, blob_ids = cv2.connectedComponents(grown.view(np.uint8), connectivity=8)
         if n_blobs == 1:
@@ -193,7 +198,9 @@ def add_compact_blobs(
         # the interior test for all blobs at once: one blob's 3x3 neighbourhood holds no
         # other blob's pixels (they would be one blob), and the frame's edge erodes nothing
         interior = cv2.erode(grown.view(np.uint8), np.ones((3, 3), np.uint8)).view(bool)
-        peaks, areas, touching, inner = _blob_statistics(blob_ids, n_blobs, z_side, ring, interior)
+        peaks, areas, touching, inner = _blob_statistics(
+            blob_ids, n_blobs, z, ring, interior, sign=sign
+        )
         need = min_sigmas * (light_factor if sign > 0 else 1.0)
         candidate = (
             (peaks >= need)
@@ -212,7 +219,7 @@ def add_compact_blobs(
             c0, c1 = max(box[1].start - far, 0), box[1].stop + far
             region = blob_ids[r0:r1, c0:c1] == blob
             if not _is_solid(region, min_solidity=min_solidity) or not _stands_alone(
-                region, fine_side[r0:r1, c0:c1], free[r0:r1, c0:c1], max_ring=max_ring
+                region, fine[r0:r1, c0:c1], free[r0:r1, c0:c1], max_ring=max_ring, sign=sign
             ):
                 continue
             labels[r0:r1, c0:c1][region] = next_id
@@ -221,33 +228,84 @@ def add_compact_blobs(
     return labels, added
 
 
+@dataclass(frozen=True)
+class BlobScales:
+    """The image-only maps of R8's search (step 1), computed once per frame.
+
+    Attributes
+    ----------
+    image : (M, N) ndarray of uint8
+        The image they were made of (compared by identity).
+    key : tuple of (float, int)
+        ``(sigma_px, ground_px)``.
+    at_scale, fine : (M, N) ndarray of float32
+        The image smoothed at ``sigma_px`` and at 0.8 px, minus the ground level.
+    tiles : dict
+        The last spread estimate's pixels and tile spreads (:func:`_tile_spread`): R8b's
+        search measures again only the tiles whose free pixels R8 changed.
+    """
+
+    image: np.ndarray
+    key: tuple[float, int]
+    at_scale: np.ndarray
+    fine: np.ndarray
+    tiles: dict = field(default_factory=dict)
+
+
+def blob_scales(
+    image: np.ndarray, *, sigma_px: float = _SIGMA_PX, ground_px: int = _GROUND_PX
+) -> BlobScales:
+    """R8's contrast maps of ``image`` (uint8, 2-D), for :func:`add_compact_blobs` calls on
+    one frame (R8, then R8b's candidates) to share; settings as there."""
+    pixels = image.astype(np.float32)
+    ground = _ground_level(image, ground_px)
+    at_scale = cv2.GaussianBlur(pixels, (0, 0), sigma_px) - ground
+    # the rock's own gray, only lightly smoothed: its outline, not the blob's
+    fine = cv2.GaussianBlur(pixels, (0, 0), 0.8) - ground
+    return BlobScales(image=image, key=(sigma_px, ground_px), at_scale=at_scale, fine=fine)
+
+
 def _blob_statistics(
-    blob_ids: np.ndarray, n_blobs: int, z: np.ndarray, ring: np.ndarray, interior: np.ndarray
+    blob_ids: np.ndarray,
+    n_blobs: int,
+    z: np.ndarray,
+    ring: np.ndarray,
+    interior: np.ndarray,
+    *,
+    sign: float = 1.0,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Per blob 0..n_blobs-1: peak of ``z`` (-inf for 0), pixels, whether a ``ring`` pixel
-    is its, and its ``interior`` pixels; one compiled pass instead of an ``ufunc.at`` and
-    three ``bincount`` of masked copies (``test_blobs.py`` compares them)."""
+    """Per blob 0..n_blobs-1: peak of ``sign * z`` (-inf for 0), pixels, whether a ``ring``
+    pixel is its, and its ``interior`` pixels; one compiled pass instead of an ``ufunc.at``
+    and three ``bincount`` of masked copies (``test_blobs.py`` compares them)."""
     peaks = np.full(n_blobs, -np.inf)
     counts = np.zeros((3, n_blobs), np.int64)
-    _blob_pass(blob_ids, np.ascontiguousarray(z), ring, interior, peaks, counts)
+    _blob_pass(blob_ids, np.ascontiguousarray(z), float(sign), ring, interior, peaks, counts)
     return peaks, counts[0], counts[1] > 0, counts[2]
 
 
 @njit(cache=True)
-def _blob_pass(blob_ids, z, ring, interior, peaks, counts):  # pragma: no cover - numba
+def _blob_pass(blob_ids, z, sign, ring, interior, peaks, counts):  # pragma: no cover - numba
     rows, cols = blob_ids.shape
+    # blob 0's ring count in a register: ``counts[1, 0] += 1`` on most ring pixels makes
+    # each wait for the last store
+    ground_ring = 0
     for y in range(rows):
         for x in range(cols):
             k = blob_ids[y, x]
+            if k == 0:
+                if ring[y, x]:
+                    ground_ring += 1
+                continue
             if ring[y, x]:
                 counts[1, k] += 1
-            if k == 0:
-                continue
-            if z[y, x] > peaks[k]:
-                peaks[k] = z[y, x]
+            # sign +-1: an exact negation, as of a negated copy
+            value = sign * z[y, x]
+            if value > peaks[k]:
+                peaks[k] = value
             counts[0, k] += 1
             if interior[y, x]:
                 counts[2, k] += 1
+    counts[1, 0] += ground_ring
 
 
 def _ground_level(image: np.ndarray, ground_px: int) -> np.ndarray:
@@ -267,14 +325,30 @@ def _dilate(mask: np.ndarray, radius: int) -> np.ndarray:
     return cv2.dilate(mask.astype(np.uint8), kernel) > 0
 
 
-def _tile_spread(values: np.ndarray, use: np.ndarray, tile_px: int) -> np.ndarray:
-    """1.4826 x MAD of ``values`` over ``use`` per tile, bilinear between tile centres."""
+def _tile_spread(
+    values: np.ndarray, use: np.ndarray, tile_px: int, *, _memo: dict | None = None
+) -> np.ndarray:
+    """1.4826 x MAD of ``values`` over ``use`` per tile, bilinear between tile centres.
+
+    ``_memo`` (kept with one ``values`` map, empty at first) holds the last call's ``use``
+    and tile spreads: a tile none of whose ``use`` pixels changed keeps its spread.
+    """
     rows, cols = values.shape
     row_edges = sector_edges(rows, max(1, round(rows / tile_px)))
     col_edges = sector_edges(cols, max(1, round(cols / tile_px)))
     grid = np.full((row_edges.size - 1, col_edges.size - 1), np.nan, np.float32)
+    known = None
+    if _memo is not None and _memo.get("tile_px") == tile_px:
+        # per tile: did any of its pixels change (whole-frame, then summed per tile)
+        differ = (use != _memo["use"]).view(np.uint8)
+        by_rows = np.add.reduceat(differ, row_edges[:-1], axis=0, dtype=np.int64)
+        changed = np.add.reduceat(by_rows, col_edges[:-1], axis=1) > 0
+        known = _memo["grid"]
     for i, (r0, r1) in enumerate(zip(row_edges[:-1], row_edges[1:], strict=True)):
         for j, (c0, c1) in enumerate(zip(col_edges[:-1], col_edges[1:], strict=True)):
+            if known is not None and not changed[i, j]:
+                grid[i, j] = known[i, j]
+                continue
             # every other row and column: the spread of tens of thousands of pixels is
             # stable on a quarter of them
             sample = values[r0:r1:2, c0:c1:2][use[r0:r1:2, c0:c1:2]]
@@ -282,6 +356,8 @@ def _tile_spread(values: np.ndarray, use: np.ndarray, tile_px: int) -> np.ndarra
                 # the values are already measured from the ground: MAD about 0
                 middle = sample.size // 2
                 grid[i, j] = 1.4826 * np.partition(np.abs(sample), middle)[middle]
+    if _memo is not None:
+        _memo.update(tile_px=tile_px, use=use.copy(), grid=grid.copy())
     if np.isnan(grid).all():
         grid[:] = _MIN_SPREAD
     grid[np.isnan(grid)] = np.nanmedian(grid)
@@ -289,38 +365,81 @@ def _tile_spread(values: np.ndarray, use: np.ndarray, tile_px: int) -> np.ndarra
 
 
 def _grow(
-    cores: np.ndarray, contrast: np.ndarray, free: np.ndarray, grow_px: int
+    cores: np.ndarray, contrast: np.ndarray, free: np.ndarray, grow_px: int, *, sign: float = 1.0
 ) -> np.ndarray:
-    """The union of the cores' regions (module docstring, step 3), all cores at once."""
+    """The union of the cores' regions (module docstring, step 3), all cores at once;
+    contrast on the blobs' side is ``sign * contrast`` (+-1)."""
     n_cores, core_ids = cv2.connectedComponents(cores.view(np.uint8), connectivity=8)
     if n_cores == 1:
         return np.zeros(cores.shape, bool)
     counts, sums = _label_sums(core_ids, contrast, n_cores)
-    level = sums / np.maximum(counts, 1)
+    # a sum of negated values is the negated sum (rounding is symmetric)
+    level = (sign * sums) / np.maximum(counts, 1)
     level[0] = 0.0
     # each pixel within grow_px of a core needs half the contrast of the strongest one
     # whole gray levels: a uint8 dilation is several times faster than a float one
     # (level 0, outside the cores, is 0)
     levels = _lookup(np.clip(np.round(level), 0, 255).astype(np.uint8), core_ids)
     reach = cv2.dilate(levels, np.ones((2 * grow_px + 1, 2 * grow_px + 1), np.uint8))
-    # reach is uint8: compared as float32, not multiplied into float64
-    past = (reach > 0) & (contrast >= np.float32(_GROW_SHARE) * reach.astype(np.float32)) & free
+    past = _reachable(reach, contrast, free, sign=sign)
     n_parts, parts = cv2.connectedComponents(past.view(np.uint8), connectivity=8)
     seeded = np.zeros(n_parts, bool)
     seeded[parts[cores & past]] = True
     seeded[0] = False
     # blotches of ground texture touching a rock hang off it by a pixel or two
-    filled = _fill_holes(_lookup(seeded, parts))
+    filled = _fill_seeded_holes(seeded, parts)
     opened = cv2.morphologyEx(filled.view(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
     return opened > 0
 
 
-def _fill_holes(mask: np.ndarray) -> np.ndarray:
-    """``mask`` with every background pocket it encloses (8-connected outline) filled."""
-    outside = np.pad(~mask, 1, constant_values=True).astype(np.uint8)
+def _reachable(
+    reach: np.ndarray, contrast: np.ndarray, free: np.ndarray, *, sign: float = 1.0
+) -> np.ndarray:
+    """``(reach > 0) & (sign * contrast >= 0.5 * reach) & free`` (reach uint8 compared as
+    float32, contrast float32, sign +-1), in one compiled pass instead of five whole-frame
+    temporaries (``test_blobs.py`` compares them)."""
+    out = np.empty(reach.shape, bool)
+    _reach_pass(
+        np.ascontiguousarray(reach),
+        np.ascontiguousarray(contrast, dtype=np.float32),
+        np.float32(sign),
+        np.ascontiguousarray(free),
+        out,
+    )
+    return out
+
+
+@njit(cache=True)
+def _reach_pass(reach, contrast, sign, free, out):  # pragma: no cover - numba
+    share = np.float32(_GROW_SHARE)
+    rows, cols = reach.shape
+    for y in range(rows):
+        for x in range(cols):
+            r = reach[y, x]
+            out[y, x] = r > 0 and free[y, x] and sign * contrast[y, x] >= share * np.float32(r)
+
+
+def _fill_seeded_holes(seeded: np.ndarray, parts: np.ndarray) -> np.ndarray:
+    """``seeded[parts]`` with every background pocket it encloses (8-connected outline)
+    filled; the padded flood image is written straight from the parts (one compiled pass
+    for the lookup, the padding and the negation; ``test_blobs.py`` compares)."""
+    outside = np.empty((parts.shape[0] + 2, parts.shape[1] + 2), np.uint8)
+    _pad_outside(seeded, np.ascontiguousarray(parts), outside)
     # flood the background from the border; what it cannot reach is enclosed
     cv2.floodFill(outside, None, (0, 0), 2, flags=4)
-    return (outside[1:-1, 1:-1] != 2)
+    return outside[1:-1, 1:-1] != 2
+
+
+@njit(cache=True)
+def _pad_outside(seeded, parts, outside):  # pragma: no cover - numba
+    rows, cols = parts.shape
+    outside[0, :] = 1
+    outside[rows + 1, :] = 1
+    for y in range(rows):
+        outside[y + 1, 0] = 1
+        outside[y + 1, cols + 1] = 1
+        for x in range(cols):
+            outside[y + 1, x + 1] = 0 if seeded[parts[y, x]] else 1
 
 
 def _is_solid(region: np.ndarray, *, min_solidity: float) -> bool:
@@ -335,10 +454,13 @@ def _is_solid(region: np.ndarray, *, min_solidity: float) -> bool:
 
 
 def _stands_alone(
-    region: np.ndarray, contrast: np.ndarray, free: np.ndarray, *, max_ring: float
+    region: np.ndarray, contrast: np.ndarray, free: np.ndarray, *, max_ring: float, sign: float
 ) -> bool:
-    """The isolation test of one region (module docstring, step 4)."""
+    """The isolation test of one region (module docstring, step 4), on ``sign * contrast``
+    (+-1: the mean of negated values is the negated mean)."""
     near, far = _RING_PX
     ring = _dilate(region, far) & ~_dilate(region, near - 1) & free
-    own = float(contrast[region].mean())
-    return not ring.any() or float(contrast[ring].mean()) <= max_ring * max(own, 1.0)
+    own = sign * float(contrast[region].mean())
+    if not ring.any():
+        return True
+    return sign * float(contrast[ring].mean()) <= max_ring * max(own, 1.0)

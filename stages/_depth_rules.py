@@ -104,6 +104,7 @@ import numpy as np
 from ._height_vote import (
     _VOTE_VALID_FRACTION,
     _VOTE_VALID_PX,
+    BumpWeights,
     _object_counts,
     noisy_depth_rules,
 )
@@ -114,7 +115,7 @@ from ._heights import (
     local_ground,
     relative_height,
 )
-from ._regions import CLEAR_CONTRAST, _coerce_mask, _lookup, _renumber
+from ._regions import CLEAR_CONTRAST, _coerce_mask, _label_areas, _lookup, _renumber
 
 # Ground height noise (MAD sigma, metres) above which single heights are not trusted.
 _NOISY_SIGMA_M = 0.005
@@ -161,6 +162,7 @@ def apply_depth_rules(
     min_raised_fraction: float = 0.1,
     contrast: np.ndarray | None = None,
     relative: np.ndarray | None = None,
+    _weights: BumpWeights | None = None,
 ) -> tuple[np.ndarray, DepthRuleStats]:
     """Combine an intensity mask with height above ground (rules R0-R3 of the module doc).
 
@@ -190,6 +192,8 @@ def apply_depth_rules(
         ``relative_height(height, smoothing_px=..., ground_window_px=...)`` when the caller
         has it already (:func:`stages.segment.segment_image` reads it again for R7e);
         computed here otherwise.
+    _weights : BumpWeights, optional
+        Kept by R2d's bump map (noisy heights) for the frame's later ones (R8b).
 
     Returns
     -------
@@ -229,7 +233,9 @@ def apply_depth_rules(
         # the vote reads single unsmoothed heights: measure their noise the same way
         raw_relative = height - local_ground(height, window_px=ground_window_px)
         raw_sigma = _robust_sigma(raw_relative[np.isfinite(raw_relative) & ~mask])
-        return noisy_depth_rules(mask, raw_relative, raw_sigma, contrast=contrast)
+        return noisy_depth_rules(
+            mask, raw_relative, raw_sigma, contrast=contrast, _weights=_weights
+        )
     raise_m = max(min_height_m, _RAISE_SIGMAS * sigma)
     flat_m = min(max(flat_tol_m, 2.0 * sigma), 0.5 * raise_m)
     # R0b: far rows are noisier than the frame as a whole (height noise grows with range^2);
@@ -256,7 +262,7 @@ def apply_depth_rules(
     count, components = cv2.connectedComponents(remaining.view(np.uint8), connectivity=8)
     n_valid = np.bincount(components[readable], minlength=count)
     n_raised = np.bincount(components[raised], minlength=count)
-    n_pixels = np.bincount(components.ravel(), minlength=count)
+    n_pixels = _label_areas(components, count)
     n_low = np.bincount(components[readable & (relative < 0.5 * raise_m)], minlength=count)
     lying = (
         (n_valid >= 0.5 * n_pixels)
@@ -278,7 +284,11 @@ def apply_depth_rules(
 
 
 def _row_band_sigma(
-    relative: np.ndarray, usable: np.ndarray, *, bands: int = _ROW_BANDS
+    relative: np.ndarray,
+    usable: np.ndarray,
+    *,
+    bands: int = _ROW_BANDS,
+    _memo: dict[tuple[int, int], tuple[np.ndarray, float]] | None = None,
 ) -> np.ndarray:
     """Robust height noise per row (rule R0b).
 
@@ -291,6 +301,10 @@ def _row_band_sigma(
     bands : int
         Horizontal bands of rows; each gets the MAD sigma of its usable heights in every
         other column (0 with fewer than 50), interpolated linearly between band centres.
+    _memo : dict, optional
+        Each band's sampled ``usable`` pixels and sigma, kept across calls on one
+        ``relative`` (R7e, then R7f): a band whose pixels did not change is not measured
+        again. Empty on the first call; never shared between height maps.
 
     Returns
     -------
@@ -303,9 +317,16 @@ def _row_band_sigma(
     values = np.zeros(bands)
     for band, (start, stop) in enumerate(zip(edges[:-1], edges[1:], strict=True)):
         # every other column: plenty of heights for a MAD, half the cost
-        heights = relative[start:stop, ::2][usable[start:stop, ::2]]
+        sampled = usable[start:stop, ::2]
+        known = _memo.get((start, stop)) if _memo is not None else None
+        if known is not None and np.array_equal(known[0], sampled):
+            values[band] = known[1]
+            continue
+        heights = relative[start:stop, ::2][sampled]
         if heights.size >= 50:
             values[band] = _robust_sigma(heights)
+        if _memo is not None:
+            _memo[(start, stop)] = (sampled.copy(), values[band])
     return np.interp(np.arange(rows), centres, values)
 
 

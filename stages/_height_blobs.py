@@ -51,17 +51,20 @@ R8's isolation, solidity, light-factor or growth settings changed for the candid
 2.5-4, texture 1.2-1.8): +0.0022 to +0.0045.
 Switched on elsewhere: mojave catalog 0.912 -> 0.911 (tp +6, fp +8); lab unchanged
 (heights unusable); dunes catalog unchanged. Cost, 6 lava catalog frames, one process:
-about 25 ms of CPU per frame (R8's search again 14, the bump map 5, the detail maps 3).
+about 25 ms of CPU per frame (R8's search again 14, the bump map 5, the detail maps 3);
+10-14 ms on the 12 catalog frames since R8b shares R8's image maps and unchanged tile
+spreads (:class:`stages._blobs.BlobScales`) and R2d's bump-map weights
+(:class:`stages._height_vote.BumpWeights`), the same labels.
 """
 
 from __future__ import annotations
 
 import cv2
 import numpy as np
+from numba import njit
 
-from ._blobs import add_compact_blobs
-from ._height_vote import _height_bumps
-from ._regions import _label_sums
+from ._blobs import BlobScales, add_compact_blobs
+from ._height_vote import BumpWeights, _height_bumps
 
 __all__ = ["add_height_blobs", "detail_ratio"]
 
@@ -118,6 +121,8 @@ def add_height_blobs(
     min_area_px: int = 30,
     min_bump: float = _MIN_BUMP,
     min_texture: float = _MIN_TEXTURE,
+    _scales: BlobScales | None = None,
+    _weights: BumpWeights | None = None,
 ) -> tuple[np.ndarray, int]:
     """Rule R8b: add faint compact blobs that stand as a height bump with crisp edges.
 
@@ -138,6 +143,10 @@ def add_height_blobs(
         Peak of R2d's bump map (its noise on the ground) a blob needs.
     min_texture : float
         ``>= 0``: the blob's fine gray detail over the detail around it.
+    _scales : BlobScales, optional
+        R8's image maps of ``image`` (:func:`stages._blobs.blob_scales`), shared with R8.
+    _weights : BumpWeights, optional
+        The frame's bump-map weights, shared with R2d.
 
     Returns
     -------
@@ -156,25 +165,81 @@ def add_height_blobs(
     labels = labels.astype(np.int32, copy=False)
     first = int(labels.max()) + 1
     found, n_found = add_compact_blobs(
-        labels, image, min_sigmas=min_sigmas, min_area_px=min_area_px
+        labels, image, min_sigmas=min_sigmas, min_area_px=min_area_px, _scales=_scales
     )
     if n_found == 0:
         return found, 0
-    bumps = _height_bumps(relative.astype(np.float32, copy=False), labels > 0)
+    bumps = _height_bumps(
+        relative.astype(np.float32, copy=False), labels > 0, _weights=_weights
+    )
     detail, around = detail_ratio(image)
-    blob_ids = np.where(found >= first, found - first + 1, 0).astype(np.int32)
     count = n_found + 1
-    peak = np.full(count, -np.inf)
-    on_blobs = blob_ids > 0
-    np.maximum.at(peak, blob_ids[on_blobs], bumps[on_blobs])
-    pixels, detail_sum = _label_sums(blob_ids, detail, count)
-    _, around_sum = _label_sums(blob_ids, around, count)
+    peak, pixels, detail_sum, around_sum = _blob_cues(found, first, count, bumps, detail, around)
     ratio = detail_sum / np.maximum(around_sum, 1e-6)
     keep = (peak >= min_bump) & (ratio >= min_texture) & (pixels > 0)
     keep[0] = False
     # kept blobs numbered on densely, the others back to ground
     numbers = np.zeros(count, np.int32)
     numbers[keep] = np.arange(first, first + int(keep.sum()), dtype=np.int32)
-    out = labels.copy()
-    out[on_blobs] = numbers[blob_ids[on_blobs]]
+    out = np.empty(found.shape, np.int32)
+    _renumber_blobs(found, first, numbers, out)
     return out, int(keep.sum())
+
+
+def _blob_cues(
+    found: np.ndarray,
+    first: int,
+    count: int,
+    bumps: np.ndarray,
+    detail: np.ndarray,
+    around: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per blob ``1..count-1`` (labels ``first..`` of ``found``; index 0 the rest): peak
+    of ``bumps`` (-inf for 0), pixels, and the sums of ``detail`` and ``around`` in raster
+    order (0 for 0). One compiled pass for ``np.maximum.at`` and two :func:`_label_sums`
+    of the blob ids (``test_height_blobs.py`` compares them)."""
+    peak = np.full(count, -np.inf)
+    pixels = np.zeros(count, np.int64)
+    sums = np.zeros((2, count))
+    _cue_pass(
+        np.ascontiguousarray(found),
+        first,
+        np.ascontiguousarray(bumps),
+        np.ascontiguousarray(detail),
+        np.ascontiguousarray(around),
+        peak,
+        pixels,
+        sums,
+    )
+    return peak, pixels, sums[0], sums[1]
+
+
+@njit(cache=True)
+def _cue_pass(found, first, bumps, detail, around, peak, pixels, sums):  # pragma: no cover
+    rows, cols = found.shape
+    ground = 0
+    for y in range(rows):
+        for x in range(cols):
+            label = found[y, x]
+            if label < first:
+                ground += 1
+                continue
+            k = label - first + 1
+            pixels[k] += 1
+            value = bumps[y, x]
+            # np.maximum: a NaN, once met, stays
+            if peak[k] == peak[k] and (value > peak[k] or value != value):
+                peak[k] = value
+            sums[0, k] += detail[y, x]
+            sums[1, k] += around[y, x]
+    pixels[0] = ground
+
+
+@njit(cache=True)
+def _renumber_blobs(found, first, numbers, out):  # pragma: no cover - numba
+    """``found`` with each blob (label ``>= first``) set to ``numbers[label - first + 1]``."""
+    rows, cols = found.shape
+    for y in range(rows):
+        for x in range(cols):
+            label = found[y, x]
+            out[y, x] = numbers[label - first + 1] if label >= first else label

@@ -59,9 +59,9 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-from scipy.ndimage import find_objects
 
 from ._heights import _percentiles_by_label
+from ._regions import _box_window, _label_areas, _object_boxes
 
 # R7f: rows whose ground height noise is at most this (metres) are read (R7e's bar) ...
 _MAX_NOISE_M = 0.0075
@@ -164,7 +164,7 @@ def grow_raised_parts(
     count = int(labels.max())
     if count == 0 or fraction == 0:
         return labels, 0
-    sizes = np.bincount(labels.ravel(), minlength=count + 1)
+    sizes = _label_areas(labels, count + 1)
     inside = labels > 0
     judged = inside & np.isfinite(relative)
     core = _percentiles_by_label(
@@ -181,7 +181,8 @@ def grow_raised_parts(
     if candidates.size == 0:
         return labels, 0
     mean_contrast = _ground_mean(contrast, labels == 0)
-    spans = find_objects(labels)
+    # find_objects' slices from one compiled pass (the candidates are present)
+    spans = [_box_window(box) for box in _object_boxes(labels, count)[1:]]
     rows, cols = labels.shape
     step = np.ones((3, 3), np.uint8)
     disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * _OPEN_PX + 1,) * 2)

@@ -108,16 +108,44 @@ _BUMP_SCORE = 3.5
 # ... the bump alone at least this many (its noise's) sigmas: a weak swell under a clear
 # ripple shading is no bump.
 _BUMP_MIN_SIGMAS = 2.0
-__all__ = ["noisy_depth_rules"]
+__all__ = ["BumpWeights", "noisy_depth_rules"]
+
+
+class BumpWeights:
+    """The smoothed validity weights of R2d's bump map, kept for the frame's next map.
+
+    R2d reads the unsmoothed relative heights and R8b (:mod:`stages._height_blobs`) the
+    smoothed ones: their maps differ, their invalid pixels (the height map's) do not, and
+    the weights' two Gaussians are a third of a map's cost. One object per frame
+    (:func:`stages.segment.segment_image`); :meth:`levels` recomputes for another mask.
+    """
+
+    def __init__(self) -> None:
+        self._valid: np.ndarray | None = None
+        self._levels: list[np.ndarray] = []
+
+    def levels(self, valid: np.ndarray) -> list[np.ndarray]:
+        """Per bump scale, the Gaussian of ``valid`` (2-D bool) floored at 1e-3, float32;
+        read only."""
+        if self._valid is None or not np.array_equal(self._valid, valid):
+            self._levels = _weight_levels(valid)
+            self._valid = valid.copy()
+        return self._levels
 
 
 def noisy_depth_rules(
-    mask: np.ndarray, relative: np.ndarray, sigma: float, *, contrast: np.ndarray | None = None
+    mask: np.ndarray,
+    relative: np.ndarray,
+    sigma: float,
+    *,
+    contrast: np.ndarray | None = None,
+    _weights: BumpWeights | None = None,
 ) -> tuple[np.ndarray, DepthRuleStats]:
     """R2 vote: remove whole objects whose upper heights stay within the ground noise.
 
     Heights are read relative to the median valid height of a ``_RING_PX`` band of ground
     around the object (the coarse local ground where the band has fewer than 10 heights).
+    ``_weights`` keeps R2d's validity weights for a later bump map of the frame.
     """
     valid = np.isfinite(relative)
     count, components = cv2.connectedComponents(mask.view(np.uint8), connectivity=8)
@@ -151,7 +179,7 @@ def noisy_depth_rules(
             )[1:]
             bar = _VOTE_SIGMAS + _CONTRAST_SIGMAS * (_TEXTURE_CONTRAST - clear)
         # R2d: a bump of the matching windows' scale is evidence the percentile misses
-        bump = _height_bumps(relative, mask)
+        bump = _height_bumps(relative, mask, _weights=_weights)
         peak = np.full(count, -np.inf)
         _object_peaks(components, valid, bump, peak)
         standing = (peak[1:] >= _BUMP_MIN_SIGMAS) & (peak[1:] + clear >= _BUMP_SCORE)
@@ -185,12 +213,23 @@ def _object_counts(
 @njit(cache=True)
 def _count_pass(components, valid, counts):  # pragma: no cover - numba
     rows, cols = components.shape
+    # label 0's counts in registers: ``counts[0, 0] += 1`` on most pixels makes each wait
+    # for the last store (several times slower)
+    ground = 0
+    ground_valid = 0
     for y in range(rows):
         for x in range(cols):
             k = components[y, x]
-            counts[0, k] += 1
-            if valid[y, x]:
-                counts[1, k] += 1
+            if k == 0:
+                ground += 1
+                if valid[y, x]:
+                    ground_valid += 1
+            else:
+                counts[0, k] += 1
+                if valid[y, x]:
+                    counts[1, k] += 1
+    counts[0, 0] += ground
+    counts[1, 0] += ground_valid
 
 
 @njit(cache=True)
@@ -205,7 +244,25 @@ def _object_peaks(components, valid, values, peak):  # pragma: no cover - numba
                 peak[k] = values[y, x]
 
 
-def _height_bumps(relative: np.ndarray, mask: np.ndarray) -> np.ndarray:
+def _kernel_size(scale: float) -> int:
+    # kernels cut at 3 sigmas (OpenCV's default for floats is 4: twice the cost)
+    return 2 * round(3 * scale) + 1
+
+
+def _weight_levels(valid: np.ndarray) -> list[np.ndarray]:
+    """The denominators of :func:`_height_bumps`' normalised convolutions."""
+    weight = valid.astype(np.float32)
+    floor = np.float32(1e-3)
+    levels = []
+    for scale in (_BUMP_INNER_PX, _BUMP_OUTER_PX):
+        size = _kernel_size(scale)
+        levels.append(np.maximum(cv2.GaussianBlur(weight, (size, size), scale), floor))
+    return levels
+
+
+def _height_bumps(
+    relative: np.ndarray, mask: np.ndarray, *, _weights: BumpWeights | None = None
+) -> np.ndarray:
     """Rule R2d's map: fine minus coarse smoothed height, in its own noise on the ground.
 
     Parameters
@@ -214,6 +271,9 @@ def _height_bumps(relative: np.ndarray, mask: np.ndarray) -> np.ndarray:
         Heights relative to the local ground, NaN invalid.
     mask : (M, N) ndarray of bool
         Intensity objects; the other valid pixels measure the map's noise (MAD).
+    _weights : BumpWeights, optional
+        The frame's validity weights, reused when ``relative`` is invalid where they were
+        made (the same floats as computing them here).
 
     Returns
     -------
@@ -222,16 +282,14 @@ def _height_bumps(relative: np.ndarray, mask: np.ndarray) -> np.ndarray:
         divided by its robust sigma on the ground; 0 where the height is invalid.
     """
     valid = np.isfinite(relative)
-    weight = valid.astype(np.float32)
     filled = np.where(valid, relative, np.float32(0.0)).astype(np.float32, copy=False)
-    floor = np.float32(1e-3)
+    weights = _weight_levels(valid) if _weights is None else _weights.levels(valid)
     levels = []
-    for scale in (_BUMP_INNER_PX, _BUMP_OUTER_PX):
-        # kernels cut at 3 sigmas (OpenCV's default for floats is 4: twice the cost)
-        size = 2 * round(3 * scale) + 1
+    for scale, weight in zip((_BUMP_INNER_PX, _BUMP_OUTER_PX), weights, strict=True):
+        size = _kernel_size(scale)
         # normalised convolution: invalid heights neither count nor pull the level to 0
         level = cv2.GaussianBlur(filled, (size, size), scale)
-        level /= np.maximum(cv2.GaussianBlur(weight, (size, size), scale), floor)
+        level /= weight
         levels.append(level)
     bumps = levels[0]
     bumps -= levels[1]

@@ -71,10 +71,10 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-from scipy.ndimage import find_objects
+from numba import njit
 
 from ._heights import _percentile_by_label
-from ._regions import _renumber
+from ._regions import _box_window, _object_boxes, _renumber
 
 # R7e: rows whose ground height noise is at most this (metres) are precise enough ...
 _MAX_NOISE_M = 0.0075
@@ -180,10 +180,8 @@ def split_shadow_sides(
     median = _percentile_by_label(
         contrast.ravel()[inside].astype(np.float64), owners[inside], count + 1, 50.0
     )
-    n_precise = np.bincount(labels[band][precise[band]], minlength=count + 1)
-    n_flat = np.bincount(labels[band][flat[band]], minlength=count + 1)
     # a light object in the precise rows (a far one is skipped: its rows are not read)
-    n_pixels = np.bincount(owners, minlength=count + 1)
+    n_pixels, n_precise, n_flat = _label_counts(labels, precise, flat, count + 1)
     light = (np.nan_to_num(median) > 0) & (n_precise >= 0.5 * n_pixels)
     # a dark object that may hold a cast shadow: a quarter of what heights judge is flat
     shadowed = (np.nan_to_num(median) < 0) & (n_flat >= _MIN_FLAT_SHARE * np.maximum(n_precise, 1))
@@ -197,7 +195,11 @@ def split_shadow_sides(
     out = labels.copy()
     disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * gap_px + 1, 2 * gap_px + 1))
     step = np.ones((3, 3), np.uint8)
-    spans = find_objects(labels)
+    # find_objects' slices (None for an absent id) from one compiled pass
+    spans = [
+        _box_window(box) if box[1] >= box[0] else None
+        for box in _object_boxes(labels, count)[1:]
+    ]
     rows, cols = labels.shape
     moved = 0
     split: set[int] = set()
@@ -244,6 +246,48 @@ def split_shadow_sides(
     if not moved:
         return labels, 0
     return _renumber(out, 1), moved
+
+
+def _label_counts(
+    labels: np.ndarray, precise: np.ndarray, flat: np.ndarray, count: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per label 0..count-1: pixels, ``precise`` pixels and ``flat`` pixels; one compiled
+    pass instead of three ``np.bincount`` of masked copies (``test_shadow_sides.py``
+    compares them)."""
+    counts = np.zeros((3, count), np.int64)
+    _count_pass(
+        np.ascontiguousarray(labels),
+        np.ascontiguousarray(precise),
+        np.ascontiguousarray(flat),
+        counts,
+    )
+    return counts[0], counts[1], counts[2]
+
+
+@njit(cache=True)
+def _count_pass(labels, precise, flat, counts):  # pragma: no cover - numba
+    rows, cols = labels.shape
+    # label 0's counts in registers: ``counts[0, 0] += 1`` on most pixels makes each wait
+    # for the last store
+    ground = ground_precise = ground_flat = 0
+    for y in range(rows):
+        for x in range(cols):
+            k = labels[y, x]
+            if k == 0:
+                ground += 1
+                if precise[y, x]:
+                    ground_precise += 1
+                if flat[y, x]:
+                    ground_flat += 1
+            else:
+                counts[0, k] += 1
+                if precise[y, x]:
+                    counts[1, k] += 1
+                if flat[y, x]:
+                    counts[2, k] += 1
+    counts[0, 0] += ground
+    counts[1, 0] += ground_precise
+    counts[2, 0] += ground_flat
 
 
 def _fill_to_shadow(

@@ -55,7 +55,7 @@ import numpy as np
 from pipeline.compute import compute
 from pipeline.stage import FrameContext, Param, Product, Stage, StageResult
 
-from ._blobs import add_compact_blobs
+from ._blobs import add_compact_blobs, blob_scales
 from ._continuity import SectorAnalysis, analyse_sectors
 from ._depth_rules import (
     _NOISY_SIGMA_M,
@@ -67,6 +67,7 @@ from ._depth_rules import (
 from ._depth_rules import _UNUSABLE_SIGMA_M as _USABLE_SIGMA_M
 from ._height_blobs import add_height_blobs
 from ._height_grow import grow_raised_parts
+from ._height_vote import BumpWeights
 from ._heights import DepthRuleStats, relative_height
 from ._outlines import split_at_necks, trim_faint_rims
 from ._regions import depth_edges, label_objects, threshold_mask
@@ -325,6 +326,8 @@ def segment_image(
     strong = mask  # past a threshold (R7 grows into the other pixels only)
 
     notes: list[str] = []
+    # R2d's bump-map weights, kept for R8b's map (both read the height map's valid pixels)
+    bump_weights = BumpWeights()
     depth_stats = None
     edges = None
     contrast = None
@@ -355,6 +358,7 @@ def segment_image(
                 min_raised_fraction=min_raised_fraction,
                 contrast=contrast,
                 relative=relative,
+                _weights=bump_weights,
             )
         else:
             notes.append(
@@ -432,43 +436,53 @@ def segment_image(
         if rims:
             notes.append(f"{rims} px of faint rims dropped")
     heights_usable = depth_stats is not None and depth_stats.ground_sigma_m <= _USABLE_SIGMA_M
-    if contrast is not None and relative is not None and heights_usable and shadow_noise_m > 0:
+    row_noise = _RowNoise(relative) if relative is not None else None
+    if contrast is not None and row_noise is not None and heights_usable and shadow_noise_m > 0:
         # R7e, after R7d: where heights are precise, a shaded face and its cast shadow
         labels, faces = _split_shadow_sides(
             labels,
             contrast,
-            relative,
+            row_noise,
             max_noise_m=shadow_noise_m,
             min_height_m=min_height_m,
             flat_tol_m=flat_tol_m,
         )
         if faces:
             notes.append(f"{faces} px of shaded faces joined to lit ones")
-    if contrast is not None and relative is not None and heights_usable and height_grow_fraction:
+    if contrast is not None and row_noise is not None and heights_usable and height_grow_fraction:
         # R7f, after R7e (whose joined faces count as the object's own): the raised rest
-        noise = _row_band_sigma(relative, np.isfinite(relative) & (labels == 0))
         labels, raised = grow_raised_parts(
             labels,
             contrast,
-            relative,
-            noise,
+            row_noise.relative,
+            row_noise(labels),
             fraction=height_grow_fraction,
             min_height_m=min_height_m,
         )
         if raised:
             notes.append(f"{raised} px of raised rock joined to partial objects")
-    if method == "sector-histogram+depth" and blob_sigmas > 0:
+    run_r8 = method == "sector-histogram+depth" and blob_sigmas > 0
+    run_r8b = relative is not None and heights_usable and height_blob_sigmas > 0
+    # R8 and R8b's candidates search one image: its smoothed maps are made once
+    scales = blob_scales(image) if run_r8 and run_r8b else None
+    if run_r8:
         # R8, after every rule: only rocks no object touches are added
         labels, blobs = add_compact_blobs(
-            labels, image, min_sigmas=blob_sigmas, min_area_px=min_area_px
+            labels, image, min_sigmas=blob_sigmas, min_area_px=min_area_px, _scales=scales
         )
         if blobs:
             notes.append(f"{blobs} compact blob(s) no threshold reached added")
-    if relative is not None and heights_usable and height_blob_sigmas > 0:
+    if run_r8b:
         # R8b, after R8: fainter blobs, kept on the heights' and the edges' word (R2d's
         # bump map means nothing where the heights are unusable)
         labels, bumps = add_height_blobs(
-            labels, image, relative, min_sigmas=height_blob_sigmas, min_area_px=min_area_px
+            labels,
+            image,
+            relative,
+            min_sigmas=height_blob_sigmas,
+            min_area_px=min_area_px,
+            _scales=scales,
+            _weights=bump_weights,
         )
         if bumps:
             notes.append(f"{bumps} faint blob(s) standing as height bumps added")
@@ -477,10 +491,25 @@ def segment_image(
     )
 
 
+class _RowNoise:
+    """R0b's band noise of the ground as the objects stand (every other column), for R7e
+    and R7f: a band is measured again only when its ground pixels changed between them."""
+
+    def __init__(self, relative: np.ndarray) -> None:
+        self.relative = relative
+        self._valid = np.isfinite(relative)
+        self._memo: dict[tuple[int, int], tuple[np.ndarray, float]] = {}
+
+    def __call__(self, labels: np.ndarray) -> np.ndarray:
+        """Per row of ``labels`` (0 ground), the noise of the valid ground heights, m."""
+        usable = self._valid & (labels == 0)
+        return _row_band_sigma(self.relative, usable, _memo=self._memo)
+
+
 def _split_shadow_sides(
     labels: np.ndarray,
     contrast: np.ndarray,
-    relative: np.ndarray,
+    row_noise: _RowNoise,
     *,
     max_noise_m: float,
     min_height_m: float,
@@ -489,13 +518,11 @@ def _split_shadow_sides(
     """R7e on the heights the depth rules read: relative to R0's local ground, R0b's noise."""
     if not labels.any():
         return labels, 0
-    # the noise of the ground as the objects now stand (R0b's bands, every other column)
-    noise = _row_band_sigma(relative, np.isfinite(relative) & (labels == 0))
     return split_shadow_sides(
         labels,
         contrast,
-        relative,
-        noise,
+        row_noise.relative,
+        row_noise(labels),
         max_noise_m=max_noise_m,
         min_height_m=min_height_m,
         flat_tol_m=flat_tol_m,

@@ -7,7 +7,13 @@ import numpy as np
 import pytest
 from object_masks import disk
 
-from stages._blobs import _blob_statistics, add_compact_blobs
+from stages._blobs import (
+    _blob_statistics,
+    _fill_seeded_holes,
+    _reachable,
+    _tile_spread,
+    add_compact_blobs,
+)
 
 SHAPE = (160, 160)
 
@@ -117,6 +123,12 @@ def test_blob_statistics_equal_their_numpy_twin():
         expected = np.full(n_blobs, -np.inf)
         np.maximum.at(expected, owners, z[grown])
         np.testing.assert_array_equal(peaks, expected)
+        # the dark side: the peaks of a negated copy
+        expected = np.full(n_blobs, -np.inf)
+        np.maximum.at(expected, owners, -z[grown])
+        np.testing.assert_array_equal(
+            _blob_statistics(blob_ids, n_blobs, z, ring, interior, sign=-1.0)[0], expected
+        )
         np.testing.assert_array_equal(areas, np.bincount(owners, minlength=n_blobs))
         np.testing.assert_array_equal(
             touching, np.bincount(blob_ids[ring], minlength=n_blobs) > 0
@@ -124,3 +136,50 @@ def test_blob_statistics_equal_their_numpy_twin():
         np.testing.assert_array_equal(
             inner, np.bincount(blob_ids[interior], minlength=n_blobs)
         )
+
+
+def test_reachable_and_seeded_fill_equal_their_numpy_twins():
+    # the twins: the whole-frame expressions and the pad-and-flood the passes replaced
+    rng = np.random.default_rng(8)
+    for _ in range(20):
+        shape = tuple(rng.integers(1, 50, 2))
+        reach = rng.integers(0, 40, shape).astype(np.uint8)
+        reach[rng.random(shape) < 0.3] = 0
+        contrast = rng.normal(5, 10, shape).astype(np.float32)
+        contrast[rng.random(shape) < 0.05] = np.nan
+        free = rng.random(shape) < 0.8
+        past = _reachable(reach, contrast, free)
+        np.testing.assert_array_equal(
+            past,
+            (reach > 0) & (contrast >= np.float32(0.5) * reach.astype(np.float32)) & free,
+        )
+        np.testing.assert_array_equal(
+            _reachable(reach, contrast, free, sign=-1.0),
+            (reach > 0) & (-contrast >= np.float32(0.5) * reach.astype(np.float32)) & free,
+        )
+        n_parts, parts = cv2.connectedComponents(past.view(np.uint8), connectivity=8)
+        seeded = rng.random(n_parts) < 0.6
+        seeded[0] = False
+        mask = seeded[parts]
+        outside = np.pad(~mask, 1, constant_values=True).astype(np.uint8)
+        cv2.floodFill(outside, None, (0, 0), 2, flags=4)
+        np.testing.assert_array_equal(_fill_seeded_holes(seeded, parts), outside[1:-1, 1:-1] != 2)
+
+
+def test_tile_spread_memo_measures_changed_tiles_alike():
+    # R8b's search reuses R8's tile spreads where no free pixel changed
+    rng = np.random.default_rng(9)
+    values = rng.normal(0, 4, (130, 170)).astype(np.float32)
+    use = rng.random(values.shape) < 0.9
+    memo: dict = {}
+    for _ in range(4):
+        np.testing.assert_array_equal(
+            _tile_spread(values, use, 30, _memo=memo), _tile_spread(values, use, 30)
+        )
+        y, x = rng.integers(0, 120), rng.integers(0, 160)
+        use = use.copy()
+        use[y : y + 12, x : x + 9] = False
+    # another tiling starts afresh
+    np.testing.assert_array_equal(
+        _tile_spread(values, use, 20, _memo=memo), _tile_spread(values, use, 20)
+    )

@@ -8,6 +8,7 @@ from height_maps import correlated_noise
 from object_masks import disk
 
 from stages._depth_rules import (
+    _row_band_sigma,
     apply_depth_rules,
     drop_faint_depthless,
     gray_contrast,
@@ -238,3 +239,19 @@ def test_unusable_depth_keeps_the_intensity_decision():
     assert stats.ground_sigma_m > 0.015
     assert "unusable" in stats.notes[0]
     np.testing.assert_array_equal(combined, blotch)
+
+
+def test_row_band_sigma_memo_gives_the_same_noise():
+    # R7e and R7f share the bands whose ground did not change; changed bands are measured
+    rng = np.random.default_rng(2)
+    relative = rng.normal(0, 0.004, (150, 120)).astype(np.float32)
+    relative[:, -10:] = np.nan
+    usable = np.isfinite(relative)
+    memo: dict = {}
+    for _ in range(4):
+        expected = _row_band_sigma(relative, usable)
+        np.testing.assert_array_equal(_row_band_sigma(relative, usable, _memo=memo), expected)
+        y, x = rng.integers(0, 140), rng.integers(0, 100)
+        usable = usable.copy()
+        usable[y : y + 10, x : x + 20] = False
+    assert len(memo) == 10

@@ -8,7 +8,8 @@ import pytest
 from height_maps import correlated_noise
 from object_masks import disk
 
-from stages._height_blobs import add_height_blobs, detail_ratio
+from stages._blobs import blob_scales
+from stages._height_blobs import _blob_cues, add_height_blobs, detail_ratio
 from stages.segment import segment_image
 
 SHAPE = (160, 160)
@@ -127,3 +128,46 @@ def test_segment_image_runs_r8b_only_with_usable_heights():
     assert np.array_equal(with_bumps[plain > 0], plain[plain > 0])
     no_depth = segment_image(image, sectors=8).labels
     assert np.array_equal(segment_image(image, sectors=8, height_blob_sigmas=3.0).labels, no_depth)
+
+
+def test_blob_cues_equal_their_numpy_twin():
+    # the twin: the ufunc.at and the two bincounts of blob ids the compiled pass replaced
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        shape = tuple(rng.integers(1, 40, 2))
+        first = int(rng.integers(1, 6))
+        count = int(rng.integers(1, 6))
+        found = rng.integers(0, first + count - 1, shape).astype(np.int32)
+        bumps, detail, around = rng.normal(0, 2, (3, *shape)).astype(np.float32)
+        bumps[rng.random(shape) < 0.05] = np.nan
+        peak, pixels, detail_sum, around_sum = _blob_cues(
+            found, first, count, bumps, detail, around
+        )
+        blob_ids = np.where(found >= first, found - first + 1, 0)
+        on = blob_ids > 0
+        expected = np.full(count, -np.inf)
+        np.maximum.at(expected, blob_ids[on], bumps[on])
+        np.testing.assert_array_equal(peak, expected)
+        np.testing.assert_array_equal(pixels, np.bincount(blob_ids.ravel(), minlength=count))
+        for sums, values in ((detail_sum, detail), (around_sum, around)):
+            np.testing.assert_array_equal(
+                sums, np.bincount(blob_ids[on], values[on], minlength=count)
+            )
+
+
+def test_shared_blob_scales_give_the_same_blobs():
+    image = crisp_rock(0)
+    relative = heights(0, rock_m=0.025)
+    labels = np.zeros(SHAPE, np.int32)
+    alone = add_height_blobs(labels, image, relative, min_sigmas=3.0)
+    shared = add_height_blobs(
+        labels, image, relative, min_sigmas=3.0, _scales=blob_scales(image)
+    )
+    # maps of another image are not used
+    stale = add_height_blobs(
+        labels, image, relative, min_sigmas=3.0, _scales=blob_scales(soft_blotch(0))
+    )
+    assert alone[1] == 1
+    for found, added in (shared, stale):
+        assert added == alone[1]
+        np.testing.assert_array_equal(found, alone[0])

@@ -142,6 +142,22 @@ def test_height_bumps_peak_on_a_window_sized_rock_not_on_a_swell():
     assert (bumps[:, :3] == 0).all()  # no height, no evidence
 
 
+
+def test_shared_bump_weights_give_the_same_maps():
+    # R2d and R8b share the weights of one validity mask; another mask gets its own
+    shape = (120, 140)
+    height = correlated_noise(shape, 0.003, block_px=2, seed=3).astype(np.float32)
+    height[:, :5] = np.nan
+    other = height.copy()
+    other[40:60, 60:90] = np.nan
+    mask = disk(shape, 60, 70, 8)
+    weights = height_vote.BumpWeights()
+    for relative in (height, 0.5 * height, other, height):
+        np.testing.assert_array_equal(
+            height_vote._height_bumps(relative, mask, _weights=weights),
+            height_vote._height_bumps(relative, mask),
+        )
+
 def test_object_counts_and_peaks_equal_their_numpy_twins():
     # the twins: whole-frame bincounts and np.maximum.at (the code the kernels replaced)
     rng = np.random.default_rng(12)

@@ -11,6 +11,7 @@ from scipy.ndimage import find_objects
 from stages._regions import (
     _box_window,
     _dense_components,
+    _label_areas,
     _label_sums,
     _lookup,
     _object_boxes,
@@ -148,6 +149,18 @@ def test_lookup_equals_fancy_indexing_and_checks_the_range():
         np.testing.assert_array_equal(result, table[labels])
     with pytest.raises(IndexError, match="range"):
         _lookup(np.zeros(5), labels)
+
+
+def test_label_areas_equal_bincounts():
+    rng = np.random.default_rng(17)
+    for dtype in (np.int32, np.uint16, np.int64):
+        shape = tuple(rng.integers(1, 50, 2))
+        labels = np.where(rng.random(shape) < 0.5, rng.integers(1, 7, shape), 0).astype(dtype)
+        np.testing.assert_array_equal(
+            _label_areas(labels, 9), np.bincount(labels.ravel(), minlength=9)
+        )
+    with pytest.raises(IndexError, match="must lie in"):
+        _label_areas(np.full((2, 2), 9, np.int32), 9)
 
 
 def test_label_sums_equal_bincounts():

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from stages._shadow_sides import split_shadow_sides
+from stages._shadow_sides import _label_counts, split_shadow_sides
 
 SHAPE = (40, 60)
 ROCK_M = 0.04  # a rock's height (metres), far above 3 sigmas of 4 mm
@@ -103,3 +103,19 @@ def test_bad_arguments_say_what_was_expected():
         split_shadow_sides(labels, contrast, relative, noise, max_noise_m=-1.0)
     with pytest.raises(ValueError, match="gap_px >= 1"):
         split_shadow_sides(labels, contrast, relative, noise, gap_px=0)
+
+
+def test_label_counts_equal_their_bincounts():
+    # the twin: the three bincounts of masked copies the compiled pass replaced
+    rng = np.random.default_rng(6)
+    for _ in range(20):
+        shape = tuple(rng.integers(1, 40, 2))
+        count = int(rng.integers(1, 8))
+        labels = rng.integers(0, count, shape).astype(np.int32)
+        labels[rng.random(shape) < 0.5] = 0
+        precise = rng.random(shape) < 0.7
+        flat = precise & (rng.random(shape) < 0.4)
+        n_pixels, n_precise, n_flat = _label_counts(labels, precise, flat, count)
+        np.testing.assert_array_equal(n_pixels, np.bincount(labels.ravel(), minlength=count))
+        np.testing.assert_array_equal(n_precise, np.bincount(labels[precise], minlength=count))
+        np.testing.assert_array_equal(n_flat, np.bincount(labels[flat], minlength=count))
