@@ -108,6 +108,7 @@ def split_shadow_sides(
     min_height_m: float = 0.008,
     flat_tol_m: float = 0.003,
     gap_px: int = _GAP_PX,
+    cases: tuple[int, ...] = (1, 2),
 ) -> tuple[np.ndarray, int]:
     """Rule R7e: a light object takes the raised part of a dark neighbour (see module doc).
 
@@ -129,6 +130,9 @@ def split_shadow_sides(
         Floors of the raise threshold (``> 0``) and of the flat level (``>= 0``).
     gap_px : int
         ``>= 1``; a dark object this close to a light one is its neighbour.
+    cases : tuple of int
+        Which cases run: 1 (a dark neighbour split, run before R7b so that R7b does not
+        join a cast shadow whole) and/or 2 (a ground-gray face filled, run after R7d).
 
     Returns
     -------
@@ -152,6 +156,8 @@ def split_shadow_sides(
             "need max_noise_m >= 0 (0 disables), min_height_m > 0, flat_tol_m >= 0 and "
             f"gap_px >= 1, got {max_noise_m}, {min_height_m}, {flat_tol_m} and {gap_px}"
         )
+    if not cases or not set(cases) <= {1, 2}:
+        raise ValueError(f"cases must name 1, 2 or both, got {cases!r}")
     count = int(labels.max())
     if count == 0 or max_noise_m == 0:
         return labels, 0
@@ -208,7 +214,7 @@ def split_shadow_sides(
         window = out[y0:y1, x0:x1]
         reach = cv2.dilate((window == k).view(np.uint8), disk).view(bool)
         for d in np.unique(window[reach]):
-            if not shadowed[d]:
+            if 1 not in cases or not shadowed[d]:
                 continue
             # a box holding both objects
             dy, dx = spans[d - 1]
@@ -226,13 +232,16 @@ def split_shadow_sides(
                 if np.count_nonzero(grown) == np.count_nonzero(near):
                     break
                 near = grown
+            if np.count_nonzero(near) < np.sqrt(n_pixels[d]):
+                continue  # hardly raised: a shaded face the stereo flattened, left to R7b
             joined = lit | near
             closed = _closing(joined, disk)
             take = near | (closed & (box == 0))
             box[take] = k
             moved += int(np.count_nonzero(take))
             split.add(int(d))
-        moved += _fill_to_shadow(out, k, spans[k - 1], labels, contrast, shady, raised)
+        if 2 in cases:
+            moved += _fill_to_shadow(out, k, spans[k - 1], labels, contrast, shady, raised)
     for d in split:
         dy, dx = spans[d - 1]
         rest = out[dy, dx] == d

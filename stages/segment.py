@@ -26,9 +26,10 @@ they stand clearly out of the ground (R5b, R5d) and so are, in a field of parall
 objects that do not stand out of the ripple texture around them, objects whose other half
 lies just inside the thresholds grow into it when they stay compact (R7), a lighter and a
 darker half of one rock are joined (R7b), near the camera a lit face takes the raised part
-of a dark neighbour and the flat rest, its cast shadow, goes (R7e), a large raised object
-grows over the raised rest of its rock on its gray side (R7f), and the intensity decision
-stands where depth is invalid -- for the whole frame when fewer than
+of a dark neighbour and the flat rest, its cast shadow, goes (R7e: this first case before R7b,
+which would join face and shadow whole; its second case, a ground-gray face, after R7d), a
+large raised object grows over the raised rest of its rock on its gray side (R7f), and the
+intensity decision stands where depth is invalid -- for the whole frame when fewer than
 ``min_depth_valid_fraction`` of its heights are valid. How much the height rules trust
 single pixels depends on the measured height noise of the ground (precise, noisy and
 unusable regimes).
@@ -414,6 +415,22 @@ def segment_image(
         )
         if grown:
             notes.append(f"{grown} px of weak halves joined to their objects")
+    heights_usable = depth_stats is not None and depth_stats.ground_sigma_m <= _USABLE_SIGMA_M
+    r7e = contrast is not None and relative is not None and heights_usable and shadow_noise_m > 0
+    if r7e:
+        # R7e's first case, before R7b: a dark neighbour that holds a cast shadow is split
+        # by height first, else R7b joins the shadow to the lit face whole (mojave_0011)
+        labels, faces = _split_shadow_sides(
+            labels,
+            contrast,
+            relative,
+            max_noise_m=shadow_noise_m,
+            min_height_m=min_height_m,
+            flat_tol_m=flat_tol_m,
+            cases=(1,),
+        )
+        if faces:
+            notes.append(f"{faces} px of shaded faces split from cast shadows")
     if contrast is not None and join_gap_px > 0:
         # R7b: a lit half and a shaded half of one rock, each found on its own
         labels, joined = join_opposite_halves(labels, contrast, gap_px=join_gap_px)
@@ -431,9 +448,8 @@ def segment_image(
         labels, rims = trim_faint_rims(labels, contrast, fraction=rim_fraction)
         if rims:
             notes.append(f"{rims} px of faint rims dropped")
-    heights_usable = depth_stats is not None and depth_stats.ground_sigma_m <= _USABLE_SIGMA_M
-    if contrast is not None and relative is not None and heights_usable and shadow_noise_m > 0:
-        # R7e, after R7d: where heights are precise, a shaded face and its cast shadow
+    if r7e:
+        # R7e's second case, after R7d (which would trim the ground-gray face it fills)
         labels, faces = _split_shadow_sides(
             labels,
             contrast,
@@ -441,6 +457,7 @@ def segment_image(
             max_noise_m=shadow_noise_m,
             min_height_m=min_height_m,
             flat_tol_m=flat_tol_m,
+            cases=(2,),
         )
         if faces:
             notes.append(f"{faces} px of shaded faces joined to lit ones")
@@ -485,6 +502,7 @@ def _split_shadow_sides(
     max_noise_m: float,
     min_height_m: float,
     flat_tol_m: float,
+    cases: tuple[int, ...],
 ) -> tuple[np.ndarray, int]:
     """R7e on the heights the depth rules read: relative to R0's local ground, R0b's noise."""
     if not labels.any():
@@ -499,6 +517,7 @@ def _split_shadow_sides(
         max_noise_m=max_noise_m,
         min_height_m=min_height_m,
         flat_tol_m=flat_tol_m,
+        cases=cases,
     )
 
 
@@ -641,7 +660,7 @@ def _sector_product(name: str, dtype: str, long_name: str, units: str = "") -> P
 
 STAGE = Stage(
     name="segment",
-    version="31",
+    version="32",
     inputs=("left", "right", "disparity", "height"),
     outputs=(
         Product(
