@@ -110,13 +110,15 @@ def test_bad_arguments_say_what_was_expected():
 def test_cast_shadow_split_before_r7b_joins_it_whole_mojave_0011_rock_4():
     """Regression (mojave_0011 rock 4): R7b joined a lit face to its dark neighbour, shaded
     face plus flat cast shadow, whole (IoU 0.81 -> 0.68, a sample measured as an obstacle)
-    and R7e, after it, never saw the pair. R7e's first case now runs before R7b."""
+    and R7e, after it, never saw the pair. R7e splits clearly raised faces before R7b too."""
     labels, contrast, relative, noise = lit_rock_scene(shadow_object=True)
     rock = (labels > 0) & (relative > 0)
     # the scene's square corners cost its closed union solidity: a wider slack than R7b's
     whole, count = join_opposite_halves(labels, contrast, solidity_slack=_SLACK)
     assert count == 1 and np.count_nonzero(whole > 0) > np.count_nonzero(rock) + 150
-    split, moved = split_shadow_sides(labels, contrast, relative, noise, cases=(1,))
+    split, moved = split_shadow_sides(
+        labels, contrast, relative, noise, cases=(1,), facing_only=True
+    )
     assert moved > 0 and set(np.unique(split)) == {0, 1}
     out, count = join_opposite_halves(split, contrast, solidity_slack=_SLACK)
     assert count == 0 and np.array_equal(out, split)
@@ -125,15 +127,33 @@ def test_cast_shadow_split_before_r7b_joins_it_whole_mojave_0011_rock_4():
 
 
 def test_hardly_raised_shaded_face_is_left_to_r7b():
-    # the stereo flattened the shaded face: a few raised pixels are no reason to call the
-    # rest a cast shadow (mojave seed 2, mojave_0008 rock 7); R7b joins it whole
+    # the stereo flattened the shaded face: before R7b a few raised pixels are no reason to
+    # call the rest a cast shadow (mojave seed 2, mojave_0008 rock 7); R7b joins it whole
     labels, contrast, relative, noise = lit_rock_scene(shadow_object=True, face_m=0.0)
     relative[10:30, 22:24] = 0.0
     relative[19, 21] = ROCK_M
-    out, moved = split_shadow_sides(labels, contrast, relative, noise, cases=(1,))
+    out, moved = split_shadow_sides(
+        labels, contrast, relative, noise, cases=(1,), facing_only=True
+    )
     assert moved == 0 and np.array_equal(out, labels)
+    # the call after R7d splits it all the same (its one raised pixel) and drops the rest
+    assert split_shadow_sides(labels, contrast, relative, noise)[1] > 0
     joined, count = join_opposite_halves(out, contrast, solidity_slack=_SLACK)
     assert count == 1 and set(np.unique(joined)) == {0, 1}
+
+
+def test_dark_rock_body_beside_a_small_highlight_is_left_to_r7b():
+    # lava seed 3, lava_0008 rock 9: a dark rock body (its raised part larger than the lit
+    # object) beside a highlight; before R7b the highlight does not take it (IoU 0.87 ->
+    # 0.71 when it did), R7b joins the two
+    labels, contrast, relative, noise = lit_rock_scene(shadow_object=True)
+    labels[labels == 1] = 0
+    labels[18:22, 24:26] = 1  # the lit object, 8 px, on the rock
+    out, moved = split_shadow_sides(
+        labels, contrast, relative, noise, cases=(1,), facing_only=True
+    )
+    assert moved == 0 and np.array_equal(out, labels)
+    assert split_shadow_sides(labels, contrast, relative, noise, cases=(1,))[1] > 0
 
 
 def test_cases_run_on_their_own():
