@@ -298,6 +298,7 @@ def grow_other_faces(
     *,
     min_contrast: float = _FACE_CONTRAST,
     max_steps: int = _WEAK_STEPS,
+    barrier: np.ndarray | None = None,
 ) -> tuple[np.ndarray, int]:
     """Rule R7c: grow objects into the other face of their rock, across the ground's gray.
 
@@ -316,6 +317,9 @@ def grow_other_faces(
         ``> 0`` bands.
     max_steps : int
         ``>= 0`` 8-connected steps; 0 disables.
+    barrier : (M, N) ndarray of bool, optional
+        Background pixels not to grow into (R7e's cast shadows, dropped by height: dark
+        like a shaded face, but known to lie on the ground).
 
     Returns
     -------
@@ -324,10 +328,17 @@ def grow_other_faces(
     grown : int
         Pixels added.
     """
+    between = labels == 0
+    if barrier is not None:
+        if barrier.shape != labels.shape:
+            raise ValueError(
+                f"barrier {barrier.shape} must have the labels' shape {labels.shape}"
+            )
+        between &= ~barrier
     return grow_weak_halves(
         labels,
         contrast,
-        between=labels == 0,
+        between=between,
         min_contrast=min_contrast,
         max_steps=max_steps,
         opposite=True,

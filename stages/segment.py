@@ -26,9 +26,10 @@ they stand clearly out of the ground (R5b, R5d) and so are, in a field of parall
 objects that do not stand out of the ripple texture around them, objects whose other half
 lies just inside the thresholds grow into it when they stay compact (R7), a lighter and a
 darker half of one rock are joined (R7b), near the camera a lit face takes the raised part
-of a dark neighbour and the flat rest, its cast shadow, goes (R7e), a large raised object
-grows over the raised rest of its rock on its gray side (R7f), and the intensity decision
-stands where depth is invalid -- for the whole frame when fewer than
+of a dark neighbour and the flat rest, its cast shadow, goes (R7e; for clearly raised faces also
+before R7b, which would join face and shadow whole), a
+large raised object grows over the raised rest of its rock on its gray side (R7f), and the
+intensity decision stands where depth is invalid -- for the whole frame when fewer than
 ``min_depth_valid_fraction`` of its heights are valid. How much the height rules trust
 single pixels depends on the measured height noise of the ground (precise, noisy and
 unusable regimes).
@@ -418,6 +419,28 @@ def segment_image(
         )
         if grown:
             notes.append(f"{grown} px of weak halves joined to their objects")
+    heights_usable = depth_stats is not None and depth_stats.ground_sigma_m <= _USABLE_SIGMA_M
+    row_noise = _RowNoise(relative) if relative is not None else None
+    r7e = contrast is not None and row_noise is not None and heights_usable and shadow_noise_m > 0
+    shadows = None
+    if r7e:
+        before = labels
+        # R7e's first case, before R7b, on dark neighbours clearly raised next to the lit
+        # face: else R7b joins face and cast shadow to it whole (mojave_0011 rock 4)
+        labels, faces = _split_shadow_sides(
+            labels,
+            contrast,
+            row_noise,
+            max_noise_m=shadow_noise_m,
+            min_height_m=min_height_m,
+            flat_tol_m=flat_tol_m,
+            cases=(1,),
+            facing_only=True,
+        )
+        if faces:
+            notes.append(f"{faces} px of shaded faces split from cast shadows")
+            # the cast shadows dropped: R7c would take them back as the rock's other face
+            shadows = (before > 0) & (labels == 0)
     if contrast is not None and join_gap_px > 0:
         # R7b: a lit half and a shaded half of one rock, each found on its own
         labels, joined = join_opposite_halves(labels, contrast, gap_px=join_gap_px)
@@ -426,7 +449,7 @@ def segment_image(
     if contrast is not None and face_bands > 0 and weak_growth_px > 0:
         # R7c: the other face of a rock, on the other side of the ground's gray level
         labels, faced = grow_other_faces(
-            labels, contrast, min_contrast=face_bands, max_steps=weak_growth_px
+            labels, contrast, min_contrast=face_bands, max_steps=weak_growth_px, barrier=shadows
         )
         if faced:
             notes.append(f"{faced} px of other faces joined to their objects")
@@ -435,9 +458,7 @@ def segment_image(
         labels, rims = trim_faint_rims(labels, contrast, fraction=rim_fraction)
         if rims:
             notes.append(f"{rims} px of faint rims dropped")
-    heights_usable = depth_stats is not None and depth_stats.ground_sigma_m <= _USABLE_SIGMA_M
-    row_noise = _RowNoise(relative) if relative is not None else None
-    if contrast is not None and row_noise is not None and heights_usable and shadow_noise_m > 0:
+    if r7e:
         # R7e, after R7d: where heights are precise, a shaded face and its cast shadow
         labels, faces = _split_shadow_sides(
             labels,
@@ -446,6 +467,8 @@ def segment_image(
             max_noise_m=shadow_noise_m,
             min_height_m=min_height_m,
             flat_tol_m=flat_tol_m,
+            cases=(1, 2),
+            facing_only=False,
         )
         if faces:
             notes.append(f"{faces} px of shaded faces joined to lit ones")
@@ -514,6 +537,8 @@ def _split_shadow_sides(
     max_noise_m: float,
     min_height_m: float,
     flat_tol_m: float,
+    cases: tuple[int, ...],
+    facing_only: bool,
 ) -> tuple[np.ndarray, int]:
     """R7e on the heights the depth rules read: relative to R0's local ground, R0b's noise."""
     if not labels.any():
@@ -526,6 +551,8 @@ def _split_shadow_sides(
         max_noise_m=max_noise_m,
         min_height_m=min_height_m,
         flat_tol_m=flat_tol_m,
+        cases=cases,
+        facing_only=facing_only,
     )
 
 
@@ -668,7 +695,7 @@ def _sector_product(name: str, dtype: str, long_name: str, units: str = "") -> P
 
 STAGE = Stage(
     name="segment",
-    version="31",
+    version="32",
     inputs=("left", "right", "disparity", "height"),
     outputs=(
         Product(

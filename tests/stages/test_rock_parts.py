@@ -206,3 +206,19 @@ def test_grow_other_faces_takes_a_face_not_a_rim():
     assert count == 0 and np.array_equal(grown, labels)
     with pytest.raises(ValueError, match="min_gain >= 0"):
         grow_weak_halves(labels, contrast, between=labels == 0, min_gain=-1.0)
+
+
+def test_grow_other_faces_leaves_a_cast_shadow_r7e_dropped():
+    # regression (lava_0003 rock 9, after R7e's split moved before R7b for mojave_0011 rock
+    # 4): the cast shadow R7e dropped by height is dark like a shaded face; R7c took it back
+    # (IoU 0.80 -> 0.70, width +19 %) until R7e's shadows became a barrier
+    rock, left, contrast = half_rock(weak=0.6)
+    labels = left.astype(np.int32)
+    shadow = rock & ~left
+    grown, count = grow_other_faces(labels, contrast, barrier=shadow)
+    assert count == 0 and np.array_equal(grown, labels)
+    # a barrier elsewhere changes nothing
+    grown, count = grow_other_faces(labels, contrast, barrier=np.zeros_like(shadow))
+    assert np.array_equal(grown > 0, rock)
+    with pytest.raises(ValueError, match="barrier"):
+        grow_other_faces(labels, contrast, barrier=shadow[:10])

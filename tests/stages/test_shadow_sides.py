@@ -5,11 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from stages._rock_parts import join_opposite_halves
 from stages._shadow_sides import _label_counts, split_shadow_sides
 
 SHAPE = (40, 60)
 ROCK_M = 0.04  # a rock's height (metres), far above 3 sigmas of 4 mm
 NOISE_M = 0.004
+_SLACK = 0.2  # R7b's solidity slack for the scene's square objects
 
 
 def lit_rock_scene(*, shadow_object: bool, face_m: float = ROCK_M, face_px: int = 6):
@@ -119,3 +121,64 @@ def test_label_counts_equal_their_bincounts():
         np.testing.assert_array_equal(n_pixels, np.bincount(labels.ravel(), minlength=count))
         np.testing.assert_array_equal(n_precise, np.bincount(labels[precise], minlength=count))
         np.testing.assert_array_equal(n_flat, np.bincount(labels[flat], minlength=count))
+
+
+def test_cast_shadow_split_before_r7b_joins_it_whole_mojave_0011_rock_4():
+    """Regression (mojave_0011 rock 4): R7b joined a lit face to its dark neighbour, shaded
+    face plus flat cast shadow, whole (IoU 0.81 -> 0.68, a sample measured as an obstacle)
+    and R7e, after it, never saw the pair. R7e splits clearly raised faces before R7b too."""
+    labels, contrast, relative, noise = lit_rock_scene(shadow_object=True)
+    rock = (labels > 0) & (relative > 0)
+    # the scene's square corners cost its closed union solidity: a wider slack than R7b's
+    whole, count = join_opposite_halves(labels, contrast, solidity_slack=_SLACK)
+    assert count == 1 and np.count_nonzero(whole > 0) > np.count_nonzero(rock) + 150
+    split, moved = split_shadow_sides(
+        labels, contrast, relative, noise, cases=(1,), facing_only=True
+    )
+    assert moved > 0 and set(np.unique(split)) == {0, 1}
+    out, count = join_opposite_halves(split, contrast, solidity_slack=_SLACK)
+    assert count == 0 and np.array_equal(out, split)
+    assert np.count_nonzero(out[rock] == 1) == np.count_nonzero(rock)
+    assert not (out[10:30, :16] > 0).any()  # the cast shadow is gone
+
+
+def test_hardly_raised_shaded_face_is_left_to_r7b():
+    # the stereo flattened the shaded face: before R7b a few raised pixels are no reason to
+    # call the rest a cast shadow (mojave seed 2, mojave_0008 rock 7); R7b joins it whole
+    labels, contrast, relative, noise = lit_rock_scene(shadow_object=True, face_m=0.0)
+    relative[10:30, 22:24] = 0.0
+    relative[19, 21] = ROCK_M
+    out, moved = split_shadow_sides(
+        labels, contrast, relative, noise, cases=(1,), facing_only=True
+    )
+    assert moved == 0 and np.array_equal(out, labels)
+    # the call after R7d splits it all the same (its one raised pixel) and drops the rest
+    assert split_shadow_sides(labels, contrast, relative, noise)[1] > 0
+    joined, count = join_opposite_halves(out, contrast, solidity_slack=_SLACK)
+    assert count == 1 and set(np.unique(joined)) == {0, 1}
+
+
+def test_dark_rock_body_beside_a_small_highlight_is_left_to_r7b():
+    # lava seed 3, lava_0008 rock 9: a dark rock body (its raised part larger than the lit
+    # object) beside a highlight; before R7b the highlight does not take it (IoU 0.87 ->
+    # 0.71 when it did), R7b joins the two
+    labels, contrast, relative, noise = lit_rock_scene(shadow_object=True)
+    labels[labels == 1] = 0
+    labels[18:22, 24:26] = 1  # the lit object, 8 px, on the rock
+    out, moved = split_shadow_sides(
+        labels, contrast, relative, noise, cases=(1,), facing_only=True
+    )
+    assert moved == 0 and np.array_equal(out, labels)
+    assert split_shadow_sides(labels, contrast, relative, noise, cases=(1,))[1] > 0
+
+
+def test_cases_run_on_their_own():
+    labels, contrast, relative, noise = lit_rock_scene(shadow_object=True)
+    out, moved = split_shadow_sides(labels, contrast, relative, noise, cases=(2,))
+    assert moved == 0 and np.array_equal(out, labels)
+    labels, contrast, relative, noise = lit_rock_scene(shadow_object=False, face_px=3)
+    out, moved = split_shadow_sides(labels, contrast, relative, noise, cases=(1,))
+    assert moved == 0 and np.array_equal(out, labels)
+    assert split_shadow_sides(labels, contrast, relative, noise, cases=(2,))[1] > 0
+    with pytest.raises(ValueError, match="cases"):
+        split_shadow_sides(labels, contrast, relative, noise, cases=(3,))
