@@ -12,6 +12,7 @@ footprint measurements (``width_m``, ``length_m`` without ground-level fringes) 
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 from scipy import ndimage
@@ -571,7 +572,7 @@ def describe_objects(
 
 
 def _class_border_objects(
-    rows: list[dict[str, object]],
+    rows: list[dict[str, Any]],
     *,
     quantile: float,
     sample_max_m: float,
