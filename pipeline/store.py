@@ -22,6 +22,7 @@ tables stay in the run directory, which only the driver writes.
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import ctypes.util
 import errno
@@ -120,10 +121,14 @@ def atomic_write_bytes(path: Path, data: bytes, *, durable: bool = True) -> None
     the driver flushes the filesystem (:func:`sync_filesystem`) before it records the frame
     complete, as for the frame's zarr chunks, so one flush per batch replaces one per file.
     """
-    path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}{TMP_MARK}{uuid.uuid4().hex[:8]}")
     try:
-        with open(tmp, "wb") as fh:
+        fh = open(tmp, "wb")
+    except FileNotFoundError:  # a new directory: created only then, not checked per file
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fh = open(tmp, "wb")
+    try:
+        with fh:
             fh.write(data)
             if durable:
                 fh.flush()
@@ -359,6 +364,11 @@ def _cached_writer(path: str, ino: int, mtime_ns: int) -> _SlabWriter | None:
         return None
 
 
+# a chunk of a frame slab: its window in the slab, its chunk coordinates after the frame's,
+# whether it is an edge chunk that zarr pads with the fill value
+_Tile = tuple[tuple[slice, ...], tuple[int, ...], bool]
+
+
 class _Unsupported(Exception):
     """The array uses a layout or codec the slab writer does not encode itself."""
 
@@ -393,35 +403,57 @@ class _SlabWriter:
         endian = codecs[0].get("configuration", {}).get("endian") or "little"
         self.dtype = array.dtype.newbyteorder("<" if endian == "little" else ">")
         self.compress = _numcodec(codecs[1]) if len(codecs) == 2 else None
-        self.root = root
+        self.root = str(root)
         self.chunks = chunk_shape[1:]
         self.key = meta.chunk_key_encoding.encode_chunk_key
         self.fill = np.asarray(meta.fill_value, dtype=array.dtype)
+        self._grid: dict[tuple[int, ...], list[_Tile]] = {}
+        self._fill_nan = self.fill.dtype.kind in "fc" and bool(np.isnan(self.fill))
+        self._fill_item = self.fill.item()
 
     def write(self, index: int, data: np.ndarray) -> None:
-        grid = [range(0, n, c) for n, c in zip(data.shape, self.chunks, strict=True)]
-        for starts in itertools.product(*grid):
-            block = data[tuple(slice(s, s + c) for s, c in zip(starts, self.chunks, strict=True))]
-            if block.shape != self.chunks:  # an edge chunk: zarr pads it with the fill value
+        for window, tail, edge in self._tiles(data.shape):
+            block = data[window]
+            if edge:  # an edge chunk: zarr pads it with the fill value
                 padded = np.full(self.chunks, self.fill, dtype=data.dtype)
                 padded[tuple(slice(0, n) for n in block.shape)] = block
                 block = padded
-            coords = (index, *(s // c for s, c in zip(starts, self.chunks, strict=True)))
-            path = self.root / self.key(coords)
+            path = os.path.join(self.root, self.key((index, *tail)))
             if self._is_fill(block):
-                path.unlink(missing_ok=True)  # an earlier attempt's chunk must not survive
+                with contextlib.suppress(FileNotFoundError):
+                    os.unlink(path)  # an earlier attempt's chunk must not survive
                 continue
             raw = np.ascontiguousarray(block, dtype=self.dtype)
             encoded = raw.tobytes() if self.compress is None else self.compress.encode(raw)
             _replace_file(path, encoded)
+
+    def _tiles(self, shape: tuple[int, ...]) -> list[_Tile]:
+        """(slab window, chunk coordinates after the frame's, whether padded) of each chunk;
+        computed once per slab shape, not per frame."""
+        tiles = self._grid.get(shape)
+        if tiles is None:
+            tiles = []
+            grid = [range(0, n, c) for n, c in zip(shape, self.chunks, strict=True)]
+            for starts in itertools.product(*grid):
+                window = tuple(
+                    slice(s, min(s + c, n))
+                    for s, c, n in zip(starts, self.chunks, shape, strict=True)
+                )
+                edge = any(w.stop - w.start != c for w, c in zip(window, self.chunks, strict=True))
+                tail = tuple(s // c for s, c in zip(starts, self.chunks, strict=True))
+                tiles.append((window, tail, edge))
+            self._grid[shape] = tiles
+        return tiles
 
     def _is_fill(self, block: np.ndarray) -> bool:
         # the same test as zarr's Buffer.all_equal: bit patterns for a zero float fill (so
         # that -0.0 is stored), NaN equal to a NaN fill
         fill = self.fill
         first = block[(0,) * block.ndim]
-        if not np.array_equal(first, fill, equal_nan=fill.dtype.kind in "fc"):
-            return False  # most chunks hold data: settled by their first element
+        # most chunks hold data: settled by their first element (scalar compares, cheaper
+        # than np.array_equal)
+        if (first == first) if self._fill_nan else (first != self._fill_item):
+            return False
         if fill.dtype.kind == "f" and fill == 0.0:
             void = f"V{block.dtype.itemsize}"
             return np.array_equal(block.view(void), np.full(block.shape, fill).view(void))
@@ -446,19 +478,26 @@ def _numcodec(config: Mapping[str, Any]) -> Any:
     raise _Unsupported(f"compressor {name!r}")
 
 
-def _replace_file(path: Path, data: bytes) -> None:
-    tmp = path.with_suffix(f".{uuid.uuid4().hex}.partial")  # zarr's temporary name
+_TMP_PREFIX = uuid.uuid4().hex[:16]  # per process (with the pid: forks share it)
+_tmp_serial = itertools.count()
+
+
+def _replace_file(path: str, data: bytes) -> None:
+    # zarr's temporary name is <chunk>.<uuid hex>.partial: the same shape, so that
+    # remove_orphan_temp_files finds both, without reading urandom for each file
+    tmp = f"{path}.{_TMP_PREFIX}{os.getpid():x}{next(_tmp_serial):08x}.partial"
     try:
         fh = open(tmp, "wb")
     except FileNotFoundError:  # the frame's first chunk in this directory
-        path.parent.mkdir(parents=True, exist_ok=True)
+        os.makedirs(os.path.dirname(path), exist_ok=True)
         fh = open(tmp, "wb")
     try:
         with fh:
             fh.write(data)
         os.replace(tmp, path)
     except BaseException:
-        tmp.unlink(missing_ok=True)
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
         raise
 
 
@@ -477,8 +516,9 @@ def write_frame_array(
         array = _remote_array(f"{zarr_location(root)}/{name}", token)
     else:
         path = _zarr_path(root) / name
-        array = _open_array(path, "r+")
-        writer = _slab_writer(path)
+        meta = os.stat(path / "zarr.json")  # one stat keys both cached handles
+        array = _cached_array(str(path), "r+", meta.st_ino, meta.st_mtime_ns)
+        writer = _cached_writer(str(path), meta.st_ino, meta.st_mtime_ns)
     if tuple(array.shape[1:]) != data.shape or array.dtype != data.dtype:
         raise ValueError(
             f"product {name!r} expects per-frame shape {tuple(array.shape[1:])} and dtype "

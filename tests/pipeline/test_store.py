@@ -198,3 +198,30 @@ def test_product_files_round_trip_under_a_directory_or_an_fsspec_url(tmp_path, k
     assert read_product_file(root, "quicklooks/f1/objects.png") == b"\x89PNG data"
     write_product_file(root, "quicklooks/f1/objects.png", b"again")  # replaced whole
     assert read_product_file(root, "quicklooks/f1/objects.png") == b"again"
+
+
+@pytest.mark.parametrize(("dtype", "fill"), [("int32", 0), ("float32", 0.0), ("float32", np.nan)])
+def test_a_chunk_that_only_starts_with_the_fill_value_is_written_as_zarr_writes_it(
+    tmp_path, dtype, fill
+):
+    # the fill test settles most chunks by their first element: a chunk whose first element
+    # is the fill (or -0.0 for a 0.0 fill) must still go through the whole-chunk test
+    for name in ("ours", "zarr"):
+        zarr.create_array(
+            tmp_path / "products.zarr" / name,
+            shape=(1, 8, 8),
+            chunks=(1, 4, 4),
+            dtype=dtype,
+            fill_value=fill,
+            compressors=ZstdCodec(level=1),
+        )
+    data = np.full((8, 8), fill, dtype=dtype)
+    data[0, 1] = 3  # chunk (0, 0): fill first, data after
+    if np.dtype(dtype).kind == "f":
+        data[4:, :4] = -0.0  # chunk (1, 0): a 0.0 fill stores -0.0 (bit patterns differ)
+    write_frame_array(tmp_path, "ours", 0, data)
+    zarr.open_array(tmp_path / "products.zarr" / "zarr", mode="r+")[0] = data
+    ours = _chunk_files(tmp_path / "products.zarr" / "ours")
+    assert "c/0/0/0" in ours
+    assert ours == _chunk_files(tmp_path / "products.zarr" / "zarr")
+    np.testing.assert_array_equal(read_frame_array(tmp_path, "ours", 0), data)
