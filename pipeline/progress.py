@@ -32,30 +32,55 @@ def make_progress(*, enabled: bool = True) -> tuple[Callable[[int, int, str], No
             transient=False,
         )
         task: dict[str, Any] = {}
-        start = time.monotonic()
+        rate_of = _SteadyRate()
 
         def update(done: int, total: int, frame_id: str) -> None:
             if not task:
                 bar.start()
                 task["id"] = bar.add_task("run", total=total, rate="")
-            rate = done / max(time.monotonic() - start, 1e-9)
-            bar.update(task["id"], completed=done, rate=f"{rate:.2f} frames/s")
+            rate = rate_of(done, time.monotonic())
+            text = f"{rate:.2f} frames/s" if rate is not None else ""
+            bar.update(task["id"], completed=done, rate=text)
 
         return update, bar.stop
-    state = {"last": 0.0, "start": time.monotonic()}
+    state = {"last": 0.0}
+    rate_of = _SteadyRate()
 
     def log(done: int, total: int, frame_id: str) -> None:
         now = time.monotonic()
+        rate = rate_of(done, now)
         if done == total or now - state["last"] >= 5.0:
-            elapsed = now - state["start"]
-            rate = done / max(elapsed, 1e-9)
-            eta = (total - done) / rate if rate else float("nan")
+            if done == total:
+                pace = "all done"
+            elif rate is None:
+                pace = "rate and ETA from the next frame on (the first carries the start-up)"
+            else:
+                eta = (total - done) / rate if rate > 0 else float("nan")
+                pace = f"{rate:.2f} frames/s, ETA {eta:.0f} s"
             print(
-                f"arroyo: {done}/{total} frames, {rate:.2f} frames/s, ETA {eta:.0f} s "
-                f"(last {frame_id})",
+                f"arroyo: {done}/{total} frames, {pace} (last {frame_id})",
                 file=sys.stderr,
                 flush=True,
             )
             state["last"] = now
 
     return log, (lambda: None)
+
+
+class _SteadyRate:
+    """Frames per second since the first progress report: the first frame carries the
+    run's start-up (workers starting, numba compiling its kernels on a fresh install,
+    20-30 s against 1-2 s per frame after), and an ETA from it was 10-20 times too long.
+    ``None`` until a second report brings a frame on."""
+
+    def __init__(self) -> None:
+        self._first: tuple[int, float] | None = None
+
+    def __call__(self, done: int, now: float) -> float | None:
+        if self._first is None:
+            self._first = (done, now)
+            return None
+        first_done, first_at = self._first
+        if done <= first_done:
+            return None
+        return (done - first_done) / max(now - first_at, 1e-9)
