@@ -65,6 +65,7 @@ from numba import njit
 
 from ._blobs import BlobScales, add_compact_blobs
 from ._height_vote import BumpWeights, _height_bumps
+from ._regions import _lookup
 
 __all__ = ["add_height_blobs", "detail_ratio"]
 
@@ -181,9 +182,9 @@ def add_height_blobs(
     # kept blobs numbered on densely, the others back to ground
     numbers = np.zeros(count, np.int32)
     numbers[keep] = np.arange(first, first + int(keep.sum()), dtype=np.int32)
-    out = np.empty(found.shape, np.int32)
-    _renumber_blobs(found, first, numbers, out)
-    return out, int(keep.sum())
+    # the objects keep their ids, blob ``first + i`` becomes ``numbers[i + 1]``
+    table = np.concatenate([np.arange(first, dtype=np.int32), numbers[1:]])
+    return _lookup(table, found), int(keep.sum())
 
 
 def _blob_cues(
@@ -233,13 +234,3 @@ def _cue_pass(found, first, bumps, detail, around, peak, pixels, sums):  # pragm
             sums[0, k] += detail[y, x]
             sums[1, k] += around[y, x]
     pixels[0] = ground
-
-
-@njit(cache=True)
-def _renumber_blobs(found, first, numbers, out):  # pragma: no cover - numba
-    """``found`` with each blob (label ``>= first``) set to ``numbers[label - first + 1]``."""
-    rows, cols = found.shape
-    for y in range(rows):
-        for x in range(cols):
-            label = found[y, x]
-            out[y, x] = numbers[label - first + 1] if label >= first else label
