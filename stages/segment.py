@@ -16,9 +16,10 @@ noisy-height vote), all documented rule by rule.
 ``method = 'sector-histogram+depth'`` (default) adds the depth stage's ``height`` (metres
 above the fitted ground plane) and ``disparity`` (rules R0-R3 in :mod:`stages._depth_rules`
 and :mod:`stages._height_vote`, R4 in :mod:`stages._regions`, R5-R5d in
-:mod:`stages._texture_rules`, R6-R7c in :mod:`stages._rock_parts`, R4b and R7d in
-:mod:`stages._outlines`, R7e in :mod:`stages._shadow_sides`, R7f in :mod:`stages._height_grow`,
-R8 in :mod:`stages._blobs`, R8b in :mod:`stages._height_blobs`):
+:mod:`stages._texture_rules`, R6-R7c in :mod:`stages._rock_parts`, R6b in
+:mod:`stages._sun_shadows`, R4b and R7d in :mod:`stages._outlines`, R7e in
+:mod:`stages._shadow_sides`, R7f in :mod:`stages._height_grow`, R8 in :mod:`stages._blobs`,
+R8b in :mod:`stages._height_blobs`):
 raised pixels are object even when their gray equals the ground's, flat intensity objects
 (shadows, stains, texture blotches) are background, touching objects split at disparity
 jumps or, at one range, at narrow necks (R4b), streaks (ripple troughs) are dropped unless
@@ -86,6 +87,7 @@ from ._sectors import (
     sector_histograms,
 )
 from ._shadow_sides import split_shadow_sides
+from ._sun_shadows import trim_sun_shadows
 from ._texture_rules import drop_ripple_pieces, drop_streaks
 
 __all__ = [
@@ -177,6 +179,7 @@ def segment_image(
     rim_fraction: float = 0.3,
     shadow_noise_m: float = 0.0075,
     height_grow_fraction: float = 0.5,
+    sun_shadow_angle_deg: float = 45.0,
 ) -> Segmentation:
     """Segment one reference image into background and numbered objects.
 
@@ -246,6 +249,11 @@ def segment_image(
         mm, a large object standing clearly above the ground grows over connected
         background pixels raised above this fraction of its core height and on its side of
         the ground's gray level (rule R7f of :mod:`stages._height_grow`); 0 disables.
+    sun_shadow_angle_deg : float
+        Depth method only, in ``[0, 90]`` degrees: where heights are not precise, a dark
+        object's lighter pieces within this angle of the frame's direction away from the sun
+        (from its lit objects' dark sides), at most half the ground's gray, are dropped as
+        its cast shadow (rule R6b of :mod:`stages._sun_shadows`); 0 disables.
     blob_sigmas : float
         Depth method only, ``>= 0``: compact blobs this many ground spreads (at their own
         scale) darker or lighter than the ground that no object touches are added (rule R8
@@ -293,6 +301,10 @@ def segment_image(
     if not 0 <= height_grow_fraction <= 1:
         raise ValueError(
             f"height_grow_fraction must be in [0, 1] (0 disables), got {height_grow_fraction}"
+        )
+    if not 0 <= sun_shadow_angle_deg <= 90:
+        raise ValueError(
+            f"sun_shadow_angle_deg must be in [0, 90] (0 disables), got {sun_shadow_angle_deg}"
         )
     if not blob_sigmas >= 0 or not height_blob_sigmas >= 0:
         raise ValueError(
@@ -391,6 +403,20 @@ def segment_image(
     if method == "sector-histogram+depth" and not heights_precise:
         # R6: precise heights already removed shadows (R2); otherwise gray levels do
         trimmed = trim_attached_shadows(labels, image)
+        if contrast is not None and sun_shadow_angle_deg > 0:
+            # R6b: the shadows R6 cannot tell from a lit face by gray, by the sun's side
+            # (the objects R6 trimmed are left as it left them)
+            cut = np.bincount(labels[(labels > 0) & (trimmed == 0)], minlength=labels.max() + 1)
+            trimmed, sun = trim_sun_shadows(
+                trimmed,
+                image,
+                contrast,
+                skip=cut > 0,
+                max_angle_deg=sun_shadow_angle_deg,
+                min_area_px=min_area_px,
+            )
+            if sun:
+                notes.append(f"{sun} cast shadow(s) on the frame's shadow side dropped")
         # relabel (a trimmed shadow may have joined two rocks) but keep the R4 splits
         labels = label_objects(
             trimmed > 0, min_area_px=min_area_px, fill=False, edges=_seams(trimmed)
@@ -695,7 +721,7 @@ def _sector_product(name: str, dtype: str, long_name: str, units: str = "") -> P
 
 STAGE = Stage(
     name="segment",
-    version="32",
+    version="33",
     inputs=("left", "right", "disparity", "height"),
     outputs=(
         Product(
@@ -855,6 +881,15 @@ STAGE = Stage(
             None,
             0,
             1,
+        ),
+        Param(
+            "sun_shadow_angle_deg",
+            float,
+            45.0,
+            "depth: dark objects lose lighter pieces this close to the anti-sun side; 0 = off",
+            None,
+            0,
+            90,
         ),
         Param(
             "tile_px",

@@ -171,6 +171,8 @@ def test_bad_parameters_raise_clear_errors():
         segment_image(image, sectors=4, blob_sigmas=-1.0)
     with pytest.raises(ValueError, match="shadow_noise_m must be >= 0"):
         segment_image(image, sectors=4, shadow_noise_m=-0.001)
+    with pytest.raises(ValueError, match=r"sun_shadow_angle_deg must be in \[0, 90\]"):
+        segment_image(image, sectors=4, sun_shadow_angle_deg=91.0)
 
 
 def test_depth_mode_splits_rocks_at_one_range_joined_by_a_neck():
