@@ -8,8 +8,9 @@ what is left as flat (rocks 1.5-3 cm high read 0.2-0.9 cm under 0.8 cm of height
 Of the catalog's 185 missed rocks 128 were touched by no object at all.
 
 At a rock's scale the texture averages out more than a compact rock does, so R8 looks
-for compact blobs at that scale, after every other rule, among the pixels no object
-claims (:func:`add_compact_blobs`):
+for compact blobs at that scale, after every other rule but R8b
+(:mod:`stages._height_blobs`), among the pixels no object (nor R8c's two-faced blob,
+:mod:`stages._two_face_blobs`) claims (:func:`add_compact_blobs`):
 
 1. the image is smoothed (Gaussian, ``sigma_px`` 1.5) and the ground level taken as a
    median over ``ground_px`` (41) pixels (at half resolution); their difference, divided

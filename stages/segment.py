@@ -10,6 +10,7 @@ components, split), :mod:`stages._texture_rules` (streaks), :mod:`stages._rock_p
 halves), :mod:`stages._outlines` (necks, rims), :mod:`stages._shadow_sides` (shaded faces),
 :mod:`stages._height_grow` (raised rests), :mod:`stages._blobs` (compact blobs),
 :mod:`stages._height_blobs` (faint blobs standing as height bumps),
+:mod:`stages._two_face_blobs` (blobs of a lit and a shaded face),
 :mod:`stages._depth_rules` (height rules) and :mod:`stages._height_vote` (the
 noisy-height vote), all documented rule by rule.
 
@@ -19,7 +20,7 @@ and :mod:`stages._height_vote`, R4 in :mod:`stages._regions`, R5-R5d in
 :mod:`stages._texture_rules`, R6-R7c in :mod:`stages._rock_parts`, R6b in
 :mod:`stages._sun_shadows`, R4b and R7d in :mod:`stages._outlines`, R7e in
 :mod:`stages._shadow_sides`, R7f in :mod:`stages._height_grow`, R8 in :mod:`stages._blobs`,
-R8b in :mod:`stages._height_blobs`):
+R8b in :mod:`stages._height_blobs`, R8c in :mod:`stages._two_face_blobs`):
 raised pixels are object even when their gray equals the ground's, flat intensity objects
 (shadows, stains, texture blotches) are background, touching objects split at disparity
 jumps or, at one range, at narrow necks (R4b), streaks (ripple troughs) are dropped unless
@@ -89,6 +90,7 @@ from ._sectors import (
 from ._shadow_sides import split_shadow_sides
 from ._sun_shadows import trim_sun_shadows
 from ._texture_rules import drop_ripple_pieces, drop_streaks
+from ._two_face_blobs import add_two_faced_blobs
 
 __all__ = [
     "METHODS",
@@ -176,6 +178,7 @@ def segment_image(
     neck_ratio: float = 0.5,
     blob_sigmas: float = 0.0,
     height_blob_sigmas: float = 0.0,
+    two_face_sigmas: float = 0.0,
     rim_fraction: float = 0.3,
     shadow_noise_m: float = 0.0075,
     height_grow_fraction: float = 0.5,
@@ -263,6 +266,11 @@ def segment_image(
         that no object touches are added when they stand as a height bump and their edges
         are crisper than the ground's texture (rule R8b of :mod:`stages._height_blobs`);
         0 disables, and so do heights the depth rules do not use or find unusable.
+    two_face_sigmas : float
+        Depth method only, ``>= 0``: after R7f and before R8, solid blobs made of a darker
+        and a lighter face side by side, each this many ground spreads out at R8's scale,
+        that no object touches are added (rule R8c of :mod:`stages._two_face_blobs`); 0
+        disables.
 
     Returns
     -------
@@ -311,6 +319,8 @@ def segment_image(
             "blob_sigmas and height_blob_sigmas must be >= 0 (0 disables), got "
             f"{blob_sigmas} and {height_blob_sigmas}"
         )
+    if not two_face_sigmas >= 0:
+        raise ValueError(f"two_face_sigmas must be >= 0 (0 disables), got {two_face_sigmas}")
     if not weak_bands >= 0 or weak_growth_px < 0 or join_gap_px < 0 or not face_bands >= 0:
         raise ValueError(
             "weak_bands, weak_growth_px, join_gap_px and face_bands must be >= 0 (0 disables), "
@@ -512,10 +522,21 @@ def segment_image(
             notes.append(f"{raised} px of raised rock joined to partial objects")
     run_r8 = method == "sector-histogram+depth" and blob_sigmas > 0
     run_r8b = relative is not None and heights_usable and height_blob_sigmas > 0
-    # R8 and R8b's candidates search one image: its smoothed maps are made once
-    scales = blob_scales(image) if run_r8 and run_r8b else None
+    run_r8c = method == "sector-histogram+depth" and two_face_sigmas > 0
+    # R8, R8b and R8c's candidates search one image: its smoothed maps are made once
+    scales = blob_scales(image) if sum((run_r8, run_r8b, run_r8c)) > 1 else None
+    if run_r8c:
+        # R8c, before R8: a lit and a shaded face side by side, which R8 and R8b, one side
+        # of the ground's gray level at a time, find as pieces (whose ring then keeps the
+        # whole rock out) or not at all
+        labels, faced = add_two_faced_blobs(
+            labels, image, min_sigmas=two_face_sigmas, min_area_px=min_area_px, _scales=scales
+        )
+        if faced:
+            notes.append(f"{faced} two-faced blob(s) added")
     if run_r8:
-        # R8, after every rule: only rocks no object touches are added
+        # R8, after every rule (R8c's two-faced blobs first): only rocks no object touches
+        # are added
         labels, blobs = add_compact_blobs(
             labels, image, min_sigmas=blob_sigmas, min_area_px=min_area_px, _scales=scales
         )
@@ -721,7 +742,7 @@ def _sector_product(name: str, dtype: str, long_name: str, units: str = "") -> P
 
 STAGE = Stage(
     name="segment",
-    version="33",
+    version="34",
     inputs=("left", "right", "disparity", "height"),
     outputs=(
         Product(
@@ -853,6 +874,14 @@ STAGE = Stage(
             float,
             0.0,
             "depth: add fainter blobs this many spreads out that stand as height bumps; 0 = off",
+            None,
+            0,
+        ),
+        Param(
+            "two_face_sigmas",
+            float,
+            0.0,
+            "depth: add blobs of a darker and a lighter face this many spreads out; 0 = off",
             None,
             0,
         ),
