@@ -1,0 +1,139 @@
+"""A warm fork server for local worker processes.
+
+dask starts each local worker process with ``spawn``: a fresh interpreter that imports
+dask.distributed and the run's main module, then, at its first task, the stage package
+(numba, scipy, OpenCV, zarr...) and the stages' numba kernels from their on-disk cache.
+Every worker pays that alone, after the driver has planned the run. With a fork server the
+imports and kernel loads are paid once, in one process that the runner starts before it
+validates the catalog, so that they run beside the driver's own start-up; the workers are
+forked from it and start warm.
+
+The server is multiprocessing's (one per driver process). :func:`stop_forkserver` ends it
+after each run: a server kept for the next run would hand its workers the stage code it
+imported when it started, not the code on disk (stages edited in a notebook session).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import multiprocessing
+import multiprocessing.forkserver
+import os
+import sys
+from collections.abc import Iterator, Mapping
+from typing import Any
+
+__all__ = ["forkserver_supported", "start_forkserver", "stop_forkserver", "warm_stage_package"]
+
+# what dask.distributed preloads in its own fork servers (distributed.utils.get_mp_context)
+_DISTRIBUTED = ["distributed", "dask", "msgpack", "cloudpickle", "tornado", "toolz", "numpy"]
+# names the stage package to warm; set only in the server's environment
+_WARM_VAR = "ARROYO_FORKSERVER_STAGES"
+_PATH_VAR = "ARROYO_FORKSERVER_PATH"
+
+
+def forkserver_supported() -> bool:
+    """Whether this platform has multiprocessing's fork server (not Windows)."""
+    return "forkserver" in multiprocessing.get_all_start_methods()
+
+
+def start_forkserver(stage_package: str, *, environ: Mapping[str, Any]) -> None:
+    """Start the fork server (unless one runs) warming dask.distributed and
+    ``stage_package``, with ``environ`` added to its environment.
+
+    Returns as soon as the server process exists; it imports in the background and the
+    first worker fork waits for it. Warming never fails the server: what it could not
+    import, a worker imports (and reports) at its first task.
+
+    Parameters
+    ----------
+    stage_package : str
+        The run's stage package (see :func:`pipeline.graph.stage_package_name`).
+    environ : mapping of str to object
+        Environment of the server and so of every worker forked from it (dask's
+        ``distributed.nanny.pre-spawn-environ``: thread limits that must be set before
+        numpy is imported); values are converted with ``str``.
+    """
+    server = multiprocessing.forkserver._forkserver  # the one 'forkserver' contexts use
+    server.set_forkserver_preload([*_DISTRIBUTED, __name__])
+    extra = {k: str(v) for k, v in environ.items()}
+    # the server sets the driver's sys.path only in the processes it forks (CPython 3.11
+    # ignores it while preloading); the stage package may be on it alone (tests, notebooks)
+    path = json.dumps(sys.path)
+    with _environ({**extra, _WARM_VAR: stage_package, _PATH_VAR: path}):
+        server.ensure_running()
+
+
+def stop_forkserver() -> None:
+    """Stop this process's fork server if one runs (after it finished warming)."""
+    server: Any = multiprocessing.forkserver._forkserver
+    server._stop()  # private, but what CPython's own tests stop the server with
+
+
+def warm_stage_package(package: str) -> int:
+    """Import ``package``'s stages (the worker's cached stage objects) and load every numba
+    kernel of its modules that the on-disk cache holds; return how many kernels loaded.
+
+    A worker otherwise loads each kernel at its first call, in its first frames.
+    """
+    from .worker import _stages
+
+    _stages(package)
+    loaded = 0
+    prefix = package + "."
+    for name, module in list(sys.modules.items()):
+        if module is None or not (name == package or name.startswith(prefix)):
+            continue
+        for value in list(vars(module).values()):
+            loaded += _load_cached_overloads(value)
+    return loaded
+
+
+def _load_cached_overloads(dispatcher: Any) -> int:
+    """Load the cached compilations of a numba dispatcher for this machine and the
+    function's current code: the signatures its cache index lists under the key that
+    ``Dispatcher.compile`` would look up."""
+    cache: Any = getattr(dispatcher, "_cache", None)
+    index_file = getattr(cache, "_cache_file", None)
+    if index_file is None or not hasattr(dispatcher, "targetctx"):
+        return 0  # not a dispatcher with an on-disk cache
+    codegen = dispatcher.targetctx.codegen()
+    loaded = 0
+    for key in index_file._load_index():
+        sig = key[0]
+        if key != cache._index_key(sig, codegen) or sig in dispatcher.overloads:
+            continue  # another machine's or the old code's entry, or already loaded
+        dispatcher.compile(sig)
+        loaded += 1
+    return loaded
+
+
+@contextlib.contextmanager
+def _environ(extra: Mapping[str, str]) -> Iterator[None]:
+    saved = {k: os.environ.get(k) for k in extra}
+    os.environ.update(extra)
+    try:
+        yield
+    finally:
+        for key, value in saved.items():
+            if value is None:
+                os.environ.pop(key, None)
+            else:
+                os.environ[key] = value
+
+
+def _warm_in_server() -> None:
+    package = os.environ.pop(_WARM_VAR, None)  # popped: forked workers must not see it
+    path = os.environ.pop(_PATH_VAR, None)
+    if not package:
+        return  # imported by a driver or a worker, not by the fork server
+    if path:
+        sys.path[:] = json.loads(path)
+    try:
+        warm_stage_package(package)
+    except Exception:  # a worker imports the package again and reports what fails
+        pass
+
+
+_warm_in_server()

@@ -1,0 +1,75 @@
+"""Tests of pipeline._forkserver: local worker processes forked from a warm server."""
+
+from __future__ import annotations
+
+import importlib
+import os
+import sys
+import textwrap
+
+import pytest
+
+import pipeline.worker
+from pipeline._forkserver import forkserver_supported, warm_stage_package
+from pipeline.executor import open_executor
+
+FAKE = "arroyo_fake_stages"
+
+
+def test_warm_loads_the_cached_numba_kernels_of_the_current_code(tmp_path, monkeypatch):
+    package = tmp_path / "warmpkg"
+    package.mkdir()
+    (package / "__init__.py").write_text("")
+    source = "from numba import njit\n\n@njit(cache=True)\ndef bump(x):\n    return x + {}\n"
+    (package / "kernels.py").write_text(textwrap.dedent(source.format(1)))
+    monkeypatch.syspath_prepend(str(tmp_path))
+    first = importlib.import_module("warmpkg.kernels")
+    assert first.bump(1) == 2  # compiled and written to the on-disk cache
+
+    def fresh_import():  # a new process: the module again, its dispatcher without overloads
+        for name in ("warmpkg.kernels", "warmpkg"):
+            sys.modules.pop(name, None)
+        pipeline.worker._stages.cache_clear()
+        return importlib.import_module("warmpkg.kernels")
+
+    try:
+        second = fresh_import()
+        assert not second.bump.overloads
+        assert warm_stage_package("warmpkg") == 1
+        assert len(second.bump.overloads) == 1
+        assert sum(second.bump._cache_hits.values()) == 1  # loaded, not compiled again
+        assert warm_stage_package("warmpkg") == 0  # already loaded
+        # the cache entry of an edited function is not loaded
+        (package / "kernels.py").write_text(textwrap.dedent(source.format(2)))
+        third = fresh_import()
+        assert warm_stage_package("warmpkg") == 0
+        assert third.bump(1) == 3
+    finally:
+        for name in ("warmpkg.kernels", "warmpkg"):
+            sys.modules.pop(name, None)
+        pipeline.worker._stages.cache_clear()
+
+
+def _warm_worker() -> tuple[bool, bool, int]:
+    stages = pipeline.worker._stages.cache_info().currsize  # set before any task ran
+    return FAKE in sys.modules, "ARROYO_FORKSERVER_STAGES" in os.environ, stages
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not forkserver_supported(), reason="no fork server on this platform")
+def test_local_workers_start_with_the_stage_package_imported_and_the_server_stops():
+    import multiprocessing.forkserver
+
+    executor = open_executor(scheduler=None, workers=2, stage_package=FAKE)
+    try:
+        seen = executor.client.run(_warm_worker)  # type: ignore[attr-defined]
+        server = multiprocessing.forkserver._forkserver._forkserver_pid
+        assert server is not None
+        parents = executor.client.run(os.getppid)  # type: ignore[attr-defined]
+        results = dict(executor.map_unordered(abs, [-1, -2]))
+    finally:
+        executor.close()
+    assert list(seen.values()) == [(True, False, 1)] * 2
+    assert set(parents.values()) == {server}  # forked by the server, not spawned
+    assert results == {-1: 1, -2: 2}
+    assert multiprocessing.forkserver._forkserver._forkserver_pid is None
