@@ -26,6 +26,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from numpy.linalg import _umath_linalg
 
 from pipeline.camera import Camera
 
@@ -205,14 +206,30 @@ def _weighted_least_squares(
     """
     if well_conditioned:
         aw = a * weights[:, None]
-        try:
-            coef = np.linalg.solve(aw.T @ a, aw.T @ b)
-        except np.linalg.LinAlgError:
-            coef = None
-        if coef is not None and np.all(np.isfinite(coef)):
+        coef = _solve(aw.T @ a, aw.T @ b)
+        if np.isfinite(coef).all():
             return coef
     sw = np.sqrt(weights)
     return np.linalg.lstsq(a * sw[:, None], b * sw, rcond=None)[0]
+
+
+def _solve(lhs: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """``np.linalg.solve(lhs, rhs)`` for a (p, p) float64 system and (p,) right-hand side:
+    the LAPACK gufunc it calls, without its argument checks (a quarter of a fit's time, at
+    thousands of fits per frame), so the same bits. A singular system gives NaN here instead
+    of a LinAlgError; the caller runs under ``np.errstate(invalid='ignore')``.
+    """
+    return _umath_linalg.solve1(lhs, rhs, signature="dd->d")
+
+
+def _std(values: np.ndarray) -> float:
+    """``np.std`` of a non-empty 1-D float64 array: numpy's own steps (``_methods._var``),
+    without its argument handling, so the same bits."""
+    mean = np.add.reduce(values, keepdims=True)
+    np.true_divide(mean, values.size, out=mean)
+    dev = np.subtract(values, mean)
+    np.square(dev, out=dev)
+    return math.sqrt(np.add.reduce(dev) / values.size)
 
 
 def _well_conditioned(a: np.ndarray) -> bool:
@@ -281,26 +298,31 @@ def fit_disparity_surface(
         return np.full(d.shape, np.nan)
     if n < 4:
         return np.full(d.shape, float(_median(d[ok])))
-    scale = max(float(np.std(c)), float(np.std(r)), 1.0)
+    scale = max(_std(c), _std(r), 1.0)
     x, y = (c - c.mean()) / scale, (r - r.mean()) / scale
     if row_only:
-        terms = [np.ones_like(y), y]
+        terms = [y]
     else:
-        terms = [np.ones_like(x), x, y]
+        terms = [x, y]
         if n >= min_quadratic:
             terms += [x * x, x * y, y * y]
-    design = np.stack(terms, axis=1)
+    # filled column by column: the array np.stack(axis=1) made, without its overhead
+    design = np.empty((d.size, 1 + len(terms)))
+    design[:, 0] = 1.0
+    for k, term in enumerate(terms, start=1):
+        design[:, k] = term
     a, b = design[ok], d[ok]
     weights = np.ones(n)
     coef = np.zeros(design.shape[1])
     conditioned = _well_conditioned(a)
-    for round_ in range(iterations):
-        coef = _weighted_least_squares(a, b, weights, well_conditioned=conditioned)
-        resid = np.abs(b - a @ coef)
-        sigma = 1.4826 * float(_median(resid)) + 1e-9
-        weights = 1.0 / np.maximum(1.0, resid / (_HUBER_K * sigma))
-        if round_ >= 1:  # once the fit is near, gross outliers get no say at all
-            weights[resid > _REJECT_K * sigma] = 0.0
+    with np.errstate(invalid="ignore", over="ignore", divide="ignore", under="ignore"):
+        for round_ in range(iterations):  # (np.linalg.solve's error state, see _solve)
+            coef = _weighted_least_squares(a, b, weights, well_conditioned=conditioned)
+            resid = np.abs(b - a @ coef)
+            sigma = 1.4826 * float(_median(resid)) + 1e-9
+            weights = 1.0 / np.maximum(1.0, resid / (_HUBER_K * sigma))
+            if round_ >= 1:  # once the fit is near, gross outliers get no say at all
+                weights[resid > _REJECT_K * sigma] = 0.0
     fitted = design @ coef
     on_valid = fitted[ok]
     return np.clip(fitted, on_valid.min(), on_valid.max())
