@@ -118,7 +118,7 @@ class GroundFrame:
     def to_ground(self, points: np.ndarray) -> np.ndarray:
         """Camera-frame points ``(..., 3)`` to ground-frame points ``(..., 3)``."""
         rel = np.asarray(points, dtype=np.float64) - self.origin
-        return np.stack([rel @ self.right, rel @ self.forward, rel @ self.up], axis=-1)
+        return _columns(rel @ self.right, rel @ self.forward, rel @ self.up)
 
 
 def _median(values: np.ndarray) -> np.float64:
@@ -191,7 +191,17 @@ def pixel_points(
     z = camera.k_m_px / d
     x = (np.asarray(cols, dtype=np.float64) - cx) * z / camera.focal_px
     y = (np.asarray(rows, dtype=np.float64) - cy) * z / camera.focal_px
-    return np.stack([x, y, z], axis=-1)
+    return _columns(x, y, z)
+
+
+def _columns(*columns: np.ndarray) -> np.ndarray:
+    """``np.stack(columns, axis=-1)`` of equal-shape float64 arrays, without its argument
+    handling (describe stacks a few hundred small arrays per frame)."""
+    first = columns[0]
+    out = np.empty((*first.shape, len(columns)))
+    for k, column in enumerate(columns):
+        out[..., k] = column
+    return out
 
 
 def _weighted_least_squares(
