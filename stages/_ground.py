@@ -133,7 +133,8 @@ def _median(values: np.ndarray) -> np.float64:
         return np.float64(np.median(values))  # NaN with numpy's own warning
     half = size // 2
     kth = [half - 1, half, -1] if size % 2 == 0 else [half, -1]
-    part = np.partition(values, kth)
+    part = values.copy(order="K")  # np.partition's own steps, without its dispatch
+    part.partition(kth)
     if np.isnan(part[-1]):
         return np.float64(np.nan)
     # np.mean's sum starts from +0.0: a median of -0.0 comes out as +0.0 there, and here
@@ -309,7 +310,8 @@ def fit_disparity_surface(
     if n < 4:
         return np.full(d.shape, float(_median(d[ok])))
     scale = max(_std(c), _std(r), 1.0)
-    x, y = (c - c.mean()) / scale, (r - r.mean()) / scale
+    # np.mean of a float64 array is its add.reduce over the count, in float64
+    x, y = (c - np.add.reduce(c) / c.size) / scale, (r - np.add.reduce(r) / r.size) / scale
     if row_only:
         terms = [y]
     else:
