@@ -20,6 +20,7 @@ import json
 import multiprocessing
 import multiprocessing.forkserver
 import os
+import signal
 import sys
 from collections.abc import Iterator, Mapping
 from typing import Any
@@ -66,9 +67,20 @@ def start_forkserver(stage_package: str, *, environ: Mapping[str, Any]) -> None:
 
 
 def stop_forkserver() -> None:
-    """Stop this process's fork server if one runs (after it finished warming)."""
+    """Stop this process's fork server if one runs, at once.
+
+    Call it when no worker forked from it is alive (after the cluster closed): their exit
+    codes reach their nanny through the server. A server still warming reads no request
+    (the run failed before its cluster, or had nothing to do) and is terminated rather than
+    waited for.
+    """
     server: Any = multiprocessing.forkserver._forkserver
-    server._stop()  # private, but what CPython's own tests stop the server with
+    pid = server._forkserver_pid
+    if pid is None:
+        return
+    with contextlib.suppress(ProcessLookupError):
+        os.kill(pid, signal.SIGTERM)
+    server._stop()  # private, but what CPython's own tests stop the server with: reaps it
 
 
 def warm_stage_package(package: str) -> int:

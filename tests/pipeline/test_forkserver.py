@@ -3,14 +3,21 @@
 from __future__ import annotations
 
 import importlib
+import multiprocessing.forkserver
 import os
 import sys
 import textwrap
+import time
 
 import pytest
 
 import pipeline.worker
-from pipeline._forkserver import forkserver_supported, warm_stage_package
+from pipeline._forkserver import (
+    forkserver_supported,
+    start_forkserver,
+    stop_forkserver,
+    warm_stage_package,
+)
 from pipeline.executor import open_executor
 
 FAKE = "arroyo_fake_stages"
@@ -58,8 +65,6 @@ def _warm_worker() -> tuple[bool, bool, int]:
 @pytest.mark.slow
 @pytest.mark.skipif(not forkserver_supported(), reason="no fork server on this platform")
 def test_local_workers_start_with_the_stage_package_imported_and_the_server_stops():
-    import multiprocessing.forkserver
-
     executor = open_executor(scheduler=None, workers=2, stage_package=FAKE)
     try:
         seen = executor.client.run(_warm_worker)  # type: ignore[attr-defined]
@@ -72,4 +77,14 @@ def test_local_workers_start_with_the_stage_package_imported_and_the_server_stop
     assert list(seen.values()) == [(True, False, 1)] * 2
     assert set(parents.values()) == {server}  # forked by the server, not spawned
     assert results == {-1: 1, -2: 2}
+    assert multiprocessing.forkserver._forkserver._forkserver_pid is None
+
+
+@pytest.mark.skipif(not forkserver_supported(), reason="no fork server on this platform")
+def test_stopping_a_warming_server_does_not_wait_for_its_imports():
+    # a run that fails validation (or has nothing to do) stops the server it started
+    start_forkserver("stages", environ={})  # imports for a second or more
+    start = time.perf_counter()
+    stop_forkserver()
+    assert time.perf_counter() - start < 0.5
     assert multiprocessing.forkserver._forkserver._forkserver_pid is None
