@@ -2,11 +2,10 @@
 
 dask starts each local worker process with ``spawn``: a fresh interpreter that imports
 dask.distributed and the run's main module, then, at its first task, the stage package
-(numba, scipy, OpenCV, zarr...) and the stages' numba kernels from their on-disk cache.
-Every worker pays that alone, after the driver has planned the run. With a fork server the
-imports and kernel loads are paid once, in one process that the runner starts before it
-validates the catalog, so that they run beside the driver's own start-up; the workers are
-forked from it and start warm.
+(numba, scipy, OpenCV, zarr...). Every worker pays that alone, after the driver has planned
+the run. With a fork server the imports are paid once, in one process that the runner
+starts before it validates the catalog, so that they run beside the driver's own start-up;
+the workers are forked from it with the stage package imported.
 
 The server is multiprocessing's (one per driver process). :func:`stop_forkserver` ends it
 after each run: a server kept for the next run would hand its workers the stage code it
@@ -40,7 +39,7 @@ def forkserver_supported() -> bool:
 
 
 def start_forkserver(stage_package: str, *, environ: Mapping[str, Any]) -> None:
-    """Start the fork server (unless one runs) warming dask.distributed and
+    """Start the fork server (unless one runs) importing dask.distributed and
     ``stage_package``, with ``environ`` added to its environment.
 
     Returns as soon as the server process exists; it imports in the background and the
@@ -83,42 +82,17 @@ def stop_forkserver() -> None:
     server._stop()  # private, but what CPython's own tests stop the server with: reaps it
 
 
-def warm_stage_package(package: str) -> int:
-    """Import ``package``'s stages (the worker's cached stage objects) and load every numba
-    kernel of its modules that the on-disk cache holds; return how many kernels loaded.
+def warm_stage_package(package: str) -> None:
+    """Import ``package``'s stages into the worker's cache of stage objects.
 
-    A worker otherwise loads each kernel at its first call, in its first frames.
+    The stages' numba kernels are left to load from their on-disk cache at their first call
+    in each worker: the cache index lists every signature ever compiled (tests, other
+    dtypes), 91 entries in a checkout after a test-suite run against the ~30 a run calls,
+    and loading them all took 0.7-0.8 s of the server's warm-up, on the run's critical path.
     """
     from .worker import _stages
 
     _stages(package)
-    loaded = 0
-    prefix = package + "."
-    for name, module in list(sys.modules.items()):
-        if module is None or not (name == package or name.startswith(prefix)):
-            continue
-        for value in list(vars(module).values()):
-            loaded += _load_cached_overloads(value)
-    return loaded
-
-
-def _load_cached_overloads(dispatcher: Any) -> int:
-    """Load the cached compilations of a numba dispatcher for this machine and the
-    function's current code: the signatures its cache index lists under the key that
-    ``Dispatcher.compile`` would look up."""
-    cache: Any = getattr(dispatcher, "_cache", None)
-    index_file = getattr(cache, "_cache_file", None)
-    if index_file is None or not hasattr(dispatcher, "targetctx"):
-        return 0  # not a dispatcher with an on-disk cache
-    codegen = dispatcher.targetctx.codegen()
-    loaded = 0
-    for key in index_file._load_index():
-        sig = key[0]
-        if key != cache._index_key(sig, codegen) or sig in dispatcher.overloads:
-            continue  # another machine's or the old code's entry, or already loaded
-        dispatcher.compile(sig)
-        loaded += 1
-    return loaded
 
 
 @contextlib.contextmanager
