@@ -21,6 +21,7 @@ import multiprocessing.forkserver
 import os
 import signal
 import sys
+import threading
 from collections.abc import Iterator, Mapping
 from typing import Any
 
@@ -31,6 +32,8 @@ _DISTRIBUTED = ["distributed", "dask", "msgpack", "cloudpickle", "tornado", "too
 # names the stage package to warm; set only in the server's environment
 _WARM_VAR = "ARROYO_FORKSERVER_STAGES"
 _PATH_VAR = "ARROYO_FORKSERVER_PATH"
+_lock = threading.Lock()
+_users = 0  # start_forkserver calls not yet undone by stop_forkserver
 
 
 def forkserver_supported() -> bool:
@@ -55,31 +58,37 @@ def start_forkserver(stage_package: str, *, environ: Mapping[str, Any]) -> None:
         ``distributed.nanny.pre-spawn-environ``: thread limits that must be set before
         numpy is imported); values are converted with ``str``.
     """
+    global _users
     server = multiprocessing.forkserver._forkserver  # the one 'forkserver' contexts use
     server.set_forkserver_preload([*_DISTRIBUTED, __name__])
     extra = {k: str(v) for k, v in environ.items()}
     # the server sets the driver's sys.path only in the processes it forks (CPython 3.11
     # ignores it while preloading); the stage package may be on it alone (tests, notebooks)
     path = json.dumps(sys.path)
-    with _environ({**extra, _WARM_VAR: stage_package, _PATH_VAR: path}):
+    with _lock, _environ({**extra, _WARM_VAR: stage_package, _PATH_VAR: path}):
         server.ensure_running()
+        _users += 1
 
 
 def stop_forkserver() -> None:
-    """Stop this process's fork server if one runs, at once.
+    """Undo one :func:`start_forkserver`: the last one stops the server, at once.
 
-    Call it when no worker forked from it is alive (after the cluster closed): their exit
-    codes reach their nanny through the server. A server still warming reads no request
-    (the run failed before its cluster, or had nothing to do) and is terminated rather than
-    waited for.
+    Call it when no worker forked for that start is alive (after its cluster closed): their
+    exit codes reach their nanny through the server. Counting the starts keeps the server
+    for another run in the same process (a thread) until that one ends too. A server still
+    warming reads no request (the run failed before its cluster, or had nothing to do) and
+    is terminated rather than waited for.
     """
+    global _users
     server: Any = multiprocessing.forkserver._forkserver
-    pid = server._forkserver_pid
-    if pid is None:
-        return
-    with contextlib.suppress(ProcessLookupError):
-        os.kill(pid, signal.SIGTERM)
-    server._stop()  # private, but what CPython's own tests stop the server with: reaps it
+    with _lock:
+        _users = max(_users - 1, 0)
+        pid = server._forkserver_pid
+        if _users or pid is None:
+            return
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(pid, signal.SIGTERM)
+        server._stop()  # private, but what CPython's own tests stop the server with: reaps it
 
 
 def warm_stage_package(package: str) -> None:

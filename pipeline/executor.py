@@ -163,16 +163,23 @@ def open_executor(
             # block is spawned as by default.
             config["distributed.worker.multiprocessing-method"] = "forkserver"
             start_forkserver(stage_package_name(stage_package), environ=_worker_environ())
-        with dask.config.set(config):
-            cluster = LocalCluster(
-                n_workers=n if processes else 1,
-                threads_per_worker=1 if processes else n,
-                processes=processes,
-                dashboard_address=":0",  # a free port: never collide with another cluster
-                silence_logs=logging.ERROR,
+        try:
+            with dask.config.set(config):
+                cluster = LocalCluster(
+                    n_workers=n if processes else 1,
+                    threads_per_worker=1 if processes else n,
+                    processes=processes,
+                    dashboard_address=":0",  # a free port: never collide with another cluster
+                    silence_logs=logging.ERROR,
+                )
+            kind = "processes" if processes else "threads"
+            executor = _DistributedExecutor(
+                Client(cluster), cluster, f"local dask cluster, {n} {kind}"
             )
-        kind = "processes" if processes else "threads"
-        executor = _DistributedExecutor(Client(cluster), cluster, f"local dask cluster, {n} {kind}")
+        except BaseException:
+            if forked:
+                stop_forkserver()
+            raise
         executor.forkserver = forked
         return executor
     client = Client(scheduler, timeout="20s")

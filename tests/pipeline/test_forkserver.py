@@ -60,3 +60,17 @@ def test_stopping_a_warming_server_does_not_wait_for_its_imports():
     stop_forkserver()
     assert time.perf_counter() - start < 0.5
     assert multiprocessing.forkserver._forkserver._forkserver_pid is None
+
+
+@pytest.mark.skipif(not forkserver_supported(), reason="no fork server on this platform")
+def test_server_stops_when_every_start_was_undone():
+    # two runs in one process (threads) share the server: the first to end must not stop
+    # it under the other's workers
+    start_forkserver("stages", environ={})
+    start_forkserver("stages", environ={})
+    pid = multiprocessing.forkserver._forkserver._forkserver_pid
+    stop_forkserver()
+    assert multiprocessing.forkserver._forkserver._forkserver_pid == pid
+    stop_forkserver()
+    assert multiprocessing.forkserver._forkserver._forkserver_pid is None
+    stop_forkserver()  # one too many: nothing to do
