@@ -74,7 +74,7 @@ def run(
     directory already uses, RunLockedError when another run holds the directory, StoreError
     when products cannot be written.
     """
-    # local workers' imports and kernel loads run beside the planning
+    # local workers' imports run beside the planning (pipeline._forkserver)
     forked = not dry_run and prestart_local_workers(scheduler, workers, stage_package)
     try:
         request = validate_request(catalog_path, overrides, frames, stage_package)  # before disk
