@@ -7,7 +7,16 @@ import os
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any
 
-__all__ = ["Executor", "open_executor", "describe_scheduler"]
+from ._forkserver import forkserver_supported, start_forkserver, stop_forkserver
+from .graph import stage_package_name
+
+__all__ = [
+    "Executor",
+    "open_executor",
+    "local_processes",
+    "prestart_local_workers",
+    "describe_scheduler",
+]
 
 
 class Executor:
@@ -32,6 +41,7 @@ class _DistributedExecutor(Executor):
         self.client = client
         self.cluster = cluster
         self.name = name
+        self.forkserver = False  # whether closing stops this process's fork server
         info = client.scheduler_info()
         self.workers = max(1, sum(w.get("nthreads", 1) for w in info["workers"].values()))
 
@@ -76,6 +86,8 @@ class _DistributedExecutor(Executor):
         self.client.close()
         if self.cluster is not None:
             self.cluster.close()
+        if self.forkserver:
+            stop_forkserver()
 
 
 class _ShutdownHeartbeatFilter(logging.Filter):
@@ -94,7 +106,27 @@ def _install_heartbeat_filter() -> None:
         worker_log.addFilter(_ShutdownHeartbeatFilter())
 
 
-def open_executor(*, scheduler: str | None, workers: int | None) -> Executor:
+def local_processes(scheduler: str | None, workers: int | None) -> bool:
+    """Whether ``open_executor`` starts local worker processes (else threads, in-process
+    or remote workers): a local cluster of more than one worker."""
+    return scheduler is None and (workers or os.cpu_count() or 1) > 1
+
+
+def prestart_local_workers(
+    scheduler: str | None, workers: int | None, stage_package: str | None
+) -> bool:
+    """Start warming the worker processes that ``open_executor`` will start, if it starts
+    local ones, so that their imports overlap the caller's planning; return whether it
+    did (the caller then calls :func:`pipeline._forkserver.stop_forkserver` when done)."""
+    if not (local_processes(scheduler, workers) and forkserver_supported()):
+        return False
+    start_forkserver(stage_package_name(stage_package), environ=_worker_environ())
+    return True
+
+
+def open_executor(
+    *, scheduler: str | None, workers: int | None, stage_package: str | None = None
+) -> Executor:
     """The executor for ``--scheduler`` / ``--workers``.
 
     Parameters
@@ -106,6 +138,9 @@ def open_executor(*, scheduler: str | None, workers: int | None) -> Executor:
         (``tcp://host:8786``).
     workers : int, optional
         Local worker count; default: the machine's cores.
+    stage_package : str, optional
+        The stage package local worker processes import before their first task (see
+        :mod:`pipeline._forkserver`); default: :func:`pipeline.graph.stage_package_name`.
     """
     if workers is not None and workers < 1:
         raise ValueError(f"--workers must be >= 1, got {workers}")
@@ -117,20 +152,36 @@ def open_executor(*, scheduler: str | None, workers: int | None) -> Executor:
         import dask
 
         n = workers or os.cpu_count() or 1
-        processes = scheduler is None and n > 1
+        processes = local_processes(scheduler, workers)
         # read by each nanny (or in-process worker) when it is created; a nanny passes it
         # on to its worker process, also when it restarts one
         config = {**_LOCAL_CLUSTER_CONFIG, "distributed.nanny.pre-spawn-environ": _worker_environ()}
-        with dask.config.set(config):
-            cluster = LocalCluster(
-                n_workers=n if processes else 1,
-                threads_per_worker=1 if processes else n,
-                processes=processes,
-                dashboard_address=":0",  # a free port: never collide with another cluster
-                silence_logs=logging.ERROR,
+        forked = processes and forkserver_supported()
+        if forked:
+            # workers forked from a warm server (pipeline._forkserver); the runner started it
+            # before planning, else it starts here. A worker the nanny restarts after this
+            # block is spawned as by default.
+            config["distributed.worker.multiprocessing-method"] = "forkserver"
+            start_forkserver(stage_package_name(stage_package), environ=_worker_environ())
+        try:
+            with dask.config.set(config):
+                cluster = LocalCluster(
+                    n_workers=n if processes else 1,
+                    threads_per_worker=1 if processes else n,
+                    processes=processes,
+                    dashboard_address=":0",  # a free port: never collide with another cluster
+                    silence_logs=logging.ERROR,
+                )
+            kind = "processes" if processes else "threads"
+            executor = _DistributedExecutor(
+                Client(cluster), cluster, f"local dask cluster, {n} {kind}"
             )
-        kind = "processes" if processes else "threads"
-        return _DistributedExecutor(Client(cluster), cluster, f"local dask cluster, {n} {kind}")
+        except BaseException:
+            if forked:
+                stop_forkserver()
+            raise
+        executor.forkserver = forked
+        return executor
     client = Client(scheduler, timeout="20s")
     return _DistributedExecutor(client, None, f"dask.distributed at {scheduler}")
 

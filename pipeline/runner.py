@@ -11,8 +11,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from ._forkserver import stop_forkserver
 from .errors import ParamError, RunDirError, StoreError
-from .executor import open_executor
+from .executor import open_executor, prestart_local_workers
 from .journal import Journal, publish, stage_attrs, write_frames_table
 from .lock import RunLock
 from .plan import RunPlan, default_rundir, plan_run, validate_request
@@ -73,22 +74,30 @@ def run(
     directory already uses, RunLockedError when another run holds the directory, StoreError
     when products cannot be written.
     """
-    request = validate_request(catalog_path, overrides, frames, stage_package)  # before disk
-    rundir = Path(out) if out is not None else default_rundir(request.catalog)
-    root = _resolve_products(rundir, products)
-    if dry_run:
-        return plan_run(request, rundir, products=root)
-    rundir.mkdir(parents=True, exist_ok=True)
-    with RunLock(rundir):
-        remove_orphan_temp_files(rundir)
-        if root and not is_url(root):
-            remove_orphan_temp_files(Path(root))
-        state = RunState(rundir)
-        try:
-            plan = plan_run(request, rundir, state=state, products=root)
-            return _execute(plan, state, workers=workers, scheduler=scheduler, progress=progress)
-        finally:
-            state.close()
+    # local workers' imports run beside the planning (pipeline._forkserver)
+    forked = not dry_run and prestart_local_workers(scheduler, workers, stage_package)
+    try:
+        request = validate_request(catalog_path, overrides, frames, stage_package)  # before disk
+        rundir = Path(out) if out is not None else default_rundir(request.catalog)
+        root = _resolve_products(rundir, products)
+        if dry_run:
+            return plan_run(request, rundir, products=root)
+        rundir.mkdir(parents=True, exist_ok=True)
+        with RunLock(rundir):
+            remove_orphan_temp_files(rundir)
+            if root and not is_url(root):
+                remove_orphan_temp_files(Path(root))
+            state = RunState(rundir)
+            try:
+                plan = plan_run(request, rundir, state=state, products=root)
+                return _execute(
+                    plan, state, workers=workers, scheduler=scheduler, progress=progress
+                )
+            finally:
+                state.close()
+    finally:
+        if forked:  # when no frame was pending, or the run failed before its cluster
+            stop_forkserver()
 
 
 def _resolve_products(rundir: Path, requested: str | os.PathLike[str] | None) -> str:
@@ -233,7 +242,9 @@ def _execute(
     total = len(pending)
     try:
         if pending:
-            executor = open_executor(scheduler=scheduler, workers=workers)
+            executor = open_executor(
+                scheduler=scheduler, workers=workers, stage_package=plan.stage_package
+            )
             meta["scheduler"] = executor.name
             _write_json(plan.rundir / RUN_JSON, meta)
             finished = 0

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from numpy.linalg import _umath_linalg
 
 from pipeline.camera import Camera
 
@@ -117,7 +118,7 @@ class GroundFrame:
     def to_ground(self, points: np.ndarray) -> np.ndarray:
         """Camera-frame points ``(..., 3)`` to ground-frame points ``(..., 3)``."""
         rel = np.asarray(points, dtype=np.float64) - self.origin
-        return np.stack([rel @ self.right, rel @ self.forward, rel @ self.up], axis=-1)
+        return _columns(rel @ self.right, rel @ self.forward, rel @ self.up)
 
 
 def _median(values: np.ndarray) -> np.float64:
@@ -132,7 +133,8 @@ def _median(values: np.ndarray) -> np.float64:
         return np.float64(np.median(values))  # NaN with numpy's own warning
     half = size // 2
     kth = [half - 1, half, -1] if size % 2 == 0 else [half, -1]
-    part = np.partition(values, kth)
+    part = values.copy(order="K")  # np.partition's own steps, without its dispatch
+    part.partition(kth)
     if np.isnan(part[-1]):
         return np.float64(np.nan)
     # np.mean's sum starts from +0.0: a median of -0.0 comes out as +0.0 there, and here
@@ -190,7 +192,17 @@ def pixel_points(
     z = camera.k_m_px / d
     x = (np.asarray(cols, dtype=np.float64) - cx) * z / camera.focal_px
     y = (np.asarray(rows, dtype=np.float64) - cy) * z / camera.focal_px
-    return np.stack([x, y, z], axis=-1)
+    return _columns(x, y, z)
+
+
+def _columns(*columns: np.ndarray) -> np.ndarray:
+    """``np.stack(columns, axis=-1)`` of equal-shape float64 arrays, without its argument
+    handling (describe stacks a few hundred small arrays per frame)."""
+    first = columns[0]
+    out = np.empty((*first.shape, len(columns)))
+    for k, column in enumerate(columns):
+        out[..., k] = column
+    return out
 
 
 def _weighted_least_squares(
@@ -205,14 +217,30 @@ def _weighted_least_squares(
     """
     if well_conditioned:
         aw = a * weights[:, None]
-        try:
-            coef = np.linalg.solve(aw.T @ a, aw.T @ b)
-        except np.linalg.LinAlgError:
-            coef = None
-        if coef is not None and np.all(np.isfinite(coef)):
+        coef = _solve(aw.T @ a, aw.T @ b)
+        if np.isfinite(coef).all():
             return coef
     sw = np.sqrt(weights)
     return np.linalg.lstsq(a * sw[:, None], b * sw, rcond=None)[0]
+
+
+def _solve(lhs: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """``np.linalg.solve(lhs, rhs)`` for a (p, p) float64 system and (p,) right-hand side:
+    the LAPACK gufunc it calls, without its argument checks (a quarter of a fit's time, at
+    thousands of fits per frame), so the same bits. A singular system gives NaN here instead
+    of a LinAlgError; the caller runs under ``np.errstate(invalid='ignore')``.
+    """
+    return _umath_linalg.solve1(lhs, rhs, signature="dd->d")
+
+
+def _std(values: np.ndarray) -> float:
+    """``np.std`` of a non-empty 1-D float64 array: numpy's own steps (``_methods._var``),
+    without its argument handling, so the same bits."""
+    mean = np.add.reduce(values, keepdims=True)
+    np.true_divide(mean, values.size, out=mean)
+    dev = np.subtract(values, mean)
+    np.square(dev, out=dev)
+    return math.sqrt(np.add.reduce(dev) / values.size)
 
 
 def _well_conditioned(a: np.ndarray) -> bool:
@@ -281,26 +309,32 @@ def fit_disparity_surface(
         return np.full(d.shape, np.nan)
     if n < 4:
         return np.full(d.shape, float(_median(d[ok])))
-    scale = max(float(np.std(c)), float(np.std(r)), 1.0)
-    x, y = (c - c.mean()) / scale, (r - r.mean()) / scale
+    scale = max(_std(c), _std(r), 1.0)
+    # np.mean of a float64 array is its add.reduce over the count, in float64
+    x, y = (c - np.add.reduce(c) / c.size) / scale, (r - np.add.reduce(r) / r.size) / scale
     if row_only:
-        terms = [np.ones_like(y), y]
+        terms = [y]
     else:
-        terms = [np.ones_like(x), x, y]
+        terms = [x, y]
         if n >= min_quadratic:
             terms += [x * x, x * y, y * y]
-    design = np.stack(terms, axis=1)
+    # filled column by column: the array np.stack(axis=1) made, without its overhead
+    design = np.empty((d.size, 1 + len(terms)))
+    design[:, 0] = 1.0
+    for k, term in enumerate(terms, start=1):
+        design[:, k] = term
     a, b = design[ok], d[ok]
     weights = np.ones(n)
     coef = np.zeros(design.shape[1])
     conditioned = _well_conditioned(a)
-    for round_ in range(iterations):
-        coef = _weighted_least_squares(a, b, weights, well_conditioned=conditioned)
-        resid = np.abs(b - a @ coef)
-        sigma = 1.4826 * float(_median(resid)) + 1e-9
-        weights = 1.0 / np.maximum(1.0, resid / (_HUBER_K * sigma))
-        if round_ >= 1:  # once the fit is near, gross outliers get no say at all
-            weights[resid > _REJECT_K * sigma] = 0.0
+    with np.errstate(invalid="ignore", over="ignore", divide="ignore", under="ignore"):
+        for round_ in range(iterations):  # (np.linalg.solve's error state, see _solve)
+            coef = _weighted_least_squares(a, b, weights, well_conditioned=conditioned)
+            resid = np.abs(b - a @ coef)
+            sigma = 1.4826 * float(_median(resid)) + 1e-9
+            weights = 1.0 / np.maximum(1.0, resid / (_HUBER_K * sigma))
+            if round_ >= 1:  # once the fit is near, gross outliers get no say at all
+                weights[resid > _REJECT_K * sigma] = 0.0
     fitted = design @ coef
     on_valid = fitted[ok]
     return np.clip(fitted, on_valid.min(), on_valid.max())

@@ -52,7 +52,6 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-import dask.array as da
 import numpy as np
 
 from pipeline.compute import compute
@@ -660,6 +659,8 @@ def tiled_sector_histograms(image: np.ndarray, *, sectors: int, tile_px: int) ->
         local_rows = row_edges[(row_edges >= r0) & (row_edges <= r1)] - r0
         local_cols = col_edges[(col_edges >= c0) & (col_edges <= c1)] - c0
         return _histograms_between(block, local_rows, local_cols)
+
+    import dask.array as da  # here: only large frames need it, ~0.4 s to import
 
     tiles = da.from_array(image, chunks=(row_px, col_px))
     hist = tiles.map_blocks(

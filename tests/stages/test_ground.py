@@ -13,6 +13,9 @@ from pipeline.camera import Camera
 from stages._ground import (
     GroundFrame,
     _median,
+    _solve,
+    _std,
+    _weighted_least_squares,
     fit_disparity_surface,
     pixel_points,
     silhouette_on_ground,
@@ -162,6 +165,42 @@ def test_median_is_numpys_median_to_the_sign_of_zero(values):
     else:
         assert result == expected
         assert np.signbit(result) == np.signbit(expected)
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    st.lists(st.floats(-1e4, 1e4, allow_nan=False), min_size=1, max_size=60),
+    st.integers(0, 2),
+)
+def test_std_is_numpys_std_bit_for_bit(values, stride):
+    array = np.array(values, dtype=np.float64)[:: stride + 1]  # views too
+    assert np.float64(_std(array)).tobytes() == np.float64(np.std(array)).tobytes()
+
+
+def test_solve_is_numpys_solve_bit_for_bit_and_nan_when_singular():
+    rng = np.random.default_rng(3)
+    for p in (2, 3, 6):
+        a = rng.normal(size=(50, p))
+        lhs, rhs = a.T @ (a * rng.random(50)[:, None]), a.T @ rng.normal(size=50)
+        assert _solve(lhs, rhs).tobytes() == np.linalg.solve(lhs, rhs).tobytes()
+    with np.errstate(invalid="ignore"):
+        assert np.isnan(_solve(np.zeros((3, 3)), np.ones(3))).all()
+
+
+def test_singular_weighted_system_falls_back_to_least_squares():
+    # np.linalg.solve raised LinAlgError here; the bare gufunc gives NaN (under the fit's
+    # error state): both must end in lstsq's minimum-norm solution
+    rng = np.random.default_rng(4)
+    a, b = rng.normal(size=(20, 3)), rng.normal(size=20)
+    a[:, 2] = 0.0  # a term that is zero everywhere: an exactly singular system
+    weights = rng.random(20)
+    with np.errstate(invalid="ignore", over="ignore", divide="ignore", under="ignore"):
+        coef = _weighted_least_squares(a, b, weights, well_conditioned=True)
+    with pytest.raises(np.linalg.LinAlgError):
+        np.linalg.solve((a * weights[:, None]).T @ a, (a * weights[:, None]).T @ b)
+    sw = np.sqrt(weights)
+    expected = np.linalg.lstsq(a * sw[:, None], b * sw, rcond=None)[0]
+    assert coef.tobytes() == expected.tobytes()
 
 
 def _dome_silhouette(camera: Camera, shape, *, radius_m: float, height_m: float, y_m: float):
