@@ -32,13 +32,21 @@ _DISTRIBUTED = ["distributed", "dask", "msgpack", "cloudpickle", "tornado", "too
 # names the stage package to warm; set only in the server's environment
 _WARM_VAR = "ARROYO_FORKSERVER_STAGES"
 _PATH_VAR = "ARROYO_FORKSERVER_PATH"
+# what start/stop_forkserver use of multiprocessing.forkserver's private server object
+_SERVER_API = ("set_forkserver_preload", "ensure_running", "_forkserver_pid", "_stop")
 _lock = threading.Lock()
 _users = 0  # start_forkserver calls not yet undone by stop_forkserver
 
 
 def forkserver_supported() -> bool:
-    """Whether this platform has multiprocessing's fork server (not Windows)."""
-    return "forkserver" in multiprocessing.get_all_start_methods()
+    """Whether this platform has multiprocessing's fork server (not Windows) and this
+    Python the server object :func:`start_forkserver` and :func:`stop_forkserver` reach
+    (private to multiprocessing: a Python that moved it keeps dask's ``spawn``)."""
+    server = getattr(multiprocessing.forkserver, "_forkserver", None)
+    return (
+        "forkserver" in multiprocessing.get_all_start_methods()
+        and all(hasattr(server, name) for name in _SERVER_API)
+    )
 
 
 def start_forkserver(stage_package: str, *, environ: Mapping[str, Any]) -> None:

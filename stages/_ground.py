@@ -26,9 +26,15 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numpy.linalg import _umath_linalg
 
 from pipeline.camera import Camera
+
+try:  # the LAPACK gufunc np.linalg.solve calls, private to numpy
+    from numpy.linalg import _umath_linalg
+
+    _lapack_solve1: Any = _umath_linalg.solve1
+except (ImportError, AttributeError):  # pragma: no cover - a numpy that moved it
+    _lapack_solve1 = None  # the public call then, same bits
 
 __all__ = [
     "GroundFrame",
@@ -230,7 +236,12 @@ def _solve(lhs: np.ndarray, rhs: np.ndarray) -> np.ndarray:
     thousands of fits per frame), so the same bits. A singular system gives NaN here instead
     of a LinAlgError; the caller runs under ``np.errstate(invalid='ignore')``.
     """
-    return _umath_linalg.solve1(lhs, rhs, signature="dd->d")
+    if _lapack_solve1 is None:  # see the import
+        try:
+            return np.linalg.solve(lhs, rhs)
+        except np.linalg.LinAlgError:
+            return np.full(rhs.shape, np.nan)
+    return _lapack_solve1(lhs, rhs, signature="dd->d")
 
 
 def _std(values: np.ndarray) -> float:

@@ -74,3 +74,10 @@ def test_server_stops_when_every_start_was_undone():
     stop_forkserver()
     assert multiprocessing.forkserver._forkserver._forkserver_pid is None
     stop_forkserver()  # one too many: nothing to do
+
+
+def test_a_python_without_the_private_server_object_keeps_spawn(monkeypatch):
+    # the server object and its _stop are multiprocessing's private API: if a Python moves
+    # them, local workers must start as dask starts them, not fail
+    monkeypatch.setattr(multiprocessing.forkserver, "_forkserver", object())
+    assert not forkserver_supported()

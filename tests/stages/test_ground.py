@@ -187,6 +187,21 @@ def test_solve_is_numpys_solve_bit_for_bit_and_nan_when_singular():
         assert np.isnan(_solve(np.zeros((3, 3)), np.ones(3))).all()
 
 
+@pytest.mark.parametrize("private_gufunc", [True, False])
+def test_solve_without_numpys_private_gufunc_gives_the_same(monkeypatch, private_gufunc):
+    # a numpy that moved _umath_linalg.solve1 must still import and solve: the public call
+    import stages._ground as ground
+
+    if not private_gufunc:
+        monkeypatch.setattr(ground, "_lapack_solve1", None)
+    rng = np.random.default_rng(5)
+    a = rng.normal(size=(30, 3))
+    lhs, rhs = a.T @ a, a.T @ rng.normal(size=30)
+    assert _solve(lhs, rhs).tobytes() == np.linalg.solve(lhs, rhs).tobytes()
+    with np.errstate(invalid="ignore"):
+        assert np.isnan(_solve(np.zeros((3, 3)), np.ones(3))).all()
+
+
 def test_singular_weighted_system_falls_back_to_least_squares():
     # np.linalg.solve raised LinAlgError here; the bare gufunc gives NaN (under the fit's
     # error state): both must end in lstsq's minimum-norm solution
