@@ -175,6 +175,7 @@ def segment_image(
     weak_growth_px: int = 12,
     join_gap_px: int = 5,
     face_bands: float = 0.5,
+    face_side_deg: float = 105.0,
     neck_ratio: float = 0.5,
     blob_sigmas: float = 0.0,
     height_blob_sigmas: float = 0.0,
@@ -235,6 +236,11 @@ def segment_image(
         Depth method only, ``>= 0``: objects grow up to ``weak_growth_px`` pixels into pixels
         this many bands from the ground on the other side, when that leaves them about as
         solid (rule R7c of :mod:`stages._rock_parts`); 0 disables.
+    face_side_deg : float
+        Depth method only, in ``[0, 180]`` degrees: where the frame's sun direction is known
+        (rule R6b), R7c drops the pieces of a growth lying more than this far from the side
+        the object's other face lies on (rule R7c of :mod:`stages._rock_parts`); 0 or 180
+        disables.
     neck_ratio : float
         Depth method only, in ``[0, 1)``: an object that narrows to this fraction of the
         depth of two compact lobes is split there (rule R4b of :mod:`stages._outlines`);
@@ -310,6 +316,8 @@ def segment_image(
         raise ValueError(
             f"height_grow_fraction must be in [0, 1] (0 disables), got {height_grow_fraction}"
         )
+    if not 0 <= face_side_deg <= 180:
+        raise ValueError(f"face_side_deg must be in [0, 180] (0 disables), got {face_side_deg}")
     if not 0 <= sun_shadow_angle_deg <= 90:
         raise ValueError(
             f"sun_shadow_angle_deg must be in [0, 90] (0 disables), got {sun_shadow_angle_deg}"
@@ -485,7 +493,12 @@ def segment_image(
     if contrast is not None and face_bands > 0 and weak_growth_px > 0:
         # R7c: the other face of a rock, on the other side of the ground's gray level
         labels, faced = grow_other_faces(
-            labels, contrast, min_contrast=face_bands, max_steps=weak_growth_px, barrier=shadows
+            labels,
+            contrast,
+            min_contrast=face_bands,
+            max_steps=weak_growth_px,
+            barrier=shadows,
+            max_side_deg=face_side_deg,
         )
         if faced:
             notes.append(f"{faced} px of other faces joined to their objects")
@@ -742,7 +755,7 @@ def _sector_product(name: str, dtype: str, long_name: str, units: str = "") -> P
 
 STAGE = Stage(
     name="segment",
-    version="34",
+    version="35",
     inputs=("left", "right", "disparity", "height"),
     outputs=(
         Product(
@@ -851,6 +864,15 @@ STAGE = Stage(
             "depth: objects grow into pixels this many bands out on the other side; 0 = off",
             None,
             0,
+        ),
+        Param(
+            "face_side_deg",
+            float,
+            105.0,
+            "depth: R7c drops growth this many degrees off the sun's side; 0 = off",
+            None,
+            0,
+            180,
         ),
         Param(
             "neck_ratio",
