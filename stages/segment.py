@@ -17,7 +17,7 @@ noisy-height vote), all documented rule by rule.
 ``method = 'sector-histogram+depth'`` (default) adds the depth stage's ``height`` (metres
 above the fitted ground plane) and ``disparity`` (rules R0-R3 in :mod:`stages._depth_rules`
 and :mod:`stages._height_vote`, R4 in :mod:`stages._regions`, R5-R5d in
-:mod:`stages._texture_rules`, R6-R7c in :mod:`stages._rock_parts`, R6b in
+:mod:`stages._texture_rules`, R6-R7c in :mod:`stages._rock_parts`, R6b and R7g in
 :mod:`stages._sun_shadows`, R4b and R7d in :mod:`stages._outlines`, R7e in
 :mod:`stages._shadow_sides`, R7f in :mod:`stages._height_grow`, R8 in :mod:`stages._blobs`,
 R8b in :mod:`stages._height_blobs`, R8c in :mod:`stages._two_face_blobs`):
@@ -27,7 +27,8 @@ jumps or, at one range, at narrow necks (R4b), streaks (ripple troughs) are drop
 they stand clearly out of the ground (R5b, R5d) and so are, in a field of parallel streaks,
 objects that do not stand out of the ripple texture around them, objects whose other half
 lies just inside the thresholds grow into it when they stay compact (R7), a lighter and a
-darker half of one rock are joined (R7b), near the camera a lit face takes the raised part
+darker half of one rock are joined (R7b), pieces of the other side lying where the sun
+puts no face of the rock go (R7g), near the camera a lit face takes the raised part
 of a dark neighbour and the flat rest, its cast shadow, goes (R7e; for clearly raised faces also
 before R7b, which would join face and shadow whole), a
 large raised object grows over the raised rest of its rock on its gray side (R7f), and the
@@ -87,7 +88,7 @@ from ._sectors import (
     sector_histograms,
 )
 from ._shadow_sides import split_shadow_sides
-from ._sun_shadows import trim_sun_shadows
+from ._sun_shadows import trim_off_side_pieces, trim_sun_shadows
 from ._texture_rules import drop_ripple_pieces, drop_streaks
 from ._two_face_blobs import add_two_faced_blobs
 
@@ -174,6 +175,8 @@ def segment_image(
     weak_growth_px: int = 12,
     join_gap_px: int = 5,
     face_bands: float = 0.5,
+    face_side_deg: float = 105.0,
+    off_side_deg: float = 105.0,
     neck_ratio: float = 0.5,
     blob_sigmas: float = 0.0,
     height_blob_sigmas: float = 0.0,
@@ -234,6 +237,16 @@ def segment_image(
         Depth method only, ``>= 0``: objects grow up to ``weak_growth_px`` pixels into pixels
         this many bands from the ground on the other side, when that leaves them about as
         solid (rule R7c of :mod:`stages._rock_parts`); 0 disables.
+    face_side_deg : float
+        Depth method only, in ``[0, 180]`` degrees: where the frame's sun direction is known
+        (rule R6b), R7c drops the pieces of a growth lying more than this far from the side
+        the object's other face lies on (rule R7c of :mod:`stages._rock_parts`); 0 or 180
+        disables.
+    off_side_deg : float
+        Depth method only, in ``[0, 180]`` degrees: after R7d, where the frame's sun
+        direction is known, an object's pieces past the other side's threshold lying more
+        than this far from the side its other face would lie on are dropped (rule R7g of
+        :mod:`stages._sun_shadows`); 0 or 180 disables.
     neck_ratio : float
         Depth method only, in ``[0, 1)``: an object that narrows to this fraction of the
         depth of two compact lobes is split there (rule R4b of :mod:`stages._outlines`);
@@ -308,6 +321,11 @@ def segment_image(
     if not 0 <= height_grow_fraction <= 1:
         raise ValueError(
             f"height_grow_fraction must be in [0, 1] (0 disables), got {height_grow_fraction}"
+        )
+    if not 0 <= face_side_deg <= 180 or not 0 <= off_side_deg <= 180:
+        raise ValueError(
+            "face_side_deg and off_side_deg must be in [0, 180] (0 disables), got "
+            f"{face_side_deg} and {off_side_deg}"
         )
     if not 0 <= sun_shadow_angle_deg <= 90:
         raise ValueError(
@@ -484,7 +502,12 @@ def segment_image(
     if contrast is not None and face_bands > 0 and weak_growth_px > 0:
         # R7c: the other face of a rock, on the other side of the ground's gray level
         labels, faced = grow_other_faces(
-            labels, contrast, min_contrast=face_bands, max_steps=weak_growth_px, barrier=shadows
+            labels,
+            contrast,
+            min_contrast=face_bands,
+            max_steps=weak_growth_px,
+            barrier=shadows,
+            max_side_deg=face_side_deg,
         )
         if faced:
             notes.append(f"{faced} px of other faces joined to their objects")
@@ -493,6 +516,12 @@ def segment_image(
         labels, rims = trim_faint_rims(labels, contrast, fraction=rim_fraction)
         if rims:
             notes.append(f"{rims} px of faint rims dropped")
+    if contrast is not None and 0 < off_side_deg < 180:
+        # R7g, after R7b-R7d (whose faces it judges too): the other side's pieces where no
+        # face of the rock can lie are ground texture the threshold took with it
+        labels, off_side = trim_off_side_pieces(labels, contrast, max_side_deg=off_side_deg)
+        if off_side:
+            notes.append(f"{off_side} px of the other side off the sun's side dropped")
     if r7e:
         # R7e, after R7d: where heights are precise, a shaded face and its cast shadow
         labels, faces = _split_shadow_sides(
@@ -743,7 +772,7 @@ def _sector_product(name: str, dtype: str, long_name: str, units: str = "") -> P
 
 STAGE = Stage(
     name="segment",
-    version="34",
+    version="35",
     inputs=("left", "right", "disparity", "height"),
     outputs=(
         Product(
@@ -852,6 +881,24 @@ STAGE = Stage(
             "depth: objects grow into pixels this many bands out on the other side; 0 = off",
             None,
             0,
+        ),
+        Param(
+            "face_side_deg",
+            float,
+            105.0,
+            "depth: R7c drops growth this many degrees off the sun's side; 0 = off",
+            None,
+            0,
+            180,
+        ),
+        Param(
+            "off_side_deg",
+            float,
+            105.0,
+            "depth: R7g drops other-side pieces this many degrees off the sun's side; 0 = off",
+            None,
+            0,
+            180,
         ),
         Param(
             "neck_ratio",

@@ -222,3 +222,45 @@ def test_grow_other_faces_leaves_a_cast_shadow_r7e_dropped():
     assert np.array_equal(grown > 0, rock)
     with pytest.raises(ValueError, match="barrier"):
         grow_other_faces(labels, contrast, barrier=shadow[:10])
+
+
+def _sunlit_frame(face_side: int):
+    """Three lit rocks (12x12, dark half on the right: a sun from the left) along the top of
+    a 60x120 frame, and a light object (the left or right half of a disk, contrast 2)
+    whose other half, contrast -0.8, lies on its ``face_side`` (+1: right, -1: left)."""
+    labels = np.zeros((60, 120), np.int32)
+    contrast = np.zeros(labels.shape, np.float32)
+    for i, x in enumerate((10, 50, 90)):
+        labels[5:17, x : x + 12] = i + 1
+        contrast[5:17, x : x + 6], contrast[5:17, x + 6 : x + 12] = 3.0, -3.0
+    rock = disk(labels.shape, 40, 60, 9)
+    on_right = np.arange(labels.shape[1])[None, :] >= 60
+    face = rock & (on_right if face_side > 0 else ~on_right)
+    labels[rock & ~face] = 4
+    contrast[rock & ~face] = 2.0
+    contrast[face] = -0.8
+    return labels, contrast, rock, face
+
+
+def test_grow_other_faces_takes_a_shaded_face_away_from_the_sun_only():
+    # regression (lava_0000 object 49): a light rock (gray 118) grew by R7c into dark
+    # blotches of the lava ground on its sun side, 52 -> 121 px, IoU 0.74 -> 0.40; a
+    # shaded face lies on the side away from the sun, ground texture anywhere
+    labels, contrast, rock, face = _sunlit_frame(+1)
+    grown, count = grow_other_faces(labels, contrast)
+    assert np.array_equal(grown == 4, rock) and count == np.count_nonzero(face)
+    labels, contrast, rock, face = _sunlit_frame(-1)
+    grown, count = grow_other_faces(labels, contrast)
+    assert count == 0 and np.array_equal(grown, labels)
+    # the test off (0 or 180 degrees), or no sun direction in the frame: taken as before
+    for off in (0.0, 180.0):
+        grown, count = grow_other_faces(labels, contrast, max_side_deg=off)
+        assert np.array_equal(grown == 4, rock)
+    alone = (labels == 4).astype(np.int32)
+    without_pairs = np.where(np.arange(60)[:, None] < 20, np.float32(0.0), contrast)
+    grown, count = grow_other_faces(alone, without_pairs)
+    assert np.array_equal(grown > 0, rock) and count == np.count_nonzero(face)
+    with pytest.raises(ValueError, match="max_side_deg"):
+        grow_other_faces(labels, contrast, max_side_deg=200.0)
+    with pytest.raises(ValueError, match="anti_sun"):
+        grow_weak_halves(labels, contrast, between=labels == 0, anti_sun=np.ones(3))

@@ -1,11 +1,12 @@
-"""Tests of stages/_sun_shadows.py: the frame's anti-sun direction and R6b's cast shadows."""
+"""Tests of stages/_sun_shadows.py: the frame's anti-sun direction, R6b's cast shadows and
+R7g's pieces off the sun's side."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from stages._sun_shadows import anti_sun_direction, trim_sun_shadows
+from stages._sun_shadows import anti_sun_direction, trim_off_side_pieces, trim_sun_shadows
 
 _GROUND = 150
 
@@ -102,3 +103,51 @@ def test_bad_arguments_are_refused():
         trim_sun_shadows(labels, image, contrast, skip=np.zeros(2, bool))
     with pytest.raises(ValueError, match="min_pairs"):
         anti_sun_direction(labels, contrast, min_pairs=0)
+
+
+def _blotched_rock(blotch_side: int):
+    """Three lit rocks (sun from the left) and a light rock (10x10, contrast 3) with a dark
+    5x4 piece (contrast -2) beside it on its ``blotch_side`` (+1: right, -1: left), one
+    object; returns labels, contrast and the piece."""
+    labels = np.zeros((100, 120), np.int32)
+    contrast = np.zeros(labels.shape)
+    _lit_rocks(labels, contrast, np.zeros(labels.shape, np.uint8))
+    labels[50:60, 50:60], contrast[50:60, 50:60] = 4, 3.0
+    piece = (slice(53, 57), slice(60, 65) if blotch_side > 0 else slice(45, 50))
+    labels[piece], contrast[piece] = 4, -2.0
+    return labels, contrast, piece
+
+
+def test_r7g_drops_a_light_rocks_dark_piece_on_the_sun_side_only():
+    # lava_0007 object 51 (102 px on an 85-px rock, IoU 0.72 -> 0.89 without its 21-px
+    # piece): a rock with a blotch of ground on its wrong side, one object; its other face
+    # (and a cast shadow) lies on the other side
+    labels, contrast, piece = _blotched_rock(-1)
+    out, trimmed = trim_off_side_pieces(labels, contrast)
+    assert trimmed == 20 and not out[piece].any()
+    assert np.array_equal(out[50:60, 50:60], labels[50:60, 50:60])
+    labels, contrast, piece = _blotched_rock(+1)
+    out, trimmed = trim_off_side_pieces(labels, contrast)
+    assert trimmed == 0 and np.array_equal(out, labels)
+    # a dark rock's light piece on the side away from the sun goes the same way
+    labels, contrast, piece = _blotched_rock(+1)
+    contrast[labels == 4] *= -1
+    out, trimmed = trim_off_side_pieces(labels, contrast)
+    assert trimmed == 20 and not out[piece].any()
+
+
+def test_r7g_keeps_pieces_near_the_centre_and_needs_a_sun_direction():
+    labels, contrast, _ = _blotched_rock(-1)
+    contrast[54:56, 54:56] = -2.0  # a dark facet inside the rock, left of nothing
+    contrast[54:56, 52:54] = -2.0
+    out, trimmed = trim_off_side_pieces(labels, contrast)
+    assert trimmed == 20 and out[54:56, 52:56].all()
+    # no clear pairs, no direction: nothing dropped; 0 or 180 degrees: the rule is off
+    alone = np.where(labels == 4, labels, 0)
+    assert trim_off_side_pieces(alone, contrast)[1] == 0
+    for off in (0.0, 180.0):
+        assert trim_off_side_pieces(labels, contrast, max_side_deg=off)[1] == 0
+    with pytest.raises(ValueError, match="max_side_deg"):
+        trim_off_side_pieces(labels, contrast, max_side_deg=-1.0)
+    with pytest.raises(ValueError, match="one shape"):
+        trim_off_side_pieces(labels[:-1], contrast)
