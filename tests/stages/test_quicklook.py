@@ -10,6 +10,7 @@ from pipeline.camera import Camera
 from pipeline.stage import FrameContext
 from stages.quicklook import (
     STAGE,
+    _crossings,
     draws_frame,
     encode_png,
     objects_image,
@@ -89,6 +90,33 @@ def test_range_contours_label_a_strip_lower_than_the_text():
     out = range_contours_image(np.full(shape, 120, np.uint8), rng, step_m=1.0)
     assert out.shape == (*shape, 3)
     assert (~_is_gray(out)).any()
+
+
+def test_contour_line_pixels_equal_the_whole_grid_numpy_rule():
+    # the compiled pass replaced a dozen numpy passes: the same pixels, order and levels
+    rng = np.random.default_rng(5)
+    smooth = np.cumsum(rng.normal(0.0, 0.05, (60, 80)), axis=1).astype(np.float32) + 2.0
+    smooth[10:20, 30:40] = np.nan
+    smooth[50:, :10] = -1.0  # negative levels draw no line
+    step = np.float32(0.25)
+    ok = np.isfinite(smooth)
+    level = np.full(smooth.shape, -1, np.int32)
+    level[ok] = np.floor(smooth[ok] / step).astype(np.int32)
+    cross = np.zeros(level.shape, np.int32)
+    for a, b in (
+        ((slice(None), slice(None, -1)), (slice(None), slice(1, None))),
+        ((slice(None, -1), slice(None)), (slice(1, None), slice(None))),
+    ):
+        la, lb = level[a], level[b]
+        change = (la >= 0) & (lb >= 0) & (la != lb)
+        np.maximum(cross[a], np.where(change, np.maximum(la, lb), 0), out=cross[a])
+    rows, cols = np.nonzero(cross)
+    got = [np.empty(smooth.size, np.int64) for _ in range(3)]
+    n = _crossings(smooth, step, *got)
+    assert n == rows.size > 100
+    np.testing.assert_array_equal(got[0][:n], rows)
+    np.testing.assert_array_equal(got[1][:n], cols)
+    np.testing.assert_array_equal(got[2][:n], cross[rows, cols])
 
 
 def test_range_contours_validate():
