@@ -11,6 +11,7 @@ from pipeline.stage import FrameContext
 from stages.quicklook import (
     STAGE,
     _crossings,
+    _diff_panel,
     draws_frame,
     encode_png,
     objects_image,
@@ -148,6 +149,24 @@ def test_residual_image_scales_differences():
     out = residual_image(left, right, np.full(SHAPE, 10.0, dtype=np.float32))
     assert out[60, 40, 0] == 1  # 128 - 127/10 * 10, clipped scale at the 99th percentile
     assert out[60, SHAPE[1] + 4 + 40, 0] == 255
+
+
+def test_residual_panel_pass_equals_the_numpy_float32_rule():
+    # the compiled panel replaced numpy's float32 passes: the same truncated gray levels,
+    # clipped at both ends, undefined (NaN, inf) pixels dark blue
+    rng = np.random.default_rng(2)
+    diff = rng.normal(0.0, 40.0, SHAPE).astype(np.float32)
+    diff[0, :4] = [np.nan, np.inf, -np.inf, 1e30]
+    scale = 127.0 / 37.3
+    out = np.zeros((*SHAPE, 3), np.uint8)
+    _diff_panel(diff, np.float32(scale), np.array((90, 20, 0), np.uint8), out)
+    finite = np.isfinite(diff)
+    level = np.multiply(np.where(finite, diff, np.float32(0.0)), scale)
+    level = np.clip(level + 128.0, 0, 255).astype(np.uint8)
+    expected = np.repeat(level[..., None], 3, axis=2)
+    expected[~finite] = (90, 20, 0)
+    np.testing.assert_array_equal(out, expected)
+    assert out[0, 3, 0] == 255 and out[0, 1, 0] == 90
 
 
 def test_encode_png_round_trip():
