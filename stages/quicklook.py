@@ -103,7 +103,8 @@ def objects_image(gray: np.ndarray, labels: np.ndarray) -> np.ndarray:
     g = _coerce_image("gray", gray)
     lab = _check_shape("labels", labels, g.shape)
     out = cv2.cvtColor(g, cv2.COLOR_GRAY2BGR)
-    positive = np.where(lab > 0, lab, 0)
+    # (labels are >= 0 as the segment stage writes them: no copy then)
+    positive = lab if lab.size == 0 or lab.min() >= 0 else np.where(lab > 0, lab, 0)
     if positive.dtype.kind not in "iu":  # find_objects takes integer labels of any width
         positive = positive.astype(np.int64)
     slices = ndimage.find_objects(positive)
@@ -330,7 +331,8 @@ def residual_image(left: np.ndarray, right: np.ndarray, residual: np.ndarray) ->
     spread = float(np.percentile(sample, 99)) if raw.size else 0.0
     scale = 127.0 / max(spread, 1.0)
     h, w = lf.shape
-    out = np.full((h, 2 * w + _PANEL_GAP_PX, 3), 255, dtype=np.uint8)
+    out = np.empty((h, 2 * w + _PANEL_GAP_PX, 3), dtype=np.uint8)
+    out[:, w : w + _PANEL_GAP_PX] = 255  # the white gap; the panels are painted whole
     # float32 arithmetic, as numpy multiplies a float32 array by a Python float
     undefined = np.array(_UNDEFINED_BGR, np.uint8)
     _diff_panel(raw, np.float32(scale), undefined, out[:, :w])
