@@ -61,7 +61,7 @@ def smooth_height(height: np.ndarray, *, window: int = 5) -> np.ndarray:
     if window == 1:
         return height
     valid = np.isfinite(height)
-    filled = np.where(valid, height, np.float32(0.0)).astype(np.float32)
+    filled = np.where(valid, height, np.float32(0.0)).astype(np.float32, copy=False)
     smoothed = cv2.medianBlur(filled, window)
     return np.where(valid, smoothed, np.float32(np.nan))
 
@@ -88,7 +88,7 @@ def local_ground(height: np.ndarray, *, window_px: int = 72) -> np.ndarray:
     factor = max(1, window_px // 9)
     small_shape = (max(1, rows // factor), max(1, cols // factor))
     valid = np.isfinite(height)
-    filled = np.where(valid, height, np.float32(0.0)).astype(np.float32)
+    filled = np.where(valid, height, np.float32(0.0)).astype(np.float32, copy=False)
     # invalid pixels vote for the plane itself: the fit already describes the ground
     small = cv2.resize(filled, small_shape[::-1], interpolation=cv2.INTER_AREA)
     coarse = _median_filter_nearest(small, size=min(9, *small_shape))

@@ -17,6 +17,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba import njit
 from scipy.ndimage import uniform_filter1d
 from scipy.signal import find_peaks
 
@@ -109,9 +110,20 @@ def _histograms_between(image: np.ndarray, row_edges: np.ndarray, col_edges: np.
     n_rows, n_cols = len(row_edges) - 1, len(col_edges) - 1
     row_sector = np.repeat(np.arange(n_rows, dtype=np.int64), np.diff(row_edges))
     col_sector = np.repeat(np.arange(n_cols, dtype=np.int64), np.diff(col_edges))
-    sector = (row_sector[:, None] * n_cols + col_sector[None, :]) * N_LEVELS
-    counts = np.bincount((sector + image).ravel(), minlength=n_rows * n_cols * N_LEVELS)
-    return counts.reshape(n_rows, n_cols, N_LEVELS)
+    counts = np.zeros((n_rows, n_cols, N_LEVELS), np.int64)
+    _count_levels(np.ascontiguousarray(image, dtype=np.uint8), row_sector, col_sector, counts)
+    return counts
+
+
+@njit(cache=True)
+def _count_levels(image, row_sector, col_sector, counts):  # pragma: no cover - numba
+    """Add each pixel to its sector's histogram: the counts of ``np.bincount`` over
+    ``sector * 256 + gray`` without its int64 index image (a third of the time)."""
+    rows, cols = image.shape
+    for y in range(rows):
+        i = row_sector[y]
+        for x in range(cols):
+            counts[i, col_sector[x], image[y, x]] += 1
 
 
 def smooth_histograms(hist: np.ndarray, *, passes: int = 1) -> np.ndarray:

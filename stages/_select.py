@@ -72,23 +72,37 @@ def _gather(values, first, last, size):  # pragma: no cover - numba
 
 
 @njit(cache=True)
+def _bucket_range(bits):  # pragma: no cover - numba
+    """The smallest and largest bucket of the values (a branch-free, vectorised pass)."""
+    lo, hi = np.int32(65535), np.int32(0)
+    for i in range(bits.size):
+        b = _bucket(bits[i])
+        lo = min(lo, b)
+        hi = max(hi, b)
+    return lo, hi
+
+
+@njit(cache=True)
 def _median(values):  # pragma: no cover - numba
     """``np.median`` of finite float32 values.
 
     One counting pass over the top 16 bits of the values' order-preserving keys finds the
     buckets of the two middle ranks (no data-dependent branches: a quickselect over the
     whole array mispredicts half of its comparisons); a quickselect finishes in the few
-    values of those buckets.
+    values of those buckets. The counts span only the buckets between the smallest and the
+    largest value (a few thousand): zeroing and scanning all 65536 cost ~50 us a call, more
+    than the counting of 10 000 values.
     """
     n = values.size
     bits = values.view(np.int32)
-    counts = np.zeros(65536, np.int64)
+    lo, hi = _bucket_range(bits)
+    counts = np.zeros(hi - lo + 1, np.int32)  # n < 2**31: half the zeroing of int64
     for i in range(n):
-        counts[_bucket(bits[i])] += 1
+        counts[_bucket(bits[i]) - lo] += 1
     upper_rank = n // 2
     lower_rank = upper_rank if n % 2 else upper_rank - 1
     first, last, below, seen = -1, -1, 0, 0
-    for b in range(65536):
+    for b in range(counts.size):
         if first < 0 and seen + counts[b] > lower_rank:
             first, below = b, seen
         if seen + counts[b] > upper_rank:
@@ -98,7 +112,7 @@ def _median(values):  # pragma: no cover - numba
     size = 0
     for b in range(first, last + 1):
         size += counts[b]
-    kept = _gather(values, first, last, size)
+    kept = _gather(values, first + lo, last + lo, size)
     upper = _kth(kept, upper_rank - below)
     if n % 2:
         return upper

@@ -4,10 +4,15 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from stages._continuity import _median_without, analyse_sectors
+from stages._continuity import (
+    _demote_inconsistent,
+    _demote_inconsistent_numpy,
+    _median_without,
+    analyse_sectors,
+)
 
 LEVELS = np.arange(256)
 
@@ -209,6 +214,25 @@ def test_median_without_leaves_out_one_occurrence_like_np_delete(levels, data):
     value = values[data.draw(st.integers(0, values.size - 1))]
     expected = np.median(np.delete(values, np.flatnonzero(values == value)[:1]))
     assert _median_without(values, value) == expected
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    n=st.integers(2, 18),
+    seed=st.integers(0, 2**16),
+    step=st.sampled_from([1, 20]),
+    missing=st.floats(0.0, 0.95),
+    continuity_range=st.sampled_from([10.0, 24.0, 40.0]),
+)
+def test_compiled_seed_demotion_equals_its_numpy_twin(n, seed, step, missing, continuity_range):
+    # step 20: many equal levels, so leaving out one occurrence of the seed matters
+    rng = np.random.default_rng(seed)
+    levels = (rng.integers(0, 256, (n, n)) // step * step).astype(np.float64)
+    levels[rng.random((n, n)) < missing] = np.nan
+    np.testing.assert_array_equal(
+        _demote_inconsistent(levels, continuity_range),
+        _demote_inconsistent_numpy(levels, continuity_range),
+    )
 
 
 def test_a_rock_sector_whose_ground_shows_at_the_predicted_level_is_not_a_ramp():

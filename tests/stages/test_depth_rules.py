@@ -136,6 +136,35 @@ def test_gray_contrast_band_is_at_least_half_the_frames_band():
     assert local[0, 0] == pytest.approx(-10.0)
 
 
+def test_gray_contrast_kernel_equals_the_numpy_formula_with_nans():
+    # the compiled pass replaced six numpy passes: the same float32 values, NaN bands kept
+    rng = np.random.default_rng(3)
+    image = rng.integers(0, 256, (40, 60)).astype(np.uint8)
+    background = np.round(rng.random(image.shape) * 255).astype(np.float32)
+    low = background - (rng.random(image.shape) * 30).astype(np.float32)
+    high = background + (rng.random(image.shape) * 30).astype(np.float32)
+    image[5] = background[5].clip(0, 255).astype(np.uint8)  # on the ground level itself
+    background[0, :5], low[1, :5], high[2, :5] = np.nan, np.nan, np.nan
+    for fraction in (0.0, 0.5, 1.0):
+        level = image.astype(np.float32) - background
+        darker = level < 0
+        band = np.where(darker, background - low, high - background)
+        coarse = np.s_[::4, ::4]
+        frame_low = float(np.median(background[coarse] - low[coarse]))
+        frame_high = float(np.median(high[coarse] - background[coarse]))
+        floors = np.where(
+            darker,
+            np.float32(max(1.0, fraction * frame_low)),
+            np.float32(max(1.0, fraction * frame_high)),
+        )
+        expected = level / np.maximum(band, floors)
+        contrast = gray_contrast(
+            image, background=background, low=low, high=high, min_band_fraction=fraction
+        )
+        assert contrast.dtype == np.float32
+        np.testing.assert_array_equal(contrast, expected)
+
+
 def test_drop_faint_depthless_judges_objects_the_vote_could_not_read():
     # regression: on dunes the end of a ripple trough at the bottom border had 17 % valid
     # heights, too few for the vote (30 %) and too many for the old 10 % limit: kept

@@ -10,6 +10,8 @@ from pipeline.camera import Camera
 from pipeline.stage import FrameContext
 from stages.quicklook import (
     STAGE,
+    _crossings,
+    _diff_panel,
     draws_frame,
     encode_png,
     objects_image,
@@ -91,6 +93,33 @@ def test_range_contours_label_a_strip_lower_than_the_text():
     assert (~_is_gray(out)).any()
 
 
+def test_contour_line_pixels_equal_the_whole_grid_numpy_rule():
+    # the compiled pass replaced a dozen numpy passes: the same pixels, order and levels
+    rng = np.random.default_rng(5)
+    smooth = np.cumsum(rng.normal(0.0, 0.05, (60, 80)), axis=1).astype(np.float32) + 2.0
+    smooth[10:20, 30:40] = np.nan
+    smooth[50:, :10] = -1.0  # negative levels draw no line
+    step = np.float32(0.25)
+    ok = np.isfinite(smooth)
+    level = np.full(smooth.shape, -1, np.int32)
+    level[ok] = np.floor(smooth[ok] / step).astype(np.int32)
+    cross = np.zeros(level.shape, np.int32)
+    for a, b in (
+        ((slice(None), slice(None, -1)), (slice(None), slice(1, None))),
+        ((slice(None, -1), slice(None)), (slice(1, None), slice(None))),
+    ):
+        la, lb = level[a], level[b]
+        change = (la >= 0) & (lb >= 0) & (la != lb)
+        np.maximum(cross[a], np.where(change, np.maximum(la, lb), 0), out=cross[a])
+    rows, cols = np.nonzero(cross)
+    got = [np.empty(smooth.size, np.int64) for _ in range(3)]
+    n = _crossings(smooth, step, *got)
+    assert n == rows.size > 100
+    np.testing.assert_array_equal(got[0][:n], rows)
+    np.testing.assert_array_equal(got[1][:n], cols)
+    np.testing.assert_array_equal(got[2][:n], cross[rows, cols])
+
+
 def test_range_contours_validate():
     with pytest.raises(ValueError, match="step_m"):
         range_contours_image(_gray(), np.ones(SHAPE, np.float32), step_m=0.0)
@@ -120,6 +149,24 @@ def test_residual_image_scales_differences():
     out = residual_image(left, right, np.full(SHAPE, 10.0, dtype=np.float32))
     assert out[60, 40, 0] == 1  # 128 - 127/10 * 10, clipped scale at the 99th percentile
     assert out[60, SHAPE[1] + 4 + 40, 0] == 255
+
+
+def test_residual_panel_pass_equals_the_numpy_float32_rule():
+    # the compiled panel replaced numpy's float32 passes: the same truncated gray levels,
+    # clipped at both ends, undefined (NaN, inf) pixels dark blue
+    rng = np.random.default_rng(2)
+    diff = rng.normal(0.0, 40.0, SHAPE).astype(np.float32)
+    diff[0, :4] = [np.nan, np.inf, -np.inf, 1e30]
+    scale = 127.0 / 37.3
+    out = np.zeros((*SHAPE, 3), np.uint8)
+    _diff_panel(diff, np.float32(scale), np.array((90, 20, 0), np.uint8), out)
+    finite = np.isfinite(diff)
+    level = np.multiply(np.where(finite, diff, np.float32(0.0)), scale)
+    level = np.clip(level + 128.0, 0, 255).astype(np.uint8)
+    expected = np.repeat(level[..., None], 3, axis=2)
+    expected[~finite] = (90, 20, 0)
+    np.testing.assert_array_equal(out, expected)
+    assert out[0, 3, 0] == 255 and out[0, 1, 0] == 90
 
 
 def test_encode_png_round_trip():
