@@ -273,13 +273,15 @@ class GroundFit:
     source: str
 
 
-def _refine(xs, ys, ds, coef, inlier_px, iterations=5):
-    design = np.column_stack([xs, ys, np.ones_like(xs)])
+def _refine(design, ds, coef, inlier_px, iterations=5):
     mask = np.abs(design @ coef - ds) <= inlier_px
     for _ in range(iterations):
         if np.count_nonzero(mask) < 3:
             break
-        coef, *_ = np.linalg.lstsq(design[mask], ds[mask], rcond=None)
+        # the inliers' rows by index: the same arrays as boolean indexing, at a tenth of
+        # its cost (a boolean row gather over a random mask is the slowest step here)
+        rows = np.flatnonzero(mask)
+        coef, *_ = np.linalg.lstsq(design.take(rows, axis=0), ds.take(rows), rcond=None)
         new_mask = np.abs(design @ coef - ds) <= inlier_px
         if np.array_equal(new_mask, mask):
             break
@@ -287,10 +289,9 @@ def _refine(xs, ys, ds, coef, inlier_px, iterations=5):
     return coef, mask
 
 
-def _ransac(xs, ys, ds, inlier_px, iterations, rng):
-    n = xs.size
+def _ransac(design, ds, inlier_px, iterations, rng):
+    n = ds.size
     best_coef, best_count = None, -1
-    design = np.column_stack([xs, ys, np.ones_like(xs)])
     for _ in range(iterations):
         pick = rng.choice(n, size=3, replace=False)
         try:
@@ -353,7 +354,8 @@ def fit_ground_plane(
     if n_valid > sample_px:
         flat = flat[np.sort(rng.choice(n_valid, size=sample_px, replace=False))]
     ys_s, xs_s = np.divmod(flat, shape[1])
-    xs, ys, ds = xs_s.astype(float), ys_s.astype(float), d[ys_s, xs_s].astype(np.float64)
+    xs, ys, ds = xs_s.astype(float), ys_s.astype(float), d.ravel().take(flat).astype(np.float64)
+    design = np.column_stack([xs, ys, np.ones_like(xs)])
     coef, source = None, "none"
     if cam.has_pose:
         assert cam.height_m is not None and cam.pitch_deg is not None
@@ -362,15 +364,15 @@ def fit_ground_plane(
             camera=cam, shape=shape,
         )  # fmt: skip
         # a generous first band absorbs a slightly wrong pose before narrowing
-        refined, _ = _refine(xs, ys, ds, start, 3.0 * inlier_px)
-        refined, mask = _refine(xs, ys, ds, refined, inlier_px)
+        refined, _ = _refine(design, ds, start, 3.0 * inlier_px)
+        refined, mask = _refine(design, ds, refined, inlier_px)
         if np.count_nonzero(mask) >= min_pose_inliers * xs.size:
             coef, source = refined, "pose"
     if coef is None:
-        start = _ransac(xs, ys, ds, inlier_px, ransac_iterations, rng)
+        start = _ransac(design, ds, inlier_px, ransac_iterations, rng)
         if start is None:
             return none
-        coef, _ = _refine(xs, ys, ds, start, inlier_px)
+        coef, _ = _refine(design, ds, start, inlier_px)
         source = "ransac"
     plane = plane_from_disparity_coefficients(coef, camera=cam, shape=shape)
     if not np.all(np.isfinite(plane)):
