@@ -777,12 +777,31 @@ def ncc_cost_volume(
 
 @njit(cache=True)
 def flag_occluded(coded, tolerance, code):  # pragma: no cover - numba
-    """In place: set the pixels :func:`occluded` flags to ``code`` (the rest unchanged)."""
-    hidden = occluded(coded, tolerance)
+    """In place: set the pixels :func:`occluded` flags to ``code`` (the rest unchanged).
+
+    :func:`occluded`'s two passes row by row (a row's flags depend on that row only), with
+    each pixel's landing column kept from the first pass and the code written in the
+    second: no (H, W) flag array and no third pass.
+    """
     h, w = coded.shape
+    nearest = np.empty(w, np.float32)
+    column = np.empty(w, np.int64)
     for y in range(h):
+        nearest[:] = -np.inf
         for x in range(w):
-            if hidden[y, x]:
+            d = coded[y, x]
+            c = -1
+            if np.isfinite(d):
+                c = int(np.floor(x + d + 0.5))
+                if 0 <= c < w:
+                    if d > nearest[c]:
+                        nearest[c] = d
+                else:
+                    c = -1
+            column[x] = c
+        for x in range(w):
+            c = column[x]
+            if c >= 0 and nearest[c] > coded[y, x] + tolerance:
                 coded[y, x] = code
 
 

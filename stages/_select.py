@@ -1,12 +1,13 @@
 """Numba kernel: the median absolute deviation of float32 values by selection.
 
 Private helper of :mod:`stages._heights` (``_robust_sigma``: the ground's height noise of
-the depth rules, three times a frame over 50-250 thousand heights). ``np.median`` selects
-three order statistics (the two middle ones and, for NaN, the last), twice, each by an
-introselect over the whole array; counting the values' top bits and selecting among the
-few in the middle buckets costs a fraction. The arithmetic is ``np.median``'s in
-float32: the mean of the two middle values is their float32 sum halved, the deviations are
-float32 differences (``tests/stages/test_select.py`` compares it with numpy).
+the depth rules, three times a frame over 50-250 thousand heights) and of
+:mod:`stages.depth` (``median32``: the frame's median range, over ~250 thousand values).
+``np.median`` selects three order statistics (the two middle ones and, for NaN, the last),
+(twice for a MAD) each by an introselect over the whole array; counting the values' top
+bits and selecting among the few in the middle buckets costs a fraction. The arithmetic is
+``np.median``'s in float32: the mean of the two middle values is their float32 sum halved,
+the deviations are float32 differences (``tests/stages/test_select.py`` compares it with numpy).
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["median_abs_deviation32"]
+__all__ = ["median32", "median_abs_deviation32"]
 
 
 @njit(cache=True)
@@ -133,6 +134,22 @@ def _mad(values):  # pragma: no cover - numba
     return _median(deviations)
 
 
+def median32(values: np.ndarray) -> np.float32:
+    """``np.median(values)`` of finite float32 values, the same float32.
+
+    Parameters
+    ----------
+    values : (K,) ndarray of float32
+        Finite, ``K >= 1``; not modified.
+
+    Returns
+    -------
+    median : numpy.float32
+    """
+    _check_values(values)
+    return np.float32(_median(np.ascontiguousarray(values)))
+
+
 def median_abs_deviation32(values: np.ndarray) -> np.float32:
     """``np.median(np.abs(values - np.median(values)))`` of finite float32 values.
 
@@ -145,9 +162,13 @@ def median_abs_deviation32(values: np.ndarray) -> np.float32:
     -------
     mad : numpy.float32
     """
+    _check_values(values)
+    return np.float32(_mad(np.ascontiguousarray(values)))
+
+
+def _check_values(values: np.ndarray) -> None:
     if values.dtype != np.float32 or values.ndim != 1 or values.size == 0:
         raise ValueError(
             f"values must be a non-empty 1-D float32 array, got {values.ndim}-D "
             f"{values.dtype} of size {values.size}"
         )
-    return np.float32(_mad(np.ascontiguousarray(values)))

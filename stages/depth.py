@@ -63,6 +63,7 @@ from pipeline.errors import ParamError
 from pipeline.stage import FrameContext, Param, Product, Stage, StageResult
 
 from . import _refine, _stereo, _stereo_tiles
+from ._select import median32
 from .geometry import (
     derive_max_disparity,
     derive_row_ceiling,
@@ -307,6 +308,16 @@ def _match(
     return matching, False
 
 
+def _median_range(finite_range: np.ndarray) -> float:
+    """``np.median`` of the finite ranges (NaN if none): by bucket counting for float32,
+    the same value at a fraction of an introselect over ~250 000 values."""
+    if finite_range.size == 0:
+        return float("nan")
+    if finite_range.dtype == np.float32 and finite_range.ndim == 1:
+        return float(median32(finite_range))
+    return float(np.median(finite_range))
+
+
 def _pitch_deg(plane: np.ndarray) -> float:
     if not np.all(np.isfinite(plane)):
         return float("nan")
@@ -400,7 +411,7 @@ def run_depth(
         "min_disparity": lo,
         "max_disparity": hi,
         "ground_refined_fraction": refined_fraction,
-        "median_range_m": float(np.median(finite_range)) if finite_range.size else float("nan"),
+        "median_range_m": _median_range(finite_range),
     }
     return StageResult(
         arrays={

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from stages._select import median_abs_deviation32
+from stages._select import median32, median_abs_deviation32
 
 
 def _numpy_mad(values: np.ndarray) -> np.float32:
@@ -41,3 +41,23 @@ def test_median_abs_deviation32_rejects_other_arrays():
         median_abs_deviation32(np.zeros(5))
     with pytest.raises(ValueError, match="non-empty"):
         median_abs_deviation32(np.zeros(0, np.float32))
+
+
+def test_median32_equals_numpy_on_ranges_and_ties_and_leaves_values_alone():
+    rng = np.random.default_rng(10)
+    for trial in range(300):
+        size = int(rng.integers(1, 400))
+        values = (rng.lognormal(size=size) * 10.0 ** rng.integers(-3, 3)).astype(np.float32)
+        if trial % 3 == 0:
+            values = np.round(values, 1).astype(np.float32)  # many ties
+        if trial % 4 == 0:
+            values = -values
+        before = values.copy()
+        middle = median32(values)
+        assert middle.dtype == np.float32 and middle == np.median(values)
+        assert np.array_equal(values, before)
+    ranges = (rng.lognormal(1.0, 0.5, 250_001)).astype(np.float32)  # a frame's ranges
+    assert median32(ranges) == np.median(ranges)
+    assert median32(ranges[:-1]) == np.median(ranges[:-1])
+    with pytest.raises(ValueError, match="float32"):
+        median32(np.zeros(5))
