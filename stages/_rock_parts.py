@@ -57,6 +57,27 @@ and R7d (faint rims, after R7c) are in :mod:`stages._outlines`:
   seed 3: lab 0.914 unchanged, mojave 0.875 -> 0.878, lava 0.760 -> 0.769; dunes seeds 2,
   3, 7 and 11 unchanged. Without R7 it gains less (lava 0.732 -> 0.747). A gap of 4 gave
   lava 0.769 (seed 2 0.751), 6 lava seed 2 0.744; a slack of 0 joined 1-4 pairs.
+  Until segment v36 the pair's window reached only ``join_gap_px`` past the pair, so the
+  closing's dilation touched the window's edge and OpenCV's erosion (which keeps what
+  touches the edge) left tails along it: the union's solidity fell (mojave_s5 mojave_0011
+  rock 73: 0.89 -> 0.73) and true pairs stayed apart. The window now reaches twice the
+  gap. With that fix alone the newly joined pairs were, on mojave, a rock's lit and shaded
+  faces with the shaded one 1-15 degrees from the direction away from the sun (seen from
+  the lit one), and, on lava, mostly a light and a dark rock side by side at 62-146
+  degrees (lava_s2 lava_0006 rocks 153 and 144, IoU 0.82 and 0.74 apart, 0.45 joined).
+  So where the frame says where its sun is (R6b's :func:`stages._sun_shadows.
+  anti_sun_direction`), a pair whose darker object lies more than ``join_side_deg`` (60)
+  from that direction is not joined. ``bench_segment.py --rundir DIR`` (lava seeds with
+  ``--set two_face_sigmas=3``), segment v35 -> the fix alone -> fix and side test at 60
+  degrees: mojave catalog 0.915 -> 0.914 -> 0.918, seeds 2-5 0.920 / 0.897 / 0.893 / 0.887
+  -> 0.921 / 0.897 / 0.896 / 0.895 -> 0.921 / 0.897 / 0.896 / 0.897; lava catalog 0.837 ->
+  0.837 -> 0.837, seeds 2-5 0.833 / 0.843 / 0.829 / 0.841 -> 0.830 / 0.839 / 0.829 / 0.838
+  -> 0.836 / 0.844 / 0.829 / 0.841; lab, dunes (catalog, seeds 2, 3, 4, 5, 7, 11) and lab
+  seeds 2-3 unchanged. 45 degrees: mojave seed 3 0.896, lava catalog 0.835; 90 degrees:
+  mojave seed 5 0.895, lava seeds 2-3 0.831 / 0.841. Without the side test, the slack at
+  0, 0.02, 0.03, 0.04 gave lava seeds 2-3 0.835 / 0.843, 0.836 / 0.841, 0.836 / 0.838,
+  0.834 / 0.839 and mojave seeds 4-5 0.895 / 0.893, 0.895 / 0.893, 0.896 / 0.891, 0.896
+  / 0.895.
 * **R7c other face** -- a rock lit from above shows a face lighter than the ground and a
   shaded side darker; often only one is found as an object (the other too small, or voted
   flat, on its own) and the object covers under half the rock: of lava's catalog rocks found
@@ -440,6 +461,7 @@ def join_opposite_halves(
     *,
     gap_px: int = _JOIN_GAP_PX,
     solidity_slack: float = _JOIN_SOLIDITY_SLACK,
+    max_side_deg: float = 180.0,
 ) -> tuple[np.ndarray, int]:
     """Rule R7b: join a lighter and a darker object that together make one compact rock.
 
@@ -458,6 +480,12 @@ def join_opposite_halves(
         ``>= 0``; a pair is joined (with the background between them, a morphological
         closing of radius ``gap_px``) when the union's solidity is at most this much below
         the more solid of the two.
+    max_side_deg : float
+        In ``(0, 180]`` degrees; when the frame says where its sun is
+        (:func:`stages._sun_shadows.anti_sun_direction` of ``labels``), a pair whose darker
+        object's centroid, seen from the lighter one's, lies more than this far from the
+        direction away from the sun is two rocks, not the lit and the shaded face of one;
+        180 disables the test.
 
     Returns
     -------
@@ -472,11 +500,25 @@ def join_opposite_halves(
         raise ValueError(
             f"need gap_px >= 0 and solidity_slack >= 0, got {gap_px} and {solidity_slack}"
         )
+    if not 0 < max_side_deg <= 180:
+        raise ValueError(
+            f"max_side_deg must be in (0, 180] degrees (180 disables), got {max_side_deg}"
+        )
     count = int(labels.max())
     if count < 2 or gap_px == 0:
         return labels, 0
     area, sums = _label_sums(labels, contrast, count + 1)
     lighter = sums >= 0
+    anti_sun = anti_sun_direction(labels, contrast) if max_side_deg < 180 else None
+    if anti_sun is not None:
+        rows_at, cols_at = np.indices(labels.shape)
+        safe = np.maximum(area, 1)
+        centroids = np.stack(
+            [_label_sums(labels, rows_at.astype(np.float64), count + 1)[1] / safe,
+             _label_sums(labels, cols_at.astype(np.float64), count + 1)[1] / safe],
+            axis=1,
+        )
+        min_cos = np.cos(np.radians(max_side_deg))
     boxes = _object_boxes(labels, count)
     kernel = _ring_kernel(gap_px)
     rows, cols = labels.shape
@@ -502,9 +544,21 @@ def join_opposite_halves(
                 continue
             if n_facing < np.sqrt(min(area[k], area[j])):
                 continue
+            if anti_sun is not None:
+                # a lit face's shaded face lies away from the sun (mojave_s5 0007 rock 13:
+                # 1 degree off; two rocks side by side in lava_s2/s3: 62-146 degrees)
+                light, dark = (k, j) if lighter[k] else (j, k)
+                offset = centroids[dark] - centroids[light]
+                norm = float(np.hypot(*offset))
+                if norm > 0 and float(offset @ anti_sun) < min_cos * norm:
+                    continue
             oy, ox = _box_window(boxes[j])
-            v0, v1 = max(0, min(sy.start, oy.start) - gap_px), max(sy.stop, oy.stop) + gap_px
-            u0, u1 = max(0, min(sx.start, ox.start) - gap_px), max(sx.stop, ox.stop) + gap_px
+            # twice the closing's radius around the pair: OpenCV's erosion keeps what touches
+            # the window's edge, and a margin of one radius let the dilated pair touch it
+            # (tails along the edge that sank the union's solidity, mojave_s5 0011 rock 73)
+            pad = 2 * gap_px
+            v0, v1 = max(0, min(sy.start, oy.start) - pad), max(sy.stop, oy.stop) + pad
+            u0, u1 = max(0, min(sx.start, ox.start) - pad), max(sx.stop, ox.stop) + pad
             pair = labels[v0:v1, u0:u1]
             one, two = pair == k, pair == j
             union = cv2.morphologyEx((one | two).view(np.uint8), cv2.MORPH_CLOSE, kernel)

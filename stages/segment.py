@@ -176,6 +176,7 @@ def segment_image(
     join_gap_px: int = 5,
     face_bands: float = 0.5,
     face_side_deg: float = 105.0,
+    join_side_deg: float = 60.0,
     off_side_deg: float = 105.0,
     neck_ratio: float = 0.5,
     blob_sigmas: float = 0.0,
@@ -242,6 +243,11 @@ def segment_image(
         (rule R6b), R7c drops the pieces of a growth lying more than this far from the side
         the object's other face lies on (rule R7c of :mod:`stages._rock_parts`); 0 or 180
         disables.
+    join_side_deg : float
+        Depth method only, in ``[0, 180]`` degrees: where the frame's sun direction is known
+        (rule R6b), R7b joins a lighter and a darker object only when the darker one lies
+        at most this far from the direction away from the sun, seen from the lighter one
+        (rule R7b of :mod:`stages._rock_parts`); 0 or 180 disables the test.
     off_side_deg : float
         Depth method only, in ``[0, 180]`` degrees: after R7d, where the frame's sun
         direction is known, an object's pieces past the other side's threshold lying more
@@ -322,10 +328,10 @@ def segment_image(
         raise ValueError(
             f"height_grow_fraction must be in [0, 1] (0 disables), got {height_grow_fraction}"
         )
-    if not 0 <= face_side_deg <= 180 or not 0 <= off_side_deg <= 180:
+    if not all(0 <= deg <= 180 for deg in (face_side_deg, off_side_deg, join_side_deg)):
         raise ValueError(
-            "face_side_deg and off_side_deg must be in [0, 180] (0 disables), got "
-            f"{face_side_deg} and {off_side_deg}"
+            "face_side_deg, off_side_deg and join_side_deg must be in [0, 180] (0 disables), "
+            f"got {face_side_deg}, {off_side_deg} and {join_side_deg}"
         )
     if not 0 <= sun_shadow_angle_deg <= 90:
         raise ValueError(
@@ -496,7 +502,12 @@ def segment_image(
             shadows = (before > 0) & (labels == 0)
     if contrast is not None and join_gap_px > 0:
         # R7b: a lit half and a shaded half of one rock, each found on its own
-        labels, joined = join_opposite_halves(labels, contrast, gap_px=join_gap_px)
+        labels, joined = join_opposite_halves(
+            labels,
+            contrast,
+            gap_px=join_gap_px,
+            max_side_deg=join_side_deg if 0 < join_side_deg < 180 else 180.0,
+        )
         if joined:
             notes.append(f"{joined} pair(s) of a lighter and a darker half joined")
     if contrast is not None and face_bands > 0 and weak_growth_px > 0:
@@ -772,7 +783,7 @@ def _sector_product(name: str, dtype: str, long_name: str, units: str = "") -> P
 
 STAGE = Stage(
     name="segment",
-    version="35",
+    version="36",
     inputs=("left", "right", "disparity", "height"),
     outputs=(
         Product(
@@ -887,6 +898,16 @@ STAGE = Stage(
             float,
             105.0,
             "depth: R7c drops growth this many degrees off the sun's side; 0 = off",
+            None,
+            0,
+            180,
+        ),
+        Param(
+            "join_side_deg",
+            float,
+            60.0,
+            "depth: R7b joins no pair whose darker half lies this many degrees off the "
+            "sun's far side; 0 = off",
             None,
             0,
             180,

@@ -264,3 +264,72 @@ def test_grow_other_faces_takes_a_shaded_face_away_from_the_sun_only():
         grow_other_faces(labels, contrast, max_side_deg=200.0)
     with pytest.raises(ValueError, match="anti_sun"):
         grow_weak_halves(labels, contrast, between=labels == 0, anti_sun=np.ones(3))
+
+
+# mojave_s5 mojave_0011 rock 73 (a 104 px rock at 6.4 m): its lit face (object 1) and its
+# shaded face (object 2), a diagonal terminator of mid grays between them
+_TERMINATOR_PAIR = """
+..1..........
+1111111111...
+1111111111.22
+111111111..222
+11111111..2222
+1111111..22222
+111....22222222
+111...2222222222222
+.11..22222222222
+"""
+
+
+def test_join_opposite_halves_judges_the_closing_away_from_the_window_edge():
+    # regression (mojave_s5 mojave_0011 rock 73, IoU 0.48 and 0.33 as two objects, 0.83
+    # joined): the pair's window reached one gap past the pair, so the closing's dilation
+    # touched its edge and OpenCV's erosion kept a tail along it; the union's solidity
+    # fell from 0.89 to 0.73 and the pair stayed apart
+    rows = _TERMINATOR_PAIR.strip().splitlines()
+    labels = np.zeros((30, 40), np.int32)
+    for y, row in enumerate(rows):
+        for x, ch in enumerate(row):
+            if ch != ".":
+                labels[10 + y, 12 + x] = int(ch)
+    contrast = np.where(labels == 1, np.float32(3.5), np.where(labels == 2, -3.0, 0.0))
+    joined, count = join_opposite_halves(labels, contrast.astype(np.float32))
+    assert count == 1 and set(np.unique(joined)) == {0, 1}
+    assert (joined[labels > 0] == 1).all() and (joined[:10] == 0).all()
+
+
+def _pair_under_a_sun(shaded_side: int):
+    """Three lit rocks (dark half on the right: a sun from the left) along the top of a
+    60x120 frame, and a disk whose lit half (object 4) and shaded half (object 5) were
+    found apart, the shaded half on ``shaded_side`` (+1: right, away from the sun)."""
+    labels, contrast, _, _ = _sunlit_frame(+1)
+    labels[labels == 4] = 0
+    rock = disk((60, 120), 40, 60, 9)
+    xx = np.arange(120)[None, :]
+    lit, shaded = rock & (xx < 59), rock & (xx >= 61)
+    if shaded_side < 0:
+        lit, shaded = shaded, lit
+    labels[lit], labels[shaded] = 4, 5
+    contrast[lit], contrast[shaded] = 2.0, -2.0
+    return labels, contrast
+
+
+def test_join_opposite_halves_joins_a_shaded_half_away_from_the_sun_only():
+    # two rocks side by side, a light one and a dark one, look like the two faces of one
+    # (lava_s2 lava_0006: rocks 153 and 144, IoU 0.82 and 0.74, joined into one object at
+    # 0.45); the shaded face of one rock lies away from the sun (mojave_s5 0007 rock 13:
+    # 1 degree off that direction, the two-rock pairs of lava seeds 2 and 3: 62-146)
+    labels, contrast = _pair_under_a_sun(+1)
+    joined, count = join_opposite_halves(labels, contrast, max_side_deg=60.0)
+    assert count == 1 and len(np.unique(joined)) == 5
+    labels, contrast = _pair_under_a_sun(-1)
+    joined, count = join_opposite_halves(labels, contrast, max_side_deg=60.0)
+    assert count == 0 and np.array_equal(joined, labels)
+    # the test off, or no sun direction in the frame: joined as before
+    joined, count = join_opposite_halves(labels, contrast)
+    assert count == 1
+    alone = np.where(labels >= 4, labels - 3, 0).astype(np.int32)
+    joined, count = join_opposite_halves(alone, contrast, max_side_deg=60.0)
+    assert count == 1
+    with pytest.raises(ValueError, match="max_side_deg"):
+        join_opposite_halves(labels, contrast, max_side_deg=0.0)
