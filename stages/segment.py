@@ -772,7 +772,7 @@ def _sector_product(name: str, dtype: str, long_name: str, units: str = "") -> P
 
 STAGE = Stage(
     name="segment",
-    version="35",
+    version="36",
     inputs=("left", "right", "disparity", "height"),
     outputs=(
         Product(
