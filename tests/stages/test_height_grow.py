@@ -58,7 +58,7 @@ def test_rest_lighter_than_the_ground_does_not_join_a_dark_object():
 
 
 def test_small_object_low_core_or_noisy_rows_are_not_grown():
-    first = {"strong_fraction": 0.0}  # the first case alone
+    first = {"strong_fraction": 0.0, "broad_fraction": 0.0}  # the first case alone
     labels, contrast, relative, noise = partial_rock_scene(found_cols=4)  # 120 px < 150
     assert grow_raised_parts(labels, contrast, relative, noise, **first)[1] == 0
     labels, contrast, relative, noise = partial_rock_scene()
@@ -91,12 +91,14 @@ def test_second_case_grows_small_or_low_objects_over_a_rest_clearly_on_their_sid
 def test_growth_stops_at_half_the_core_height_and_after_max_steps():
     labels, contrast, relative, noise = partial_rock_scene()
     relative[15:45, 44:50] = 0.4 * ROCK_M  # the far part lies below half the core
-    out, grown = grow_raised_parts(labels, contrast, relative, noise, strong_fraction=0)
+    out, grown = grow_raised_parts(
+        labels, contrast, relative, noise, strong_fraction=0, broad_fraction=0
+    )
     # less the two outer corners' 2 px each that the opening with a disk rounds off
     assert grown == 30 * 6 - 4 and np.all(out[17:43, 20:44] == 1) and not out[:, 44:].any()
     labels, contrast, relative, noise = partial_rock_scene()
     out, grown = grow_raised_parts(
-        labels, contrast, relative, noise, max_steps=3, strong_fraction=0
+        labels, contrast, relative, noise, max_steps=3, strong_fraction=0, broad_fraction=0
     )
     assert grown == 30 * 3 and np.all(out[15:45, 20:41] == 1) and not out[:, 41:].any()
     # the second case reaches it: above a quarter of the core, 0.6 bands out on its side
@@ -104,6 +106,26 @@ def test_growth_stops_at_half_the_core_height_and_after_max_steps():
     relative[15:45, 44:50] = 0.4 * ROCK_M
     out, grown = grow_raised_parts(labels, contrast, relative, noise)
     assert np.all(out[17:43, 20:49] == 1)
+
+
+def test_third_case_grows_large_objects_over_a_broad_faint_rest_not_a_thin_rim():
+    # lava_0002 rock 4: a large flat dark rock found in part (223 of 1298 px) whose rest
+    # stands 0.5-1 cm (1-2 sigmas) and 0.4 bands dark: neither earlier case reaches it
+    labels, contrast, relative, noise = partial_rock_scene(rest_contrast=-0.3)
+    relative *= 0.15  # 6 mm: 1.5 sigmas
+    out, grown = grow_raised_parts(labels, contrast, relative, noise, broad_fraction=0)
+    assert grown == 0
+    out, grown = grow_raised_parts(labels, contrast, relative, noise)
+    assert grown > 0 and np.all(out[18:42, 20:47] == 1) and not (out > 0)[relative == 0].any()
+    # a rock found whole with a 6-px wide tongue of raised, faintly dark fringe to its
+    # right: the opening with a 15-px disk cuts it off but for a few px at its root
+    labels, contrast, relative, noise = partial_rock_scene(found_cols=30)
+    relative[27:33, 50:62] = 0.006
+    contrast[27:33, 50:62] = -0.3
+    out, grown = grow_raised_parts(labels, contrast, relative, noise)
+    assert grown <= 6 and not out[:, 51:].any()
+    out, grown = grow_raised_parts(labels, contrast, relative, noise, broad_fraction=0)
+    assert grown == 0
 
 
 def test_pixels_of_other_objects_are_kept_and_highest_core_grows_first():
@@ -127,6 +149,8 @@ def test_zero_fraction_disables_and_bad_arguments_are_refused():
         grow_raised_parts(labels, contrast[:-1], relative, noise)
     with pytest.raises(ValueError, match="strong_fraction must be in"):
         grow_raised_parts(labels, contrast, relative, noise, strong_fraction=-0.1)
+    with pytest.raises(ValueError, match="broad_fraction must be in"):
+        grow_raised_parts(labels, contrast, relative, noise, broad_fraction=2.0)
     with pytest.raises(ValueError, match="strong_min_object_px >= 1"):
         grow_raised_parts(labels, contrast, relative, noise, strong_min_object_px=0)
 
