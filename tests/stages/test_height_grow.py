@@ -58,23 +58,74 @@ def test_rest_lighter_than_the_ground_does_not_join_a_dark_object():
 
 
 def test_small_object_low_core_or_noisy_rows_are_not_grown():
+    first = {"strong_fraction": 0.0, "broad_fraction": 0.0}  # the first case alone
     labels, contrast, relative, noise = partial_rock_scene(found_cols=4)  # 120 px < 150
-    assert grow_raised_parts(labels, contrast, relative, noise)[1] == 0
+    assert grow_raised_parts(labels, contrast, relative, noise, **first)[1] == 0
     labels, contrast, relative, noise = partial_rock_scene()
     # 4.5 sigmas of a 9 mm row noise: too noisy a row, and too low a core
-    assert grow_raised_parts(labels, contrast, relative, np.full(SHAPE[0], 0.009))[1] == 0
-    assert grow_raised_parts(labels, contrast, relative * 0.45, noise)[1] == 0
+    noisy = np.full(SHAPE[0], 0.009)
+    assert grow_raised_parts(labels, contrast, relative, noisy, **first)[1] == 0
+    assert grow_raised_parts(labels, contrast, relative * 0.45, noise, **first)[1] == 0
+
+
+def test_second_case_grows_small_or_low_objects_over_a_rest_clearly_on_their_side():
+    # mojave seed 3, mojave_0000 rock 4 and mojave_0006 rock 5: objects of 100-140 px (or
+    # 3 sigmas) whose rest is 0.65 bands darker than the ground were left partial
+    labels, contrast, relative, noise = partial_rock_scene(found_cols=4)  # 120 px
+    out, grown = grow_raised_parts(labels, contrast, relative, noise)
+    assert grown > 0 and not (out > 0)[relative == 0].any()
+    assert np.all(out[17:43, 20:32] == 1)
+    # a core of 4.5 sigmas: below the first case's 5, above the second's 2.5
+    labels, contrast, relative, noise = partial_rock_scene()
+    out, grown = grow_raised_parts(labels, contrast, relative * 0.45, noise)
+    # its rim's 5x5 windows hold more ground: out of the 0.45 bands but for the inner rows
+    assert grown > 0 and np.all(out[17:43, 20:48] == 1) and not (out > 0)[relative == 0].any()
+    # a rest within the second case's 0.45 bands stays out of small objects
+    labels, contrast, relative, noise = partial_rock_scene(rest_contrast=-0.3, found_cols=4)
+    assert grow_raised_parts(labels, contrast, relative, noise)[1] == 0
+    # and objects under 60 px are never grown
+    labels, contrast, relative, noise = partial_rock_scene(found_cols=1)  # 30 px
+    assert grow_raised_parts(labels, contrast, relative, noise)[1] == 0
 
 
 def test_growth_stops_at_half_the_core_height_and_after_max_steps():
     labels, contrast, relative, noise = partial_rock_scene()
     relative[15:45, 44:50] = 0.4 * ROCK_M  # the far part lies below half the core
-    out, grown = grow_raised_parts(labels, contrast, relative, noise)
+    out, grown = grow_raised_parts(
+        labels, contrast, relative, noise, strong_fraction=0, broad_fraction=0
+    )
     # less the two outer corners' 2 px each that the opening with a disk rounds off
     assert grown == 30 * 6 - 4 and np.all(out[17:43, 20:44] == 1) and not out[:, 44:].any()
     labels, contrast, relative, noise = partial_rock_scene()
-    out, grown = grow_raised_parts(labels, contrast, relative, noise, max_steps=3)
+    out, grown = grow_raised_parts(
+        labels, contrast, relative, noise, max_steps=3, strong_fraction=0, broad_fraction=0
+    )
     assert grown == 30 * 3 and np.all(out[15:45, 20:41] == 1) and not out[:, 41:].any()
+    # the second case reaches it: above a quarter of the core, 0.6 bands out on its side
+    labels, contrast, relative, noise = partial_rock_scene()
+    relative[15:45, 44:50] = 0.4 * ROCK_M
+    out, grown = grow_raised_parts(labels, contrast, relative, noise)
+    assert np.all(out[17:43, 20:49] == 1)
+
+
+def test_third_case_grows_large_objects_over_a_broad_faint_rest_not_a_thin_rim():
+    # lava_0002 rock 4: a large flat dark rock found in part (223 of 1298 px) whose rest
+    # stands 0.5-1 cm (1-2 sigmas) and 0.4 bands dark: neither earlier case reaches it
+    labels, contrast, relative, noise = partial_rock_scene(rest_contrast=-0.3)
+    relative *= 0.15  # 6 mm: 1.5 sigmas
+    out, grown = grow_raised_parts(labels, contrast, relative, noise, broad_fraction=0)
+    assert grown == 0
+    out, grown = grow_raised_parts(labels, contrast, relative, noise)
+    assert grown > 0 and np.all(out[18:42, 20:47] == 1) and not (out > 0)[relative == 0].any()
+    # a rock found whole with a 6-px wide tongue of raised, faintly dark fringe to its
+    # right: the opening with a 15-px disk cuts it off but for a few px at its root
+    labels, contrast, relative, noise = partial_rock_scene(found_cols=30)
+    relative[27:33, 50:62] = 0.006
+    contrast[27:33, 50:62] = -0.3
+    out, grown = grow_raised_parts(labels, contrast, relative, noise)
+    assert grown <= 6 and not out[:, 51:].any()
+    out, grown = grow_raised_parts(labels, contrast, relative, noise, broad_fraction=0)
+    assert grown == 0
 
 
 def test_pixels_of_other_objects_are_kept_and_highest_core_grows_first():
@@ -96,6 +147,12 @@ def test_zero_fraction_disables_and_bad_arguments_are_refused():
         grow_raised_parts(labels, contrast, relative, noise[:-1])
     with pytest.raises(ValueError, match="must have one shape"):
         grow_raised_parts(labels, contrast[:-1], relative, noise)
+    with pytest.raises(ValueError, match="strong_fraction must be in"):
+        grow_raised_parts(labels, contrast, relative, noise, strong_fraction=-0.1)
+    with pytest.raises(ValueError, match="broad_fraction must be in"):
+        grow_raised_parts(labels, contrast, relative, noise, broad_fraction=2.0)
+    with pytest.raises(ValueError, match="strong_min_object_px >= 1"):
+        grow_raised_parts(labels, contrast, relative, noise, strong_min_object_px=0)
 
 
 def test_invalid_heights_are_not_grown_over():
