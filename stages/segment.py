@@ -31,7 +31,9 @@ darker half of one rock are joined (R7b), pieces of the other side lying where t
 puts no face of the rock go (R7g), near the camera a lit face takes the raised part
 of a dark neighbour and the flat rest, its cast shadow, goes (R7e; for clearly raised faces also
 before R7b, which would join face and shadow whole), a
-large raised object grows over the raised rest of its rock on its gray side (R7f), and the
+raised object grows over the raised rest of its rock on its gray side (R7f: a large object
+clearly above the ground, a mid-sized one a little out on its side, a large flat one by broad
+areas only), and the
 intensity decision stands where depth is invalid -- for the whole frame when fewer than
 ``min_depth_valid_fraction`` of its heights are valid. How much the height rules trust
 single pixels depends on the measured height noise of the ground (precise, noisy and
@@ -269,7 +271,9 @@ def segment_image(
         Depth method only, in ``[0, 1]``: in rows whose ground height noise is at most 7.5
         mm, a large object standing clearly above the ground grows over connected
         background pixels raised above this fraction of its core height and on its side of
-        the ground's gray level (rule R7f of :mod:`stages._height_grow`); 0 disables.
+        the ground's gray level (rule R7f of :mod:`stages._height_grow`; its second and
+        third cases, smaller and flatter objects, have their own fractions there); 0
+        disables all three.
     sun_shadow_angle_deg : float
         Depth method only, in ``[0, 90]`` degrees: where heights are not precise, a dark
         object's lighter pieces within this angle of the frame's direction away from the sun
@@ -783,7 +787,7 @@ def _sector_product(name: str, dtype: str, long_name: str, units: str = "") -> P
 
 STAGE = Stage(
     name="segment",
-    version="36",
+    version="37",
     inputs=("left", "right", "disparity", "height"),
     outputs=(
         Product(
