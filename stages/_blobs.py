@@ -177,12 +177,8 @@ def add_compact_blobs(
     labels = labels.astype(np.int32, copy=True)
     if _scales is None or _scales.key != (sigma_px, ground_px) or _scales.image is not image:
         _scales = blob_scales(image, sigma_px=sigma_px, ground_px=ground_px)
-    at_scale, fine = _scales.at_scale, _scales.fine
-    taken = labels > 0
-    ring = _dilate(taken, margin_px)
-    spread = _tile_spread(at_scale, ~ring, tile_px, _memo=_scales.tiles)
-    z = at_scale / np.maximum(spread, _MIN_SPREAD)
-    free = ~taken
+    fine = _scales.fine
+    z, ring, free = _free_contrast(labels, _scales, margin_px=margin_px, tile_px=tile_px)
     added = 0
     next_id = int(labels.max()) + 1
     outside = ~ring
@@ -324,6 +320,23 @@ def _dilate(mask: np.ndarray, radius: int) -> np.ndarray:
         return mask.copy()
     kernel = np.ones((2 * radius + 1, 2 * radius + 1), np.uint8)
     return cv2.dilate(mask.astype(np.uint8), kernel) > 0
+
+
+def _free_contrast(
+    labels: np.ndarray, scales: BlobScales, *, margin_px: int, tile_px: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Steps 1-2's maps (module doc), shared by R8 and R8c: the contrast at scale in
+    ground spreads, the objects' ``margin_px`` ring (objects included) and the free pixels.
+
+    Returns
+    -------
+    z : (M, N) ndarray of float
+    ring, free : (M, N) ndarray of bool
+    """
+    taken = labels > 0
+    ring = _dilate(taken, margin_px)
+    spread = _tile_spread(scales.at_scale, ~ring, tile_px, _memo=scales.tiles)
+    return scales.at_scale / np.maximum(spread, _MIN_SPREAD), ring, ~taken
 
 
 def _tile_spread(

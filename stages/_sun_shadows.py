@@ -91,7 +91,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from ._regions import _object_boxes
+from ._regions import _lookup, _object_boxes
 
 __all__ = ["anti_sun_direction", "trim_off_side_pieces", "trim_sun_shadows"]
 
@@ -349,7 +349,9 @@ def trim_off_side_pieces(
     sums = np.bincount(owners, weights=contrast.ravel()[inside], minlength=count + 1)
     side = np.where(sums >= 0, 1.0, -1.0)
     # pixels past the other threshold band of their object's side
-    other = (labels > 0) & (contrast * _lookup_side(side, labels) <= -min_bands)
+    side_of = side.astype(np.float32)
+    side_of[0] = 0.0
+    other = (labels > 0) & (contrast * _lookup(side_of, labels) <= -min_bands)
     has_other = np.bincount(labels[other], minlength=count + 1) > 0
     # a small object's centroids say little about where its faces lie
     has_other &= np.bincount(owners, minlength=count + 1) >= _MIN_PX
@@ -382,13 +384,6 @@ def trim_off_side_pieces(
             out[window][drop] = 0
             trimmed += int(np.count_nonzero(drop))
     return out, trimmed
-
-
-def _lookup_side(side: np.ndarray, labels: np.ndarray) -> np.ndarray:
-    """``side[labels]`` as float32 (0 for the background)."""
-    table = side.astype(np.float32)
-    table[0] = 0.0
-    return table[labels]
 
 
 def _shadow_pieces(

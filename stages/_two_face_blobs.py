@@ -66,16 +66,14 @@ import numpy as np
 from ._blobs import (
     _GROW_PX,
     _MARGIN_PX,
-    _MIN_SPREAD,
     _TILE_PX,
     BlobScales,
-    _dilate,
+    _free_contrast,
     _grow,
     _is_solid,
-    _tile_spread,
     blob_scales,
 )
-from ._regions import _object_boxes
+from ._regions import _lookup, _object_boxes
 
 __all__ = ["add_two_faced_blobs", "two_faced_candidates"]
 
@@ -137,11 +135,7 @@ def two_faced_candidates(
         raise ValueError(f"min_share must be in [0, 0.5], got {min_share}")
     if _scales is None or _scales.image is not image:
         _scales = blob_scales(image)
-    taken = labels > 0
-    free = ~taken
-    ring = _dilate(taken, _MARGIN_PX)
-    spread = _tile_spread(_scales.at_scale, ~ring, _TILE_PX, _memo=_scales.tiles)
-    z = _scales.at_scale / np.maximum(spread, _MIN_SPREAD)
+    z, ring, free = _free_contrast(labels, _scales, margin_px=_MARGIN_PX, tile_px=_TILE_PX)
     outside = ~ring
     dark = _grow((z <= -min_sigmas) & outside, _scales.fine, free, _GROW_PX, sign=-1.0)
     light = _grow((z >= min_sigmas) & outside, _scales.fine, free, _GROW_PX, sign=1.0)
@@ -172,7 +166,7 @@ def two_faced_candidates(
     keep[0] = False
     numbers = np.zeros(n_blobs, np.int32)
     numbers[keep] = np.arange(1, int(keep.sum()) + 1, dtype=np.int32)
-    return numbers[blob_ids], int(keep.sum())
+    return _lookup(numbers, blob_ids), int(keep.sum())
 
 
 def add_two_faced_blobs(
