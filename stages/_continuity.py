@@ -162,18 +162,6 @@ _RAMP_BORDER_MODES = 2
 _EDGE_NEIGHBOURS = [(-1, 0), (1, 0), (0, -1), (0, 1)]
 
 
-def _median_without(values: np.ndarray, value: float) -> float:
-    """Median of ``values`` with one occurrence of ``value`` left out (as ``np.median``)."""
-    ordered = np.sort(values)
-    at = int(np.searchsorted(ordered, value))
-    if at < ordered.size and ordered[at] == value:
-        ordered = np.concatenate((ordered[:at], ordered[at + 1 :]))
-    half = ordered.size // 2
-    if ordered.size % 2:
-        return float(ordered[half])
-    return float((ordered[half - 1] + ordered[half]) / 2)
-
-
 def _seed_levels(modes, *, seed_dominance: float, continuity_range: float) -> np.ndarray:
     """Background levels of the unambiguous sectors (NaN elsewhere), inconsistent ones removed."""
     n = len(modes)
@@ -192,32 +180,12 @@ def _seed_levels(modes, *, seed_dominance: float, continuity_range: float) -> np
     return _demote_inconsistent(levels, float(continuity_range))
 
 
-def _demote_inconsistent_numpy(levels: np.ndarray, continuity_range: float) -> np.ndarray:
-    """:func:`_demote_inconsistent` in numpy (its reference in ``test_continuity.py``)."""
-    n = levels.shape[0]
-    candidates = np.argwhere(np.isfinite(levels))
-    keep = levels.copy()
-    for i, j in candidates:
-        # compare with the nearest other seeds, widening the window until there are three
-        for radius in (2, 4, n):
-            window = levels[
-                max(i - radius, 0) : i + radius + 1, max(j - radius, 0) : j + radius + 1
-            ]
-            others = window[np.isfinite(window)]
-            if others.size >= 4:  # itself plus three others
-                break
-        if others.size >= 2:
-            reference = _median_without(others, levels[i, j])
-            if abs(levels[i, j] - reference) > continuity_range:
-                keep[i, j] = np.nan
-    return keep
-
-
 @njit(cache=True)
 def _demote_inconsistent(levels, continuity_range):  # pragma: no cover - numba
     """Seeds (finite ``levels``, (S, S) float64) farther than ``continuity_range`` from the
     median of the other seeds in the nearest window (radius 2, 4, then all) holding at least
-    three others, set to NaN in a copy; compiled (the numpy twin cost ~2 ms a frame)."""
+    three others, set to NaN in a copy; compiled (its numpy twin, the reference in
+    ``tests/stages/test_continuity.py``, cost ~2 ms a frame)."""
     n = levels.shape[0]
     keep = levels.copy()
     window = np.empty(levels.size)
@@ -239,7 +207,7 @@ def _demote_inconsistent(levels, continuity_range):  # pragma: no cover - numba
             if count < 2:
                 continue
             ordered = np.sort(window[:count])
-            # leave one occurrence of the seed itself out, as _median_without does
+            # leave one occurrence of the seed itself out (as np.delete of its first)
             at = np.searchsorted(ordered, value)
             size = count
             if at < count and ordered[at] == value:
