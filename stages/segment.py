@@ -268,7 +268,7 @@ def segment_image(
         a light object takes the raised part of a dark neighbour and the flat rest (its cast
         shadow) is dropped (rule R7e of :mod:`stages._shadow_sides`); 0 disables.
     height_grow_fraction : float
-        Depth method only, in ``[0, 1]``: in rows whose ground height noise is at most 7.5
+        Depth method only, in ``[0, 1]``: in rows whose ground height noise is at most 10
         mm, a large object standing clearly above the ground grows over connected
         background pixels raised above this fraction of its core height and on its side of
         the ground's gray level (rule R7f of :mod:`stages._height_grow`; its second and
@@ -787,7 +787,7 @@ def _sector_product(name: str, dtype: str, long_name: str, units: str = "") -> P
 
 STAGE = Stage(
     name="segment",
-    version="37",
+    version="38",
     inputs=("left", "right", "disparity", "height"),
     outputs=(
         Product(

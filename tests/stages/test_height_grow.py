@@ -62,10 +62,27 @@ def test_small_object_low_core_or_noisy_rows_are_not_grown():
     labels, contrast, relative, noise = partial_rock_scene(found_cols=4)  # 120 px < 150
     assert grow_raised_parts(labels, contrast, relative, noise, **first)[1] == 0
     labels, contrast, relative, noise = partial_rock_scene()
-    # 4.5 sigmas of a 9 mm row noise: too noisy a row, and too low a core
-    noisy = np.full(SHAPE[0], 0.009)
+    # a 12 mm row noise: too noisy a row (the core stands 3.3 sigmas, too low as well)
+    noisy = np.full(SHAPE[0], 0.012)
     assert grow_raised_parts(labels, contrast, relative, noisy, **first)[1] == 0
+    # 4.4 sigmas of a 9 mm row noise: a row R7f reads, too low a core
+    assert grow_raised_parts(labels, contrast, relative, np.full(SHAPE[0], 0.009), **first)[1] == 0
     assert grow_raised_parts(labels, contrast, relative * 0.45, noise, **first)[1] == 0
+
+
+def test_rows_between_seven_and_a_half_and_ten_mm_of_noise_are_read():
+    # segment v38: lava_0003 rock 26 (2.7 m away) lay in a row of 7.5-10 mm noise, above
+    # R7f's old 7.5 mm bar, and stayed a partial object (IoU 0.44; 0.61 grown)
+    labels, contrast, relative, _ = partial_rock_scene()
+    row_noise = np.full(SHAPE[0], 0.0085)
+    first = {"strong_fraction": 0.0, "broad_fraction": 0.0}
+    # a 6 cm rock: 7 sigmas of 8.5 mm
+    out, grown = grow_raised_parts(labels, contrast, relative * 1.5, row_noise, **first)
+    assert grown > 0 and not (out > 0)[relative == 0].any()
+    old_bar = grow_raised_parts(
+        labels, contrast, relative * 1.5, row_noise, max_noise_m=0.0075, **first
+    )
+    assert old_bar[1] == 0
 
 
 def test_second_case_grows_small_or_low_objects_over_a_rest_clearly_on_their_side():
