@@ -787,7 +787,7 @@ def _sector_product(name: str, dtype: str, long_name: str, units: str = "") -> P
 
 STAGE = Stage(
     name="segment",
-    version="37",
+    version="38",
     inputs=("left", "right", "disparity", "height"),
     outputs=(
         Product(
