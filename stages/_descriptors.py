@@ -22,8 +22,11 @@ from pipeline.camera import Camera
 from ._border import border_largest_bound, height_width_ratio
 from ._footprint import (
     _dilate_diamond,
+    bound_footprint_slope,
+    face_rows,
     footprint_dimensions,
     footprint_disparity,
+    ground_disparity_slope,
     ground_fringe_keep,
     too_dark_to_match,
     widest_row_width_m,
@@ -478,14 +481,29 @@ def describe_objects(
             )
             if np.count_nonzero(valid & keep) < _MIN_DEPTH_PX:  # kept only depthless pixels
                 keep = np.ones(rows.shape, dtype=bool)
-            foot = ground.to_ground(
-                pixel_points(
-                    rows[keep],
-                    cols[keep],
-                    footprint_disparity(rows[keep], cols[keep], disp_px[keep]),
+            fitted = footprint_disparity(rows[keep], cols[keep], disp_px[keep])
+            if np.isfinite(fitted).all():
+                # a face read as ground: bound the slope (see bound_footprint_slope)
+                known_h = heights[np.isfinite(heights)]
+                face_px = face_rows(
+                    float(np.median(rows[keep])),
+                    float(np.median(cols[keep])),
+                    float(_median(fitted)),
+                    float(np.percentile(known_h, 98)) if known_h.size else 0.0,
                     camera=camera,
+                    ground=ground,
                     shape=shape,
                 )
+                fitted = bound_footprint_slope(
+                    rows[keep],
+                    cols[keep],
+                    fitted,
+                    ground_slope_px=ground_disparity_slope(ground, camera),
+                    face_px=face_px,
+                    focal_px=f,
+                )
+            foot = ground.to_ground(
+                pixel_points(rows[keep], cols[keep], fitted, camera=camera, shape=shape)
             )
             width, length = footprint_dimensions(foot[:, 0], foot[:, 1], pixel_m=z_med / f)
         elif ground is not None:  # no depth: stand the silhouette on the ground plane

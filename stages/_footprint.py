@@ -45,6 +45,29 @@ describe v6 -> v7): lab 0.914 / 0.944 / 0.957 -> 0.914 / 0.963 / 0.978, 7.6 / 8.
 dark rock whose near-black shadow is now kept. A ratio of 0.10 classes the same rocks
 (lab widths 6.4 / 6.9 / 6.4 %); 0.20 loses a rock on mojave seed 2 (0.917), lava's catalog
 (0.936) and lava seed 2 (0.917), 0.25 also on mojave seed 4 (0.935): shadows start to count.
+
+Far rocks read as ground (:func:`bound_footprint_slope`, describe v9): the row fit follows
+whatever slope the matcher gives the object's rows, and on a far or a black rock that is
+the ground's (lab_0000 object 2, a black rock 3.8 m away whose true disparity is 8.04-8.10
+on every row, measured 7.41 at its top row and 8.11 at its foot: 0.535 m wide against the
+truth's 0.368, 0.338 with the bound). All-rock median / p90 width error and the
+size-frequency ``k`` against the truth's (``benchmarks/bench_describe.py --rundir DIR
+--labels segment`` for the widths; ``k`` from the same rows with
+:func:`stages._sizefreq.size_frequency_from_table`, ground = the frames'
+``describe_ground_area_m2``, 5 m, as ``arroyo evaluate``; segment v38), before -> after:
+lab 8.8 / 36.7 % -> 9.0 / 30.9 %, k 0.045 -> 0.042 (truth 0.040); mojave 11.5 / 49.0 ->
+11.0 / 41.1 %, k 0.035 -> 0.034 (0.033); lava 12.5 / 48.2 -> 12.0 / 45.5 %, k 0.044 ->
+0.040 (0.040). Seeds (lab 2, 3; mojave 2-5; lava 2-5 with ``two_face_sigmas = 3``): p90
+31.1 / 30.4 -> 30.6 / 30.4 %, 68.4 / 57.7 / 46.2 / 56.1 -> 43.5 / 41.2 / 43.2 / 40.7 %,
+49.7 / 49.3 / 47.2 / 50.4 -> 39.2 / 41.0 / 43.3 / 44.0 %; medians the same or lower (lab's
+catalog 8.8 -> 9.0 %); k moves lower everywhere (by up to 0.007), towards the truth on lava
+seeds 3-5, away from it on the mojave and lab seeds (whose k was low already: they miss
+rocks) and on lava seed 2 (0.042 -> 0.036, truth 0.040). The rocks within 2 m keep their
+median width error and class on all 13 runs (lava seed 2's class 0.892 -> 0.901); all
+rocks' class on the catalog runs: lab 0.882 -> 0.873, mojave 0.885 -> 0.887, lava 0.870. Bounding
+every object (no gates) cost them: mojave's near width error 7.6 -> 8.3 %, seed 4 7.7 ->
+8.5 %; so did a bound from the footprint's extent alone (along > across: mojave 7.9 %),
+and a constant disparity beyond 2.5 m (k 0.030 on mojave and lava: far widths 5-9 % short).
 """
 
 from __future__ import annotations
@@ -54,11 +77,16 @@ import math
 import cv2
 import numpy as np
 
-from ._ground import _median, fit_disparity_surface
+from pipeline.camera import Camera
+
+from ._ground import GroundFrame, _median, fit_disparity_surface, pixel_points
 
 __all__ = [
     "widest_row_width_m",
     "footprint_disparity",
+    "bound_footprint_slope",
+    "ground_disparity_slope",
+    "face_rows",
     "footprint_dimensions",
     "ground_fringe_keep",
     "too_dark_to_match",
@@ -161,6 +189,133 @@ def footprint_disparity(rows: np.ndarray, cols: np.ndarray, disparity: np.ndarra
         The fitted disparity of every pixel; all NaN when none is valid.
     """
     return fit_disparity_surface(rows, cols, disparity, row_only=True)
+
+
+# bound_footprint_slope reads an object as a face when its height stood up on the ground
+# spans at least this share of its rows, or when its fitted footprint reads this many times
+# longer along the line of sight than across it
+_MIN_FACE_SHARE = 0.7
+_MAX_ALONG_RATIO = 1.5
+
+
+def ground_disparity_slope(ground: GroundFrame, camera: Camera) -> float:
+    """Disparity change per image row of the ground plane, pixels per row (> 0: the ground
+    comes nearer down the image).
+
+    The plane ``up . X = up . origin`` meets the ray ``Z ((u - cx) / f, (v - cy) / f, 1)`` at
+    ``Z = (up . origin) / (up . ray)``, so its disparity ``f b / Z`` is linear in ``v`` with
+    slope ``f b up_y / (f (up . origin))`` (the same at every column).
+    """
+    level = float(ground.up @ ground.origin)
+    if level == 0.0:
+        return math.nan
+    return float(camera.k_m_px * ground.up[1] / (camera.focal_px * level))
+
+
+def face_rows(
+    row: float,
+    col: float,
+    disparity: float,
+    height_m: float,
+    *,
+    camera: Camera,
+    ground: GroundFrame,
+    shape: tuple[int, int],
+) -> float:
+    """Image rows a vertical face ``height_m`` high spans, standing on the ground under the
+    point seen at pixel ``(row, col)`` with ``disparity``; 0 for a height <= 0 or NaN."""
+    if not (height_m > 0 and disparity > 0):
+        return 0.0
+    point = pixel_points(
+        np.array([row]), np.array([col]), np.array([disparity]), camera=camera, shape=shape
+    )[0]
+    foot = point - float(ground.up @ (point - ground.origin)) * ground.up
+    top = foot + height_m * ground.up
+    if not (foot[2] > 0 and top[2] > 0):
+        return 0.0
+    return float(abs(camera.focal_px * (foot[1] / foot[2] - top[1] / top[2])))
+
+
+def _hinge_slope(face_share: float) -> float:
+    """Least-squares slope of ``max(0, x - s)`` on ``x`` in [0, 1], ``s = face_share``: a
+    profile flat over its first ``s`` and rising by 1 per unit after, fitted by one line."""
+    s = min(max(face_share, 0.0), 1.0)
+    return 12.0 * ((1.0 - s**3) / 3.0 - s * (1.0 - s**2) / 2.0 - (1.0 - s) ** 2 / 4.0)
+
+
+def bound_footprint_slope(
+    rows: np.ndarray,
+    cols: np.ndarray,
+    fitted: np.ndarray,
+    *,
+    ground_slope_px: float,
+    face_px: float,
+    focal_px: float,
+    min_face_share: float = _MIN_FACE_SHARE,
+    max_along_ratio: float = _MAX_ALONG_RATIO,
+) -> np.ndarray:
+    """The footprint disparity with its row slope bounded where a face reads as ground.
+
+    A rock's visible surface is a face (``face_px`` rows: the object's height stood up on
+    the ground, about one depth) under a top that recedes at most as fast as the ground
+    (``ground_slope_px`` per row). Fitted with one line, such a profile has at most the
+    slope :func:`_hinge_slope` gives for the face's share of the rows, times the ground's.
+    The stereo windows often give a face the ground's slope instead (a black rock takes
+    the floor's disparity around it, the windows at a small far rock's top rim the
+    ground's behind it): its upper rows land far behind, and the footprint reads the rock
+    up to several times its width along the line of sight. The fitted slope is bounded by
+    that profile's (its level at the middle row kept) where the face spans at least
+    ``min_face_share`` of the object's rows (a far rock, seen from the side) or where the
+    fitted footprint reads more than ``max_along_ratio`` times longer along the line of
+    sight than across the view (the slope then decides the width). Elsewhere (rocks near
+    the camera, seen from above, their top over many rows) the fit measures the rock's
+    depth and is kept: bounded there too, near rocks' widths read a little short.
+
+    Parameters
+    ----------
+    rows, cols : (K,) ndarray of int
+        The pixels.
+    fitted : (K,) ndarray of float
+        Their fitted disparity (:func:`footprint_disparity`), constant along rows.
+    ground_slope_px : float
+        The ground's disparity change per row, px (:func:`ground_disparity_slope`).
+    face_px : float
+        Rows of the object's face (:func:`face_rows`), >= 0.
+    focal_px : float
+    min_face_share : float
+        In [0, 1]: share of the rows the face must span for the bound to apply (1: only an
+        object all face, its slope then bounded to 0).
+    max_along_ratio : float
+        > 0: along / across the view extent of the fitted footprint above which the bound
+        applies whatever the face's share.
+
+    Returns
+    -------
+    (K,) ndarray of float64
+        ``fitted`` itself or the bounded disparity.
+    """
+    if not 0.0 <= min_face_share <= 1.0 or not max_along_ratio > 0:
+        raise ValueError(
+            "min_face_share must be a share of the object's rows in [0, 1] and "
+            f"max_along_ratio > 0, got {min_face_share!r} and {max_along_ratio!r}"
+        )
+    d = np.asarray(fitted, dtype=np.float64)
+    r = np.asarray(rows, dtype=np.float64)
+    c = np.asarray(cols, dtype=np.float64)
+    if r.size < 2 or not (np.all(d > 0) and math.isfinite(ground_slope_px)):
+        return d
+    span = float(r.max() - r.min()) + 1.0
+    share = face_px / span
+    # the fitted footprint's extent along the line of sight over its extent across it
+    along = (1.0 / d.min() - 1.0 / d.max()) * _median(d) * focal_px / (np.ptp(c) + 1.0)
+    if span <= 1.0 or not (share >= min_face_share or along > max_along_ratio):
+        return d
+    first, last = int(np.argmin(r)), int(np.argmax(r))
+    slope = (d[last] - d[first]) / (r[last] - r[first])
+    middle = (r.max() + r.min()) / 2.0
+    level = float(_median(d - slope * (r - middle)))
+    bound = abs(ground_slope_px) * _hinge_slope(share)
+    return level + min(slope, bound) * (r - middle)
 
 
 def footprint_dimensions(

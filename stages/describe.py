@@ -251,7 +251,7 @@ def run_describe(
 
 STAGE = Stage(
     name="describe",
-    version="8",
+    version="9",
     inputs=("left", "right", "labels", "disparity", "range", "height", "ground_plane"),
     outputs=(
         Product(

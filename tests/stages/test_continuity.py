@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from stages._continuity import _demote_inconsistent, analyse_sectors
+from stages._continuity import _demote_inconsistent, _plane_level, analyse_sectors
 
 LEVELS = np.arange(256)
 
@@ -304,3 +304,50 @@ def test_a_border_sector_whose_highest_mode_is_a_rock_finds_its_ramp_in_the_next
     assert not analysis.phantom.any()
     assert np.all((analysis.background[0] > 50) & (analysis.background[0] < 92))
     assert np.all(analysis.low[0, 2:5] > 15 + 4)  # the rock is still object
+
+
+def lab_0005_corner_grid() -> np.ndarray:
+    """Sector histograms of lab_0005's top-right 5 x 6 sectors (rows 0-4, cols 10-15) and a
+    row of plain floor: (mode, sigma, pixels) per component, a ramp sector's broad mode at
+    its dark end (the lamp's falloff), dark rocks in (0, 1), (0, 2), (0, 3), (1, 0), (2, 2)."""
+    components = [
+        [[(52, 10, 990)], [(25, 5, 200), (51, 8, 380), (64, 8, 380)], [(25, 5, 150), (54, 10, 810)],
+         [(9, 4, 250), (63, 10, 740)], [(53, 10, 960)], [(49, 9, 960)]],
+        [[(17, 5, 300), (85, 12, 690)], [(93, 10, 960)], [(109, 10, 960)],
+         [(90, 8, 500), (111, 8, 490)], [(85, 12, 960)], [(80, 12, 960)]],
+        [[(127, 7, 1020)], [(134, 10, 990)], [(20, 5, 200), (139, 8, 790)], [(140, 9, 1020)],
+         [(143, 9, 990)], [(141, 10, 990)]],
+        [[(141, 4, 990)], [(144, 3, 960)], [(148, 3, 960)], [(151, 3, 990)], [(153, 3, 960)],
+         [(153, 3, 960)]],
+        [[(149, 3, 990)], [(149, 3, 960)], [(151, 3, 960)], [(152, 3, 990)], [(154, 3, 960)],
+         [(155, 3, 960)]],
+        [[(155, 3, 990)]] * 6,
+    ]  # fmt: skip
+    return np.array([[gaussian_hist(*sector) for sector in row] for row in components])
+
+
+def test_a_corner_under_a_steep_falloff_gets_its_ground_not_phantom_peaks():
+    # rule C3b, regression (lab_0005 object 3, a 1,527 px false object in the top-right
+    # corner that alone raised lab's rock area fraction 2.8 -> 3.9 %): the corner sectors'
+    # ramp modes (49-85) lay 30-40 levels from the mean of neighbours one sector row lower
+    # (the lamp's falloff is 30-60 levels per sector row there), C1's carries disagreed, and
+    # four phantoms at 112-142 put the dark corner below the low threshold. A plane through
+    # the mode-decided neighbours follows the falloff to the corner's own modes
+    analysis = analyse_sectors(
+        lab_0005_corner_grid(), band_sigmas=3.5, merge_ratio=0.35, continuity_range=24.0
+    )
+    assert not analysis.phantom.any()
+    assert np.all(analysis.background[0, 4:] < 60)
+    assert np.all(analysis.background[1, 4:] < 90)
+    assert np.all(analysis.low[:2, 4:] < 49)  # the corner's ground is not object
+
+
+def test_plane_level_needs_a_steep_plane_of_three_neighbours():
+    level = np.full((3, 3), np.nan)
+    level[1, 0], level[2, 0] = 100.0, 140.0
+    assert _plane_level(level, 1, 1, min_step=24.0) is None  # two: no plane
+    level[2, 1] = 140.0
+    assert _plane_level(level, 1, 1, min_step=24.0) == pytest.approx(100.0)  # 40 per row
+    gentle = np.where(np.isfinite(level), 70.0 + np.arange(3)[:, None] * 5.0, np.nan)
+    # a gentle slope (lava's ground): the neighbours' mean stands, a plane must not tip it
+    assert _plane_level(gentle, 1, 1, min_step=24.0) is None

@@ -9,8 +9,12 @@ import pytest
 
 from pipeline.camera import Camera
 from stages._footprint import (
+    _hinge_slope,
+    bound_footprint_slope,
+    face_rows,
     footprint_dimensions,
     footprint_disparity,
+    ground_disparity_slope,
     ground_fringe_keep,
     too_dark_to_match,
     widest_row_width_m,
@@ -209,3 +213,109 @@ def test_black_rock_whose_lower_half_reads_ground_keeps_it_when_too_dark_to_matc
     )
     assert fixed[cols < 21].all()
     assert not fixed[cols >= 21 + 3 + 7 // 2].any()  # the shadow's far part still goes
+
+
+def _project(ground: GroundFrame, x: float, y: float, z: float) -> tuple[float, float, float]:
+    """Row, column and disparity of the ground-frame point (x, y, z) in CAMERA's image."""
+    point = ground.origin + x * ground.right + y * ground.forward + z * ground.up
+    cx, cy = CAMERA.principal_point(SHAPE)
+    return (
+        CAMERA.focal_px * point[1] / point[2] + cy,
+        CAMERA.focal_px * point[0] / point[2] + cx,
+        CAMERA.k_m_px / point[2],
+    )
+
+
+def test_ground_disparity_slope_is_the_ground_planes_change_per_row():
+    rows, _, exact, ground = _flat_patch(slice(100, 400), slice(250, 251))
+    slope = ground_disparity_slope(ground, CAMERA)
+    assert slope > 0  # the ground comes nearer down the image
+    np.testing.assert_allclose(np.diff(exact), slope, rtol=1e-9)
+
+
+def test_face_rows_of_a_vertical_face():
+    ground = GroundFrame.from_camera(CAMERA)
+    foot_row, foot_col, foot_d = _project(ground, 0.2, 3.0, 0.0)
+    top_row, _, _ = _project(ground, 0.2, 3.0, 0.15)
+    mid_row, mid_col, mid_d = _project(ground, 0.2, 3.0, 0.075)
+    # from any point of the face: it stands on the ground under that point
+    for row, col, d in ((foot_row, foot_col, foot_d), (mid_row, mid_col, mid_d)):
+        got = face_rows(row, col, d, 0.15, camera=CAMERA, ground=ground, shape=SHAPE)
+        assert got == pytest.approx(foot_row - top_row, rel=1e-6)
+    for height, d in ((0.0, mid_d), (0.1, math.nan)):
+        got = face_rows(mid_row, mid_col, d, height, camera=CAMERA, ground=ground, shape=SHAPE)
+        assert got == 0.0
+
+
+def _far_face(distance_m: float = 3.8, width_m: float = 0.35, height_m: float = 0.17):
+    """Pixels of a vertical face ``width_m`` x ``height_m`` standing ``distance_m`` ahead,
+    their exact disparities and the ground's disparities at the same pixels."""
+    ground = GroundFrame.from_camera(CAMERA)
+    top, left, _ = _project(ground, -width_m / 2, distance_m, height_m)
+    foot, right, _ = _project(ground, width_m / 2, distance_m, 0.0)
+    rr, cc = np.mgrid[
+        math.ceil(top) : math.floor(foot) + 1, math.ceil(left) : math.floor(right) + 1
+    ]
+    rows, cols = rr.ravel(), cc.ravel()
+    rays = pixel_points(rows, cols, np.full(rows.shape, CAMERA.k_m_px), camera=CAMERA, shape=SHAPE)
+    # the face: the plane forward . (X - origin) = distance_m; the ground: up . X = up . origin
+    on_face = (distance_m + ground.forward @ ground.origin) / (rays @ ground.forward)
+    on_ground = float(ground.origin @ ground.up) / (rays @ ground.up)
+    return rows, cols, CAMERA.k_m_px / on_face, CAMERA.k_m_px / on_ground, ground
+
+
+def test_a_far_face_read_as_ground_keeps_its_width():
+    # regression (lab_0000 object 2, a black rock 3.8 m away, 0.535 m wide against the
+    # truth's 0.368): the matching windows give a face at one depth the floor's disparity
+    # around it, the row fit follows the ground's slope, the upper rows land far behind
+    # and the footprint's largest spread runs along the line of sight
+    rows, cols, exact, floor, ground = _far_face()
+    true_width = _footprint_width(rows, cols, exact, ground)
+    assert true_width == pytest.approx(0.35, rel=0.1)
+    fitted = footprint_disparity(rows, cols, floor)
+    assert _footprint_width(rows, cols, fitted, ground) > 1.3 * true_width
+    face_px = face_rows(
+        float(np.median(rows)),
+        float(np.median(cols)),
+        float(np.median(fitted)),
+        0.17,
+        camera=CAMERA,
+        ground=ground,
+        shape=SHAPE,
+    )
+    assert face_px / (np.ptp(rows) + 1) > 0.7  # seen from the side: nearly all face
+    bounded = bound_footprint_slope(
+        rows,
+        cols,
+        fitted,
+        ground_slope_px=ground_disparity_slope(ground, CAMERA),
+        face_px=face_px,
+        focal_px=CAMERA.focal_px,
+    )
+    # twice as wide -> a little wider (the middle row's level is the floor's, behind the face)
+    assert _footprint_width(rows, cols, bounded, ground) == pytest.approx(true_width, rel=0.15)
+    # the level at the middle row stays
+    middle = rows == (rows.min() + rows.max()) // 2
+    np.testing.assert_allclose(bounded[middle], fitted[middle], atol=0.05)
+
+
+def test_a_rock_seen_from_above_keeps_its_fitted_slope():
+    # the top shows over most of the rows and the footprint is no longer than wide: the
+    # fit measures the rock's depth
+    rows, cols, exact, ground = _flat_patch(slice(400, 440), slice(200, 240))
+    slope = ground_disparity_slope(ground, CAMERA)
+    kw = {"ground_slope_px": slope, "focal_px": CAMERA.focal_px}
+    kept = bound_footprint_slope(rows, cols, exact, face_px=10.0, **kw)
+    np.testing.assert_array_equal(kept, exact)
+    # all face: the slope goes, the level at the middle row stays
+    flat = bound_footprint_slope(rows, cols, exact, face_px=40.0, **kw)
+    np.testing.assert_allclose(np.ptp(flat), 0.0, atol=1e-9)
+    # the same rows on 2 columns read far longer along the line of sight than across:
+    # bounded by a profile a quarter face, three quarters top
+    narrow = cols < 202
+    along = bound_footprint_slope(rows[narrow], cols[narrow], exact[narrow], face_px=10.0, **kw)
+    per_row = np.diff(along.reshape(40, 2)[:, 0])
+    np.testing.assert_allclose(per_row, slope * _hinge_slope(0.25), rtol=1e-6)
+    assert 0.7 * slope < per_row[0] < 0.9 * slope
+    with pytest.raises(ValueError, match="min_face_share"):
+        bound_footprint_slope(rows, cols, exact, face_px=1.0, min_face_share=2, **kw)
