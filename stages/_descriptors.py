@@ -213,6 +213,12 @@ def top_height(
     return float(np.median(h[take])), int(np.median(r[take]))
 
 
+def _height_p98(heights: np.ndarray) -> float:
+    """The 98th percentile of an object's finite heights (``height_max_m``), NaN if none."""
+    finite = heights[np.isfinite(heights)]
+    return float(np.percentile(finite, 98)) if finite.size else math.nan
+
+
 def classify_size(
     largest_m: float, height_m: float, *, sample_max_m: float, rover_clearance_m: float
 ) -> str:
@@ -446,6 +452,7 @@ def describe_objects(
         range_err = z_med**2 / kb * disparity_error_px
         heights = _float_crop(hgt, crop)[mask]
         x_m = y_m = z_m = length = height_err = math.nan
+        h_max: float | None = None  # set where the heights are final: the face bound reads it
         if ground is not None and np.count_nonzero(valid) >= _MIN_DEPTH_PX:
             # ground level under the object: the height map's reference in this frame
             raw = ground.to_ground(
@@ -484,12 +491,12 @@ def describe_objects(
             fitted = footprint_disparity(rows[keep], cols[keep], disp_px[keep])
             if np.isfinite(fitted).all():
                 # a face read as ground: bound the slope (see bound_footprint_slope)
-                known_h = heights[np.isfinite(heights)]
+                h_max = _height_p98(heights)
                 face_px = face_rows(
-                    float(np.median(rows[keep])),
-                    float(np.median(cols[keep])),
+                    float(_median(rows[keep])),
+                    float(_median(cols[keep])),
                     float(_median(fitted)),
-                    float(np.percentile(known_h, 98)) if known_h.size else 0.0,
+                    h_max if math.isfinite(h_max) else 0.0,
                     camera=camera,
                     ground=ground,
                     shape=shape,
@@ -517,8 +524,8 @@ def describe_objects(
                 rows, cols, np.where(valid, range_px, np.nan), focal_px=f, fallback_z=z_med
             )
         h_top, top_row = top_height(rows, heights)
-        finite_h = heights[np.isfinite(heights)]
-        h_max = float(np.percentile(finite_h, 98)) if finite_h.size else math.nan
+        if h_max is None:
+            h_max = _height_p98(heights)
         width_err = math.hypot(width * range_err / z_med, z_med / f) if valid.any() else math.nan
         if ground is not None and top_row >= 0 and math.isfinite(h_top):
             top = rows == top_row
