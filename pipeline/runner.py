@@ -79,10 +79,17 @@ def run(
     try:
         request = validate_request(catalog_path, overrides, frames, stage_package)  # before disk
         rundir = Path(out) if out is not None else default_rundir(request.catalog)
+        _check_rundir(rundir)
         root = _resolve_products(rundir, products)
         if dry_run:
             return plan_run(request, rundir, products=root)
-        rundir.mkdir(parents=True, exist_ok=True)
+        try:
+            rundir.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise RunDirError(
+                f"cannot create the run directory {rundir}: {exc.strerror or exc}; give "
+                "--out a directory you can write"
+            ) from None
         with RunLock(rundir):
             remove_orphan_temp_files(rundir)
             if root and not is_url(root):
@@ -98,6 +105,15 @@ def run(
     finally:
         if forked:  # when no frame was pending, or the run failed before its cluster
             stop_forkserver()
+
+
+def _check_rundir(rundir: Path) -> None:
+    """Refuse a run directory path that names something else than a directory."""
+    if rundir.exists() and not rundir.is_dir():
+        raise RunDirError(
+            f"the run directory {rundir} is a file, not a directory; give --out a new or "
+            "existing run directory (default runs/<archive>)"
+        )
 
 
 def _resolve_products(rundir: Path, requested: str | os.PathLike[str] | None) -> str:

@@ -83,3 +83,18 @@ def test_products_option_places_products_and_a_bad_url_exits_2(archive, tmp_path
     assert f"products at {shared}" in capsys.readouterr().out
     assert main([*argv, "--products", "nosuch://bucket/x"]) == 2
     assert "unknown storage protocol 'nosuch'" in capsys.readouterr().err
+
+
+def test_out_that_is_a_file_exits_2_without_traceback(archive, tmp_path, capsys):
+    """Bug: `arroyo run CATALOG --out FILE` died with FileExistsError's traceback (exit 1)."""
+    afile = tmp_path / "afile"
+    afile.write_text("not a run")
+    for extra in ([], ["--dry-run"]):
+        argv = ["run", str(archive), "--out", str(afile), "--scheduler", "synchronous"]
+        assert main([*argv, *extra]) == 2
+        err = capsys.readouterr().err
+        assert "is a file, not a directory" in err and "Traceback" not in err
+    assert afile.read_text() == "not a run"
+    below = afile / "run"  # a parent that is a file: mkdir fails with ENOTDIR
+    assert main(["run", str(archive), "--out", str(below), "--scheduler", "synchronous"]) == 2
+    assert "cannot create the run directory" in capsys.readouterr().err
