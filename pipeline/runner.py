@@ -19,7 +19,7 @@ from .lock import RunLock
 from .plan import RunPlan, default_rundir, plan_run, validate_request
 from .provenance import environment, new_run_id, now_iso
 from .stage import FrameContext
-from .state import RunState
+from .state import STATE_NAME, RunState
 from .store import (
     atomic_write_bytes,
     coerce_products_root,
@@ -253,6 +253,9 @@ def _execute(
     )
     journal = Journal(plan, state, run_id)
     meta = _run_json(plan, run_id, "not started", started)
+    # frames.parquet before run.json: `arroyo status` of a run killed before its first
+    # frame finished read a run.json without the frames table and printed only its path
+    write_frames_table(plan, state)
     _write_json(plan.rundir / RUN_JSON, meta)
     fatal: str | None = None
     total = len(pending)
@@ -320,8 +323,15 @@ def _execute(
 
 def load_run_json(rundir: str | os.PathLike[str]) -> dict[str, Any]:
     path = Path(rundir) / RUN_JSON
+    if Path(rundir).exists() and not Path(rundir).is_dir():
+        raise RunDirError(f"{rundir} is a file, not a run directory; give the --out of a run")
     if not Path(rundir).is_dir():
         raise RunDirError(f"run directory {rundir} does not exist; run `arroyo run` first")
+    if not path.is_file() and (Path(rundir) / STATE_NAME).is_file():
+        raise RunDirError(
+            f"{rundir} holds a run stopped while planning, before its {RUN_JSON}; rerun "
+            "`arroyo run CATALOG --out DIR` to start it"
+        )
     if not path.is_file():
         raise RunDirError(f"{rundir} is not an arroyo run directory (no {RUN_JSON})")
     try:

@@ -98,3 +98,39 @@ def test_out_that_is_a_file_exits_2_without_traceback(archive, tmp_path, capsys)
     below = afile / "run"  # a parent that is a file: mkdir fails with ENOTDIR
     assert main(["run", str(archive), "--out", str(below), "--scheduler", "synchronous"]) == 2
     assert "cannot create the run directory" in capsys.readouterr().err
+
+
+def test_status_of_a_run_killed_before_its_first_frame(archive, tmp_path, capsys, monkeypatch):
+    """Bug: a run SIGKILLed before its first frame left run.json without frames.parquet, and
+    `arroyo status` printed only 'arroyo: error: RUNDIR/frames.parquet'."""
+    import pipeline.runner
+    from pipeline.status import status
+
+    out = tmp_path / "run"
+    seen = {}
+
+    def killed_here(**kwargs):  # the state a SIGKILL at executor start leaves on disk
+        seen["pending"] = status(out).per_stage["tally"]["pending"]
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(pipeline.runner, "open_executor", killed_here)
+    assert main(["run", str(archive), "--out", str(out), "--scheduler", "synchronous"]) == 130
+    assert seen == {"pending": 4}
+    (out / "frames.parquet").unlink()  # a run directory of the code before the fix
+    assert main(["status", str(out)]) == 2
+    assert "has no frames.parquet" in capsys.readouterr().err
+    (tmp_path / "afile").write_text("")
+    assert main(["status", str(tmp_path / "afile")]) == 2
+    assert "is a file, not a run directory" in capsys.readouterr().err
+
+
+def test_status_of_a_run_killed_while_planning(archive, tmp_path, capsys):
+    """A SIGKILL while planning leaves state.sqlite without run.json: status says so."""
+    from pipeline.state import RunState
+
+    out = tmp_path / "run"
+    out.mkdir()
+    RunState(out).close()
+    assert main(["status", str(out)]) == 2
+    assert "stopped while planning" in capsys.readouterr().err
+    assert main(["run", str(archive), "--out", str(out), "--scheduler", "synchronous"]) == 0
