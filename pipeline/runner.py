@@ -258,6 +258,7 @@ def _execute(
     write_frames_table(plan, state)
     _write_json(plan.rundir / RUN_JSON, meta)
     fatal: str | None = None
+    interrupted = False
     total = len(pending)
     try:
         if pending:
@@ -267,21 +268,29 @@ def _execute(
             meta["scheduler"] = executor.name
             _write_json(plan.rundir / RUN_JSON, meta)
             finished = 0
-            for job, result in executor.map_unordered(process_frame, frame_jobs):
-                if isinstance(result, BaseException):
-                    result = FrameOutcome(
-                        frame_id=job.context.frame_id,
-                        index=job.index,
-                        failed_stage=job.stages[0][0],
-                        error=f"task lost: {type(result).__name__}: {result}",
-                    )
-                if result.fatal:
-                    fatal = result.fatal
-                    break
-                journal.add(result)
-                finished += 1
-                if progress:
-                    progress(finished, total, result.frame_id)
+            try:
+                for job, result in executor.map_unordered(process_frame, frame_jobs):
+                    if isinstance(result, BaseException):
+                        result = FrameOutcome(
+                            frame_id=job.context.frame_id,
+                            index=job.index,
+                            failed_stage=job.stages[0][0],
+                            error=f"task lost: {type(result).__name__}: {result}",
+                        )
+                    if result.fatal:
+                        fatal = result.fatal
+                        break
+                    journal.add(result)
+                    finished += 1
+                    if progress:
+                        progress(finished, total, result.frame_id)
+            except KeyboardInterrupt:
+                # ^C: the workers stop, the finished frames' rows are published below and
+                # the interrupt goes on after; unpublished, `arroyo query` showed no rows
+                # of frames that frames.parquet called done
+                interrupted = True
+                _close_quietly(executor)
+                executor = None
         journal.flush()
         for product in plan.graph.table_products:
             publish(plan, state, product.name)
@@ -309,7 +318,7 @@ def _execute(
         seconds=time.monotonic() - t0,
     )
     meta.update(
-        status="stopped" if fatal else "finished",
+        status="stopped" if fatal else ("interrupted" if interrupted else "finished"),
         finished=now_iso(),
         counts={"done": summary.done, "failed": summary.failed, "pending": summary.pending},
         seconds=round(summary.seconds, 3),
@@ -318,7 +327,17 @@ def _execute(
     _write_json(plan.rundir / "provenance" / f"{run_id}.json", meta)
     if fatal:
         raise StoreError(fatal)
+    if interrupted:
+        raise KeyboardInterrupt
     return summary
+
+
+def _close_quietly(executor: Any) -> None:
+    """Close an executor whose workers may have died with the driver's ^C."""
+    try:
+        executor.close()
+    except Exception:  # noqa: BLE001 - closing must not hide the interrupt
+        pass
 
 
 def load_run_json(rundir: str | os.PathLike[str]) -> dict[str, Any]:

@@ -198,3 +198,24 @@ def test_products_on_s3_equal_a_local_run_and_every_reader_finds_them(
     data = xr.open_zarr(f"{s3_products}/products.zarr")
     left, right = data.left.values[0].astype(np.float32), data.right.values[0].astype(np.float32)
     np.testing.assert_allclose(data.blend.values[0], left * 0.25 + right * 0.75)
+
+
+def test_interrupt_publishes_the_finished_frames_rows(archive, tmp_path):
+    """Bug: after ^C, frames.parquet called the finished frames done while the published
+    tables (what `arroyo query` reads) held none of their rows until the next run."""
+    out = tmp_path / "run"
+
+    def interrupt_after_two(done, total, frame_id):
+        if done == 2:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        _run(archive, out, progress=interrupt_after_two)
+    frames = pq.read_table(out / "frames.parquet").to_pylist()
+    done = sorted(f["frame_id"] for f in frames if f["status"] == "done")
+    assert len(done) == 2
+    rows = pq.read_table(out / "tallies.parquet").to_pylist()
+    assert sorted({r["frame_id"] for r in rows}) == done and len(rows) == 6
+    assert json.loads((out / "run.json").read_text())["status"] == "interrupted"
+    assert _run(archive, out).done == 4
+    assert pq.read_table(out / "tallies.parquet").num_rows == 12
