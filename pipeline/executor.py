@@ -8,6 +8,7 @@ from collections.abc import Callable, Iterable, Iterator
 from typing import Any
 
 from ._forkserver import forkserver_supported, start_forkserver, stop_forkserver
+from .errors import ParamError
 from .graph import stage_package_name
 
 __all__ = [
@@ -16,7 +17,13 @@ __all__ = [
     "local_processes",
     "prestart_local_workers",
     "describe_scheduler",
+    "check_scheduler",
 ]
+
+_SCHEDULER_EXPECTED = (
+    "expected 'threads', 'synchronous' or the address of a running dask scheduler such as "
+    "tcp://host:8786 (leave --scheduler out for local worker processes)"
+)
 
 
 class Executor:
@@ -182,8 +189,31 @@ def open_executor(
             raise
         executor.forkserver = forked
         return executor
-    client = Client(scheduler, timeout="20s")
+    check_scheduler(scheduler)
+    try:
+        client = Client(scheduler, timeout="20s")
+    except (OSError, ValueError, TypeError) as exc:
+        # an unreachable address raised OSError's traceback (exit 1) after 20 s
+        raise ParamError(
+            f"--scheduler {scheduler}: cannot reach the dask scheduler ({exc}); check that "
+            f"`dask scheduler` runs there and its port is open, or {_SCHEDULER_EXPECTED}"
+        ) from None
     return _DistributedExecutor(client, None, f"dask.distributed at {scheduler}")
+
+
+def check_scheduler(scheduler: str | None) -> None:
+    """Raise ParamError unless ``scheduler`` is None, 'threads', 'synchronous' or an
+    address dask.distributed can parse (a bare word such as 'thread' is not)."""
+    if scheduler is None or scheduler in ("threads", "synchronous"):
+        return
+    from distributed.comm.addressing import parse_address, parse_host_port
+
+    try:
+        scheme, location = parse_address(scheduler)
+        if scheme in ("tcp", "tls"):
+            parse_host_port(location)
+    except (ValueError, TypeError) as exc:
+        raise ParamError(f"--scheduler {scheduler!r}: {exc}; {_SCHEDULER_EXPECTED}") from None
 
 
 _LOCAL_CLUSTER_CONFIG: dict[str, Any] = {

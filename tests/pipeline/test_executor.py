@@ -8,7 +8,13 @@ import os
 import dask
 import pytest
 
-from pipeline.executor import _ShutdownHeartbeatFilter, _worker_environ, open_executor
+from pipeline.errors import ParamError
+from pipeline.executor import (
+    _ShutdownHeartbeatFilter,
+    _worker_environ,
+    check_scheduler,
+    open_executor,
+)
 
 
 def _record(msg: str) -> logging.LogRecord:
@@ -77,3 +83,25 @@ def test_local_worker_processes_run_without_the_malloc_trim_threshold(monkeypatc
     assert len(seen) == 2 and set(seen.values()) == {(None, "1")}
     assert list(housekeeping.values()) == [(False, 500)] * 2  # the nannies passed it on
     assert results == {-1: 1, -2: 2, -3: 3}
+
+
+@pytest.mark.parametrize("address", ["bogus", "thread", "tcp://host"])
+def test_scheduler_that_is_no_address_is_a_param_error(address):
+    """Bug: `--scheduler bogus` said only "missing port number in address 'bogus'", after
+    the run directory was made."""
+    with pytest.raises(ParamError, match="expected 'threads', 'synchronous' or the address"):
+        check_scheduler(address)
+    for fine in (None, "threads", "synchronous", "tcp://10.0.0.5:8786", "10.0.0.5:8786"):
+        check_scheduler(fine)
+
+
+def test_unreachable_scheduler_is_a_param_error(monkeypatch):
+    """Bug: an unreachable --scheduler address ended in OSError's traceback (exit 1)."""
+    import distributed
+
+    def unreachable(address, timeout):
+        raise OSError(f"Timed out trying to connect to {address} after {timeout}")
+
+    monkeypatch.setattr(distributed, "Client", unreachable)
+    with pytest.raises(ParamError, match="cannot reach the dask scheduler .Timed out"):
+        open_executor(scheduler="tcp://127.0.0.1:9", workers=None)
