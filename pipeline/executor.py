@@ -196,7 +196,8 @@ def open_executor(
         # an unreachable address raised OSError's traceback (exit 1) after 20 s
         raise ParamError(
             f"--scheduler {scheduler}: cannot reach the dask scheduler ({exc}); check that "
-            f"`dask scheduler` runs there and its port is open, or {_SCHEDULER_EXPECTED}"
+            "`dask scheduler` runs there and its port is open, or leave --scheduler out for "
+            "local worker processes"
         ) from None
     return _DistributedExecutor(client, None, f"dask.distributed at {scheduler}")
 

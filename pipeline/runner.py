@@ -263,9 +263,14 @@ def _execute(
     total = len(pending)
     try:
         if pending:
-            executor = open_executor(
-                scheduler=scheduler, workers=workers, stage_package=plan.stage_package
-            )
+            try:
+                executor = open_executor(
+                    scheduler=scheduler, workers=workers, stage_package=plan.stage_package
+                )
+            except Exception:  # no worker ran: the run stopped, not 'interrupted'
+                meta.update(status="stopped", finished=now_iso())
+                _write_json(plan.rundir / RUN_JSON, meta)
+                raise
             meta["scheduler"] = executor.name
             _write_json(plan.rundir / RUN_JSON, meta)
             finished = 0

@@ -105,3 +105,23 @@ def test_unreachable_scheduler_is_a_param_error(monkeypatch):
     monkeypatch.setattr(distributed, "Client", unreachable)
     with pytest.raises(ParamError, match="cannot reach the dask scheduler .Timed out"):
         open_executor(scheduler="tcp://127.0.0.1:9", workers=None)
+
+
+def test_a_run_whose_scheduler_is_unreachable_is_recorded_stopped(archive, tmp_path, monkeypatch):
+    """run.json said 'running' (status: 'interrupted') for a run whose cluster never came."""
+    import json
+
+    import distributed
+
+    from pipeline.runner import run
+    from pipeline.status import status
+
+    def unreachable(address, timeout):
+        raise OSError("Timed out")
+
+    monkeypatch.setattr(distributed, "Client", unreachable)
+    out = tmp_path / "run"
+    with pytest.raises(ParamError):
+        run(archive, out, scheduler="tcp://127.0.0.1:9", stage_package="arroyo_fake_stages")
+    assert json.loads((out / "run.json").read_text())["status"] == "stopped"
+    assert status(out).run_state == "stopped"
