@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import logging
 import os
+import signal
+import threading
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any
 
@@ -170,8 +172,9 @@ def open_executor(
             # block is spawned as by default.
             config["distributed.worker.multiprocessing-method"] = "forkserver"
             start_forkserver(stage_package_name(stage_package), environ=_worker_environ())
+        interrupt = _DeferredInterrupt()
         try:
-            with dask.config.set(config):
+            with interrupt, dask.config.set(config):
                 cluster = LocalCluster(
                     n_workers=n if processes else 1,
                     threads_per_worker=1 if processes else n,
@@ -179,15 +182,18 @@ def open_executor(
                     dashboard_address=":0",  # a free port: never collide with another cluster
                     silence_logs=logging.ERROR,
                 )
-            kind = "processes" if processes else "threads"
-            executor = _DistributedExecutor(
-                Client(cluster), cluster, f"local dask cluster, {n} {kind}"
-            )
+                kind = "processes" if processes else "threads"
+                executor = _DistributedExecutor(
+                    Client(cluster), cluster, f"local dask cluster, {n} {kind}"
+                )
         except BaseException:
             if forked:
                 stop_forkserver()
             raise
         executor.forkserver = forked
+        if interrupt.caught:
+            executor.close()
+            raise KeyboardInterrupt
         return executor
     check_scheduler(scheduler)
     try:
@@ -200,6 +206,28 @@ def open_executor(
             "local worker processes"
         ) from None
     return _DistributedExecutor(client, None, f"dask.distributed at {scheduler}")
+
+
+class _DeferredInterrupt:
+    """Hold a ^C (SIGINT in the main thread) until the block ends; ``caught`` says whether
+    one came. A ^C while a local cluster started stopped the fork server under nannies still
+    forking their workers, and dask logged a traceback for each."""
+
+    def __init__(self) -> None:
+        self.caught = False
+        self._saved: Any = None
+
+    def _hold(self, signum: int, frame: Any) -> None:
+        self.caught = True
+
+    def __enter__(self) -> _DeferredInterrupt:
+        if threading.current_thread() is threading.main_thread():
+            self._saved = signal.signal(signal.SIGINT, self._hold)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self._saved is not None:
+            signal.signal(signal.SIGINT, self._saved)
 
 
 def check_scheduler(scheduler: str | None) -> None:

@@ -125,3 +125,27 @@ def test_a_run_whose_scheduler_is_unreachable_is_recorded_stopped(archive, tmp_p
         run(archive, out, scheduler="tcp://127.0.0.1:9", stage_package="arroyo_fake_stages")
     assert json.loads((out / "run.json").read_text())["status"] == "stopped"
     assert status(out).run_state == "stopped"
+
+
+def test_ctrl_c_while_a_local_cluster_starts_waits_for_it_then_closes_it(monkeypatch):
+    """Bug: a ^C while the local cluster started stopped the fork server under nannies still
+    forking workers, and dask logged a traceback per nanny; the ^C now waits for the
+    cluster, which is closed before the KeyboardInterrupt goes on."""
+    import signal
+
+    import distributed
+
+    real = distributed.LocalCluster
+    made = []
+
+    def interrupted_start(*args, **kwargs):
+        os.kill(os.getpid(), signal.SIGINT)  # the terminal's ^C, in the middle of the start
+        made.append(real(*args, **kwargs))
+        return made[-1]
+
+    monkeypatch.setattr(distributed, "LocalCluster", interrupted_start)
+    handler = signal.getsignal(signal.SIGINT)
+    with pytest.raises(KeyboardInterrupt):
+        open_executor(scheduler="threads", workers=1)
+    assert made and made[0].status.name == "closed"
+    assert signal.getsignal(signal.SIGINT) is handler
