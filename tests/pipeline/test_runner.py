@@ -219,3 +219,23 @@ def test_interrupt_publishes_the_finished_frames_rows(archive, tmp_path):
     assert json.loads((out / "run.json").read_text())["status"] == "interrupted"
     assert _run(archive, out).done == 4
     assert pq.read_table(out / "tallies.parquet").num_rows == 12
+
+
+def _fail_f001_on_rerun(archive, out):
+    assert _run(archive, out).done == 4
+    left = archive.parent / "images" / "f001_left.png"
+    saved = left.read_bytes()
+    left.unlink()
+    summary = _run(archive, out)
+    assert (summary.done, summary.failed) == (3, 1)
+    return left, saved
+
+
+def test_a_frame_failing_on_rerun_loses_its_old_rows(archive, tmp_path):
+    """Bug: a frame whose input was deleted after a finished run failed on the rerun, but
+    its earlier rows stayed in the published tables (frames.parquet: failed)."""
+    out = tmp_path / "run"
+    _fail_f001_on_rerun(archive, out)
+    rows = pq.read_table(out / "tallies.parquet").to_pylist()
+    assert "f001" not in {r["frame_id"] for r in rows} and len(rows) == 9
+
