@@ -252,6 +252,14 @@ def _execute(
         )
         for f in pending
     )
+    # a failed frame whose every stage is current again (its missing file restored) has
+    # nothing to run: its old failure went, else it stayed 'failed' with the old error
+    failed = state.failed()
+    recovered = [
+        f.frame_id for f in plan.frames if f.frame_id in failed and not plan.todo[f.frame_id]
+    ]
+    if recovered:
+        state.commit_batch([], {}, [], recovered)
     journal = Journal(plan, state, run_id)
     meta = _run_json(plan, run_id, "not started", started)
     # frames.parquet before run.json: `arroyo status` of a run killed before its first

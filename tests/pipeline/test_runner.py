@@ -239,3 +239,17 @@ def test_a_frame_failing_on_rerun_loses_its_old_rows(archive, tmp_path):
     rows = pq.read_table(out / "tallies.parquet").to_pylist()
     assert "f001" not in {r["frame_id"] for r in rows} and len(rows) == 9
 
+
+def test_a_failed_frame_whose_file_is_restored_is_done_again(archive, tmp_path):
+    """Bug: with the deleted file restored, the frame's old records were current again, so
+    nothing ran, and it stayed 'failed' with the old error (exit 1)."""
+    out = tmp_path / "run"
+    left, saved = _fail_f001_on_rerun(archive, out)
+    left.write_bytes(saved)
+    plan = _run(archive, out, dry_run=True)
+    assert sum(bool(t) for t in plan.todo.values()) == 0
+    summary = _run(archive, out)
+    assert (summary.done, summary.failed, summary.exit_code) == (4, 0, 0)
+    assert pq.read_table(out / "tallies.parquet").num_rows == 12
+    frames = pq.read_table(out / "frames.parquet").to_pylist()
+    assert [f["status"] for f in frames] == ["done"] * 4 and frames[1]["error"] is None
