@@ -187,7 +187,22 @@ def validate_request(
     catalog = load_catalog(catalog_path)
     package = stage_package_name(stage_package)
     graph = build_graph(discover_stages(package))
-    params = resolve_stage_params(graph, catalog.params, parse_set_overrides(graph, overrides))
+    try:  # the catalog's own [params] first, so that its errors name the catalog
+        resolve_stage_params(graph, catalog.params)
+    except ParamError as exc:
+        raise ParamError(
+            f"{catalog.source}: [params]: {exc}; fix the catalog's [params] table"
+        ) from None
+    overrides = list(overrides)
+    try:
+        params = resolve_stage_params(
+            graph, catalog.params, parse_set_overrides(graph, overrides)
+        )
+    except ParamError as exc:  # the catalog alone was valid: the --set values are not
+        message = str(exc)
+        raise ParamError(
+            message if message.startswith("--set") else f"--set {' '.join(overrides)}: {message}"
+        ) from None
     selected = [f for f in catalog.frames if frames is None or fnmatch.fnmatch(f.frame_id, frames)]
     if not selected:
         raise ParamError(

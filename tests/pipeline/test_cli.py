@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import pytest
 
+from conftest import write_archive
 from pipeline.cli import main
 from pipeline.lock import RunLock
 
@@ -134,3 +135,17 @@ def test_status_of_a_run_killed_while_planning(archive, tmp_path, capsys):
     assert main(["status", str(out)]) == 2
     assert "stopped while planning" in capsys.readouterr().err
     assert main(["run", str(archive), "--out", str(out), "--scheduler", "synchronous"]) == 0
+
+
+def test_param_errors_say_whether_the_catalog_or_set_is_wrong(tmp_path, capsys):
+    """Bug: an unknown or bad parameter in the catalog's [params] gave the same message as
+    one from --set, naming neither the catalog nor the option."""
+    bad = write_archive(tmp_path / "a", extra_toml="\n[params]\nblend = { nosuch = 1 }\n")
+    argv = ["run", str(bad), "--out", str(tmp_path / "r"), "--scheduler", "synchronous"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert f"{bad}: [params]: stage 'blend' has no parameter 'nosuch'" in err
+    good = write_archive(tmp_path / "b")
+    argv = ["run", str(good), "--out", str(tmp_path / "r"), "--scheduler", "synchronous"]
+    assert main([*argv, "--set", "blend.weight=abc"]) == 2
+    assert "--set blend.weight=abc: parameter 'weight' expects float" in capsys.readouterr().err
