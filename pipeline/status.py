@@ -69,7 +69,11 @@ def status(rundir: str | os.PathLike[str], *, verify: bool = False) -> RunStatus
     from .lock import lock_holder
 
     if lock_state == "running" and lock_holder(rundir) is None:
-        lock_state = "interrupted"
+        # read again: a run that ended since run.json was read wrote its final state
+        # before releasing the lock (a status at a run's end said 'interrupted')
+        lock_state = load_run_json(rundir).get("status", "?")
+        if lock_state == "running":
+            lock_state = "interrupted"
     return RunStatus(
         rundir=rundir,
         run_id=meta.get("run_id", "?"),

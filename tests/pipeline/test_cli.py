@@ -149,3 +149,26 @@ def test_param_errors_say_whether_the_catalog_or_set_is_wrong(tmp_path, capsys):
     argv = ["run", str(good), "--out", str(tmp_path / "r"), "--scheduler", "synchronous"]
     assert main([*argv, "--set", "blend.weight=abc"]) == 2
     assert "--set blend.weight=abc: parameter 'weight' expects float" in capsys.readouterr().err
+
+
+def test_status_at_the_end_of_a_run_is_not_interrupted(archive, tmp_path, capsys, monkeypatch):
+    """Bug: `arroyo status` that read run.json ('running') just before the run wrote its
+    final state, and checked the lock just after the run released it, said 'interrupted'."""
+    import json
+
+    import pipeline.lock
+    import pipeline.status
+
+    out = tmp_path / "run"
+    assert main(["run", str(archive), "--out", str(out), "--scheduler", "synchronous"]) == 0
+    meta = json.loads((out / "run.json").read_text())
+    final = dict(meta)
+    real_holder = pipeline.lock.lock_holder
+
+    def run_ends_now(rundir):  # the run writes its final run.json, then releases the lock
+        (out / "run.json").write_text(json.dumps(final))
+        return real_holder(rundir)
+
+    (out / "run.json").write_text(json.dumps({**meta, "status": "running"}))
+    monkeypatch.setattr(pipeline.lock, "lock_holder", run_ends_now)
+    assert pipeline.status.status(out).run_state == "finished"
