@@ -370,4 +370,7 @@ def load_run_json(rundir: str | os.PathLike[str]) -> dict[str, Any]:
     try:
         return json.loads(path.read_text())
     except (OSError, json.JSONDecodeError) as exc:
-        raise RunDirError(f"cannot read {path}: {exc}") from None
+        raise RunDirError(
+            f"cannot read {path}: {exc}; `arroyo run` writes it anew: remove the file and "
+            "rerun the catalog into this directory (with the same --products, if any)"
+        ) from None

@@ -172,3 +172,17 @@ def test_status_at_the_end_of_a_run_is_not_interrupted(archive, tmp_path, capsys
     (out / "run.json").write_text(json.dumps({**meta, "status": "running"}))
     monkeypatch.setattr(pipeline.lock, "lock_holder", run_ends_now)
     assert pipeline.status.status(out).run_state == "finished"
+
+
+def test_damaged_run_json_says_how_to_recover(archive, tmp_path, capsys):
+    """A damaged run.json stopped every command with the JSON error alone; the message now
+    says to remove it and rerun, which resumes from the journal."""
+    out = tmp_path / "run"
+    argv = ["run", str(archive), "--out", str(out), "--scheduler", "synchronous"]
+    assert main(argv) == 0
+    (out / "run.json").write_text("{bad")
+    assert main(["status", str(out)]) == 2
+    assert "remove the file and rerun" in capsys.readouterr().err
+    (out / "run.json").unlink()
+    assert main(argv) == 0
+    assert "4 done" in capsys.readouterr().out
