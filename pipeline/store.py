@@ -277,7 +277,14 @@ def ensure_zarr(
         recreated empty; their stage must be redone for every frame.
     """
     path = zarr_location(root)
-    group = zarr.open_group(path, mode="a")
+    try:
+        group = zarr.open_group(path, mode="a")
+    except ValueError as exc:  # damaged group metadata: a bare JSON message before
+        raise RunDirError(
+            f"the product store {path} cannot be opened: its zarr.json is damaged ({exc}); "
+            "remove that zarr.json and rerun (arroyo writes it anew and `arroyo status "
+            "--verify` checks the arrays), or use a new --out"
+        ) from None
     n = len(frame_ids)
     ids = np.array(list(frame_ids), dtype=str)
     if "frame" in group:
