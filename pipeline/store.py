@@ -221,7 +221,13 @@ def open_products_group(root: str | os.PathLike[str]) -> zarr.Group | None:
         return None
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", zarr.errors.ZarrUserWarning)
-        return zarr.open_group(location, mode="r")
+        try:
+            return zarr.open_group(location, mode="r")
+        except ValueError as exc:
+            raise RunDirError(
+                f"the product store {location} cannot be opened: its zarr.json is damaged "
+                f"({exc}); remove that zarr.json and rerun the run's catalog into its directory"
+            ) from None
 
 
 def write_product_file(root: str | os.PathLike[str], rel: str, content: bytes) -> None:

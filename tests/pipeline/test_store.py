@@ -238,6 +238,8 @@ def test_damaged_group_metadata_says_how_to_recover(tmp_path):
     meta.write_text("{garbage")
     with pytest.raises(RunDirError, match="products.zarr cannot be opened: its zarr.json is"):
         ensure_zarr(tmp_path, ["a"], products)
+    with pytest.raises(RunDirError, match="rerun the run's catalog"):
+        pipeline.store.open_products_group(tmp_path)  # evaluate, report
     meta.unlink()  # the advice: arroyo writes it anew, the arrays are kept
     assert ensure_zarr(tmp_path, ["a"], products) == set()
     assert "labels" in zarr.open_group(tmp_path / "products.zarr", mode="r")
