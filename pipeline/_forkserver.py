@@ -68,7 +68,8 @@ def start_forkserver(stage_package: str, *, environ: Mapping[str, Any]) -> None:
     """
     global _users
     server = multiprocessing.forkserver._forkserver  # the one 'forkserver' contexts use
-    server.set_forkserver_preload([*_DISTRIBUTED, __name__])
+    # this module first: it shields the server (and so its workers) from ^C before the rest
+    server.set_forkserver_preload([__name__, *_DISTRIBUTED])
     extra = {k: str(v) for k, v in environ.items()}
     # the server sets the driver's sys.path only in the processes it forks (CPython 3.11
     # ignores it while preloading); the stage package may be on it alone (tests, notebooks)
@@ -131,6 +132,12 @@ def _warm_in_server() -> None:
     path = os.environ.pop(_PATH_VAR, None)
     if not package:
         return  # imported by a driver or a worker, not by the fork server
+    # The terminal's ^C reaches every process of the run's group. The driver stops the run
+    # and closes its cluster; a warming server printed the traceback of the import it was
+    # in, and each forked worker one of dask's interrupted shutdown. Ignored here, SIGINT
+    # stays ignored in the workers: multiprocessing's server hands them the handler it
+    # found at its start (CPython's forkserver.main/_serve_one).
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     if path:
         sys.path[:] = json.loads(path)
     try:

@@ -177,6 +177,9 @@ def _coerce_path(path: Any) -> Path:
     return Path(os.path.abspath(text))
 
 
+_SHIPPED = Path(__file__).resolve().parent.parent / "catalogs"  # in a checkout
+
+
 class _TomlDoc:
     """The parsed TOML, its text (to locate keys' lines) and error helpers."""
 
@@ -189,6 +192,10 @@ class _TomlDoc:
     @classmethod
     def read(cls, path: Path) -> _TomlDoc:
         fix = "give the path of a catalog TOML file"
+        shipped = _SHIPPED / f"{path.stem}.toml"
+        if not path.exists() and shipped.is_file():
+            # `arroyo run lab`: the name of a built-in archive where a path is expected
+            fix += f"; the built-in {path.stem} archive's catalog is {shipped}"
         raw = read_bytes(path, "catalog", fix)
         text = decode_utf8(raw, path, "the catalog")
         try:

@@ -4,10 +4,13 @@ from __future__ import annotations
 
 import logging
 import os
+import signal
+import threading
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any
 
 from ._forkserver import forkserver_supported, start_forkserver, stop_forkserver
+from .errors import ParamError
 from .graph import stage_package_name
 
 __all__ = [
@@ -16,7 +19,13 @@ __all__ = [
     "local_processes",
     "prestart_local_workers",
     "describe_scheduler",
+    "check_scheduler",
 ]
+
+_SCHEDULER_EXPECTED = (
+    "expected 'threads', 'synchronous' or the address of a running dask scheduler such as "
+    "tcp://host:8786 (leave --scheduler out for local worker processes)"
+)
 
 
 class Executor:
@@ -163,8 +172,9 @@ def open_executor(
             # block is spawned as by default.
             config["distributed.worker.multiprocessing-method"] = "forkserver"
             start_forkserver(stage_package_name(stage_package), environ=_worker_environ())
+        interrupt = _DeferredInterrupt()
         try:
-            with dask.config.set(config):
+            with interrupt, dask.config.set(config):
                 cluster = LocalCluster(
                     n_workers=n if processes else 1,
                     threads_per_worker=1 if processes else n,
@@ -172,18 +182,67 @@ def open_executor(
                     dashboard_address=":0",  # a free port: never collide with another cluster
                     silence_logs=logging.ERROR,
                 )
-            kind = "processes" if processes else "threads"
-            executor = _DistributedExecutor(
-                Client(cluster), cluster, f"local dask cluster, {n} {kind}"
-            )
+                kind = "processes" if processes else "threads"
+                executor = _DistributedExecutor(
+                    Client(cluster), cluster, f"local dask cluster, {n} {kind}"
+                )
         except BaseException:
             if forked:
                 stop_forkserver()
             raise
         executor.forkserver = forked
+        if interrupt.caught:
+            executor.close()
+            raise KeyboardInterrupt
         return executor
-    client = Client(scheduler, timeout="20s")
+    check_scheduler(scheduler)
+    try:
+        client = Client(scheduler, timeout="20s")
+    except (OSError, ValueError, TypeError) as exc:
+        # an unreachable address raised OSError's traceback (exit 1) after 20 s
+        raise ParamError(
+            f"--scheduler {scheduler}: cannot reach the dask scheduler ({exc}); check that "
+            "`dask scheduler` runs there and its port is open, or leave --scheduler out for "
+            "local worker processes"
+        ) from None
     return _DistributedExecutor(client, None, f"dask.distributed at {scheduler}")
+
+
+class _DeferredInterrupt:
+    """Hold a ^C (SIGINT in the main thread) until the block ends; ``caught`` says whether
+    one came. A ^C while a local cluster started stopped the fork server under nannies still
+    forking their workers, and dask logged a traceback for each."""
+
+    def __init__(self) -> None:
+        self.caught = False
+        self._saved: Any = None
+
+    def _hold(self, signum: int, frame: Any) -> None:
+        self.caught = True
+
+    def __enter__(self) -> _DeferredInterrupt:
+        if threading.current_thread() is threading.main_thread():
+            self._saved = signal.signal(signal.SIGINT, self._hold)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self._saved is not None:
+            signal.signal(signal.SIGINT, self._saved)
+
+
+def check_scheduler(scheduler: str | None) -> None:
+    """Raise ParamError unless ``scheduler`` is None, 'threads', 'synchronous' or an
+    address dask.distributed can parse (a bare word such as 'thread' is not)."""
+    if scheduler is None or scheduler in ("threads", "synchronous"):
+        return
+    from distributed.comm.addressing import parse_address, parse_host_port
+
+    try:
+        scheme, location = parse_address(scheduler)
+        if scheme in ("tcp", "tls"):
+            parse_host_port(location)
+    except (ValueError, TypeError) as exc:
+        raise ParamError(f"--scheduler {scheduler!r}: {exc}; {_SCHEDULER_EXPECTED}") from None
 
 
 _LOCAL_CLUSTER_CONFIG: dict[str, Any] = {

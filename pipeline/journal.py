@@ -184,7 +184,22 @@ def write_frames_table(plan: RunPlan, state: RunState) -> None:
 
 
 def publish(plan: RunPlan, state: RunState, product: str) -> None:
-    live = state.live_parts(product)
+    """Publish a table product: the rows of every frame whose producing record is current
+    (for this run's frames, the key the plan wants; other frames: whatever is recorded).
+
+    A record of other inputs or params stays in the journal (its part too: the key may
+    match again) but its rows are not published: a frame whose input file was deleted, or
+    that failed under new params, kept its earlier run's rows while frames.parquet called it
+    failed.
+    """
+    recorded = state.live_parts(product)
+    stage = plan.graph.producer[product]
+    keys = state.done_keys()
+    live = {
+        fid: part
+        for fid, part in recorded.items()
+        if fid not in plan.keys or keys.get((fid, stage)) == plan.keys[fid].get(stage)
+    }
     parts = state.parts(product)
     publish_table(
         plan.rundir,
@@ -199,7 +214,7 @@ def publish(plan: RunPlan, state: RunState, product: str) -> None:
             for k, v in stage_attrs(plan, plan.graph.producer[product], {}).items()
         },
     )
-    dead = [p for p in parts if p.part_id not in set(live.values())]
+    dead = [p for p in parts if p.part_id not in set(recorded.values())]
     for part in dead:
         (plan.rundir / part.path).unlink(missing_ok=True)
     state.drop_parts(p.part_id for p in dead)

@@ -11,6 +11,7 @@ import fnmatch
 import hashlib
 import json
 import os
+from collections import Counter
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -144,19 +145,32 @@ def _hash_inputs(
     return out
 
 
+_SHAPE_VOTES = 9
+"""Right images whose sizes vote for the archive's frame shape (the most common wins)."""
+
+
 def _probe_shape(catalog: Catalog) -> tuple[int, int] | None:
-    """The archive's frame shape: the catalog's, else the first right image that decodes."""
+    """The archive's frame shape: the catalog's, else the most common size among the first
+    readable right images (ties: the earliest). One odd first frame (a thumbnail, a 1x1
+    placeholder) used to set the shape alone and fail every good frame as the wrong size.
+    Sizes come from the image headers (:func:`stages._imageio.read_header`), not decoding."""
     if catalog.shape:
         return catalog.shape
-    from stages._imageio import read_gray
+    from stages._imageio import read_header
 
+    sizes: list[tuple[int, int]] = []
     for frame in catalog.frames[:50]:
         try:
-            h, w = read_gray(frame.right).image.shape
-            return int(h), int(w)
-        except Exception:  # noqa: BLE001 - any unreadable frame: try the next one
+            header = read_header(Path(frame.right).read_bytes())
+        except (OSError, ValueError):  # unreadable or not an image: the next one
             continue
-    return None
+        sizes.append((int(header.height), int(header.width)))
+        if len(sizes) == _SHAPE_VOTES:
+            break
+    if not sizes:
+        return None
+    votes = Counter(sizes)
+    return max(sizes, key=votes.__getitem__)  # max keeps the first of equals
 
 
 def default_rundir(catalog: Catalog) -> Path:
@@ -173,7 +187,22 @@ def validate_request(
     catalog = load_catalog(catalog_path)
     package = stage_package_name(stage_package)
     graph = build_graph(discover_stages(package))
-    params = resolve_stage_params(graph, catalog.params, parse_set_overrides(graph, overrides))
+    try:  # the catalog's own [params] first, so that its errors name the catalog
+        resolve_stage_params(graph, catalog.params)
+    except ParamError as exc:
+        raise ParamError(
+            f"{catalog.source}: [params]: {exc}; fix the catalog's [params] table"
+        ) from None
+    overrides = list(overrides)
+    try:
+        params = resolve_stage_params(
+            graph, catalog.params, parse_set_overrides(graph, overrides)
+        )
+    except ParamError as exc:  # the catalog alone was valid: the --set values are not
+        message = str(exc)
+        raise ParamError(
+            message if message.startswith("--set") else f"--set {' '.join(overrides)}: {message}"
+        ) from None
     selected = [f for f in catalog.frames if frames is None or fnmatch.fnmatch(f.frame_id, frames)]
     if not selected:
         raise ParamError(

@@ -51,7 +51,7 @@ def make_progress(*, enabled: bool = True) -> tuple[Callable[[int, int, str], No
         rate = rate_of(done, now)
         if done == total or now - state["last"] >= 5.0:
             if done == total:
-                pace = "all done"
+                pace = "all processed"  # not "done": some may have failed
             elif rate is None:
                 pace = "rate and ETA from the next frame on (the first carries the start-up)"
             else:

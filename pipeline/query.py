@@ -171,7 +171,8 @@ def _check_not_running(rundir: Path, meta: Mapping[str, Any]) -> None:
     raise RunDirError(
         f"run {rundir} is still in progress (arroyo pid {holder.get('pid', '?')} on host "
         f"{holder.get('host', '?')} since {holder.get('since', '?')}); wait until it "
-        "finishes, or pass allow_running=True to read the frames it has published so far"
+        "finishes, or pass --allow-running (Python: allow_running=True) to read the frames "
+        "it has published so far"
     )
 
 

@@ -13,13 +13,13 @@ from typing import Any
 
 from ._forkserver import stop_forkserver
 from .errors import ParamError, RunDirError, StoreError
-from .executor import open_executor, prestart_local_workers
+from .executor import check_scheduler, open_executor, prestart_local_workers
 from .journal import Journal, publish, stage_attrs, write_frames_table
 from .lock import RunLock
 from .plan import RunPlan, default_rundir, plan_run, validate_request
 from .provenance import environment, new_run_id, now_iso
 from .stage import FrameContext
-from .state import RunState
+from .state import STATE_NAME, RunState
 from .store import (
     atomic_write_bytes,
     coerce_products_root,
@@ -74,15 +74,23 @@ def run(
     directory already uses, RunLockedError when another run holds the directory, StoreError
     when products cannot be written.
     """
+    check_scheduler(scheduler)  # a typo stops the run before the run directory exists
     # local workers' imports run beside the planning (pipeline._forkserver)
     forked = not dry_run and prestart_local_workers(scheduler, workers, stage_package)
     try:
         request = validate_request(catalog_path, overrides, frames, stage_package)  # before disk
         rundir = Path(out) if out is not None else default_rundir(request.catalog)
+        _check_rundir(rundir)
         root = _resolve_products(rundir, products)
         if dry_run:
             return plan_run(request, rundir, products=root)
-        rundir.mkdir(parents=True, exist_ok=True)
+        try:
+            rundir.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise RunDirError(
+                f"cannot create the run directory {rundir}: {exc.strerror or exc}; give "
+                "--out a directory you can write"
+            ) from None
         with RunLock(rundir):
             remove_orphan_temp_files(rundir)
             if root and not is_url(root):
@@ -98,6 +106,15 @@ def run(
     finally:
         if forked:  # when no frame was pending, or the run failed before its cluster
             stop_forkserver()
+
+
+def _check_rundir(rundir: Path) -> None:
+    """Refuse a run directory path that names something else than a directory."""
+    if rundir.exists() and not rundir.is_dir():
+        raise RunDirError(
+            f"the run directory {rundir} is a file, not a directory; give --out a new or "
+            "existing run directory (default runs/<archive>)"
+        )
 
 
 def _resolve_products(rundir: Path, requested: str | os.PathLike[str] | None) -> str:
@@ -235,34 +252,59 @@ def _execute(
         )
         for f in pending
     )
+    # a failed frame whose every stage is current again (its missing file restored) has
+    # nothing to run: its old failure went, else it stayed 'failed' with the old error
+    failed = state.failed()
+    recovered = [
+        f.frame_id for f in plan.frames if f.frame_id in failed and not plan.todo[f.frame_id]
+    ]
+    if recovered:
+        state.commit_batch([], {}, [], recovered)
     journal = Journal(plan, state, run_id)
     meta = _run_json(plan, run_id, "not started", started)
+    # frames.parquet before run.json: `arroyo status` of a run killed before its first
+    # frame finished read a run.json without the frames table and printed only its path
+    write_frames_table(plan, state)
     _write_json(plan.rundir / RUN_JSON, meta)
     fatal: str | None = None
+    interrupted = False
     total = len(pending)
     try:
         if pending:
-            executor = open_executor(
-                scheduler=scheduler, workers=workers, stage_package=plan.stage_package
-            )
+            try:
+                executor = open_executor(
+                    scheduler=scheduler, workers=workers, stage_package=plan.stage_package
+                )
+            except Exception:  # no worker ran: the run stopped, not 'interrupted'
+                meta.update(status="stopped", finished=now_iso())
+                _write_json(plan.rundir / RUN_JSON, meta)
+                raise
             meta["scheduler"] = executor.name
             _write_json(plan.rundir / RUN_JSON, meta)
             finished = 0
-            for job, result in executor.map_unordered(process_frame, frame_jobs):
-                if isinstance(result, BaseException):
-                    result = FrameOutcome(
-                        frame_id=job.context.frame_id,
-                        index=job.index,
-                        failed_stage=job.stages[0][0],
-                        error=f"task lost: {type(result).__name__}: {result}",
-                    )
-                if result.fatal:
-                    fatal = result.fatal
-                    break
-                journal.add(result)
-                finished += 1
-                if progress:
-                    progress(finished, total, result.frame_id)
+            try:
+                for job, result in executor.map_unordered(process_frame, frame_jobs):
+                    if isinstance(result, BaseException):
+                        result = FrameOutcome(
+                            frame_id=job.context.frame_id,
+                            index=job.index,
+                            failed_stage=job.stages[0][0],
+                            error=f"task lost: {type(result).__name__}: {result}",
+                        )
+                    if result.fatal:
+                        fatal = result.fatal
+                        break
+                    journal.add(result)
+                    finished += 1
+                    if progress:
+                        progress(finished, total, result.frame_id)
+            except KeyboardInterrupt:
+                # ^C: the workers stop, the finished frames' rows are published below and
+                # the interrupt goes on after; unpublished, `arroyo query` showed no rows
+                # of frames that frames.parquet called done
+                interrupted = True
+                _close_quietly(executor)
+                executor = None
         journal.flush()
         for product in plan.graph.table_products:
             publish(plan, state, product.name)
@@ -290,7 +332,7 @@ def _execute(
         seconds=time.monotonic() - t0,
     )
     meta.update(
-        status="stopped" if fatal else "finished",
+        status="stopped" if fatal else ("interrupted" if interrupted else "finished"),
         finished=now_iso(),
         counts={"done": summary.done, "failed": summary.failed, "pending": summary.pending},
         seconds=round(summary.seconds, 3),
@@ -299,16 +341,36 @@ def _execute(
     _write_json(plan.rundir / "provenance" / f"{run_id}.json", meta)
     if fatal:
         raise StoreError(fatal)
+    if interrupted:
+        raise KeyboardInterrupt
     return summary
+
+
+def _close_quietly(executor: Any) -> None:
+    """Close an executor whose workers may have died with the driver's ^C."""
+    try:
+        executor.close()
+    except Exception:  # noqa: BLE001 - closing must not hide the interrupt
+        pass
 
 
 def load_run_json(rundir: str | os.PathLike[str]) -> dict[str, Any]:
     path = Path(rundir) / RUN_JSON
+    if Path(rundir).exists() and not Path(rundir).is_dir():
+        raise RunDirError(f"{rundir} is a file, not a run directory; give the --out of a run")
     if not Path(rundir).is_dir():
         raise RunDirError(f"run directory {rundir} does not exist; run `arroyo run` first")
+    if not path.is_file() and (Path(rundir) / STATE_NAME).is_file():
+        raise RunDirError(
+            f"{rundir} holds a run stopped while planning, before its {RUN_JSON}; rerun "
+            "`arroyo run CATALOG --out DIR` to start it"
+        )
     if not path.is_file():
         raise RunDirError(f"{rundir} is not an arroyo run directory (no {RUN_JSON})")
     try:
         return json.loads(path.read_text())
     except (OSError, json.JSONDecodeError) as exc:
-        raise RunDirError(f"cannot read {path}: {exc}") from None
+        raise RunDirError(
+            f"cannot read {path}: {exc}; `arroyo run` writes it anew: remove the file and "
+            "rerun the catalog into this directory (with the same --products, if any)"
+        ) from None

@@ -226,6 +226,11 @@ class Stage:
         One line for ``arroyo graph``.
     optional_inputs : tuple of str
         Inputs read when present in the graph, tolerated when absent.
+    check_params : callable, optional
+        ``check_params(params)`` raises ValueError/TypeError when the effective params
+        (each valid alone) are invalid in a way a Param's type, choices and bounds cannot
+        say (a window list's syntax, an odd size, two params that contradict each other):
+        the run then stops before any work instead of failing every frame.
     """
 
     name: str
@@ -236,6 +241,7 @@ class Stage:
     run: StageRun
     doc: str = ""
     optional_inputs: tuple[str, ...] = ()
+    check_params: Callable[[Mapping[str, Any]], object] | None = None
 
     @property
     def output_names(self) -> tuple[str, ...]:
@@ -258,4 +264,11 @@ class Stage:
         params = self.defaults()
         for key, value in overrides.items():
             params[key] = self.param(key).validate(value, where=f"{self.name}.{key}")
+        if self.check_params is not None:
+            try:
+                self.check_params(params)
+            except ParamError:
+                raise
+            except (ValueError, TypeError) as exc:
+                raise ParamError(f"stage {self.name!r}: {exc}") from None
         return params

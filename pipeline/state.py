@@ -18,6 +18,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from .errors import RunDirError
+
 __all__ = ["RunState", "StageRecord", "PartRecord", "STATE_NAME"]
 
 STATE_NAME = "state.sqlite"
@@ -90,14 +92,21 @@ class RunState:
 
     def __init__(self, rundir: Path, *, readonly: bool = False) -> None:
         path = Path(rundir) / STATE_NAME
-        if readonly:
-            self._db = sqlite3.connect(f"file:{path}?mode=ro", uri=True, timeout=30)
-        else:
-            self._db = sqlite3.connect(path, timeout=30)
-            self._db.execute("PRAGMA journal_mode=WAL")
-            self._db.execute("PRAGMA synchronous=FULL")
-            self._db.executescript(_SCHEMA)
-            self._db.commit()
+        try:
+            if readonly:
+                self._db = sqlite3.connect(f"file:{path}?mode=ro", uri=True, timeout=30)
+                self._db.execute("SELECT count(*) FROM sqlite_master").fetchone()
+            else:
+                self._db = sqlite3.connect(path, timeout=30)
+                self._db.execute("PRAGMA journal_mode=WAL")
+                self._db.execute("PRAGMA synchronous=FULL")
+                self._db.executescript(_SCHEMA)
+                self._db.commit()
+        except sqlite3.DatabaseError as exc:  # a damaged file gave sqlite3's traceback
+            raise RunDirError(
+                f"the run journal {path} is damaged ({exc}); move it away and rerun the "
+                "catalog into this directory: the run then starts over"
+            ) from None
 
     def close(self) -> None:
         self._db.close()

@@ -38,6 +38,11 @@ def status(rundir: str | os.PathLike[str], *, verify: bool = False) -> RunStatus
     meta = load_run_json(rundir)
     if not (rundir / STATE_NAME).exists():
         raise RunDirError(f"{rundir} has no {STATE_NAME}; the run never started")
+    if not (rundir / "frames.parquet").is_file():
+        raise RunDirError(
+            f"{rundir} has no frames.parquet: its run stopped before recording its frames; "
+            "rerun `arroyo run CATALOG --out DIR` to resume it"
+        )
     frames_table = pq.read_table(rundir / "frames.parquet", columns=["frame_id", "index"])
     frame_ids = frames_table["frame_id"].to_pylist()
     index = dict(zip(frame_ids, frames_table["index"].to_pylist(), strict=True))
@@ -64,7 +69,11 @@ def status(rundir: str | os.PathLike[str], *, verify: bool = False) -> RunStatus
     from .lock import lock_holder
 
     if lock_state == "running" and lock_holder(rundir) is None:
-        lock_state = "interrupted"
+        # read again: a run that ended since run.json was read wrote its final state
+        # before releasing the lock (a status at a run's end said 'interrupted')
+        lock_state = load_run_json(rundir).get("status", "?")
+        if lock_state == "running":
+            lock_state = "interrupted"
     return RunStatus(
         rundir=rundir,
         run_id=meta.get("run_id", "?"),

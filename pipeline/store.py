@@ -221,7 +221,13 @@ def open_products_group(root: str | os.PathLike[str]) -> zarr.Group | None:
         return None
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", zarr.errors.ZarrUserWarning)
-        return zarr.open_group(location, mode="r")
+        try:
+            return zarr.open_group(location, mode="r")
+        except ValueError as exc:
+            raise RunDirError(
+                f"the product store {location} cannot be opened: its zarr.json is damaged "
+                f"({exc}); remove that zarr.json and rerun the run's catalog into its directory"
+            ) from None
 
 
 def write_product_file(root: str | os.PathLike[str], rel: str, content: bytes) -> None:
@@ -277,7 +283,14 @@ def ensure_zarr(
         recreated empty; their stage must be redone for every frame.
     """
     path = zarr_location(root)
-    group = zarr.open_group(path, mode="a")
+    try:
+        group = zarr.open_group(path, mode="a")
+    except ValueError as exc:  # damaged group metadata: a bare JSON message before
+        raise RunDirError(
+            f"the product store {path} cannot be opened: its zarr.json is damaged ({exc}); "
+            "remove that zarr.json and rerun (arroyo writes it anew and `arroyo status "
+            "--verify` checks the arrays), or use a new --out"
+        ) from None
     n = len(frame_ids)
     ids = np.array(list(frame_ids), dtype=str)
     if "frame" in group:

@@ -54,6 +54,7 @@ swap: right minus pseudo-right, in the right image's geometry.)
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -238,7 +239,7 @@ _SETTING_KEYS = (
 )  # fmt: skip
 
 
-def _coerce_settings(params: dict[str, Any]) -> dict[str, Any]:
+def _coerce_settings(params: Mapping[str, Any]) -> dict[str, Any]:
     try:
         return _stereo.check_settings(**{key: params[key] for key in _SETTING_KEYS})
     except (ValueError, TypeError) as error:
@@ -434,4 +435,5 @@ STAGE = Stage(
     params=PARAMS,
     run=run_depth,
     doc="stereo disparity (adaptive-window ZNCC), range, pseudo-left residual, ground height",
+    check_params=_coerce_settings,  # windows' syntax, odd sizes: before any work
 )

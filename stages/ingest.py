@@ -20,7 +20,11 @@ from pipeline.stage import FrameContext, Param, Product, Stage, StageResult
 
 from ._imageio import DEFAULT_MAX_PIXELS, DecodedImage, read_gray
 
-__all__ = ["STAGE", "run_ingest", "check_pair_shapes"]
+__all__ = ["STAGE", "run_ingest", "check_pair_shapes", "MIN_SIDE_PX"]
+
+MIN_SIDE_PX = 8
+"""Smallest frame side: a smaller frame (a 1x1 placeholder) passed ingest and depth and
+failed at segment with a sector-count message that named no file."""
 
 
 def run_ingest(
@@ -80,7 +84,8 @@ def check_pair_shapes(
     right_path: Path | str,
     archive_shape: tuple[int, int] | None = None,
 ) -> None:
-    """Raise FrameError unless left and right are equally sized and match the archive.
+    """Raise FrameError unless left and right are equally sized, at least
+    ``MIN_SIDE_PX`` on a side and match the archive.
 
     Parameters
     ----------
@@ -95,6 +100,12 @@ def check_pair_shapes(
         raise FrameError(
             f"frame {frame_id}: left image {left_path} is {_hxw(left_shape)} but right image "
             f"{right_path} is {_hxw(right_shape)} (HxW); a stereo pair must have equal sizes"
+        )
+    if min(left_shape) < MIN_SIDE_PX:
+        raise FrameError(
+            f"frame {frame_id}: {left_path} and {right_path} are {_hxw(left_shape)} (HxW), "
+            f"smaller than the {MIN_SIDE_PX}x{MIN_SIDE_PX} px every frame needs (segmentation "
+            "works on at least 2x2 sectors of 4x4 px); remove the frame from the index"
         )
     if archive_shape is not None and tuple(left_shape) != tuple(archive_shape):
         raise FrameError(

@@ -132,3 +132,18 @@ def test_left_and_right_of_different_size_name_both_files(tmp_path):
     result, _out = _run(tmp_path, damage)
     error = result["frames"]["f001"]["error"]
     assert "f001_left" in error and "f001_right" in error
+
+
+def test_an_odd_first_frame_does_not_set_the_archive_shape(tmp_path):
+    """Bug: the archive's frame shape came from the first readable right image alone, so a
+    1x1 first frame failed every good frame as 'wrong size'; the most common size wins."""
+    catalog = write_archive(tmp_path / "archive", frames=4, shape=SHAPE)
+    for side in ("left", "right"):
+        (tmp_path / "archive" / "images" / f"f000_{side}.png").write_bytes(_png(shape=(1, 1)))
+    out = tmp_path / "run"
+    summary = run(catalog, out, scheduler="synchronous", stage_package=STAGES)
+    frames = {r["frame_id"]: r for r in pq.read_table(out / "frames.parquet").to_pylist()}
+    assert summary.exit_code == 1
+    assert [frames[f]["status"] for f in ("f001", "f002", "f003")] == ["done"] * 3
+    assert frames["f000"]["status"] == "failed"
+    assert "1x1" in frames["f000"]["error"] and "f000_left" in frames["f000"]["error"]

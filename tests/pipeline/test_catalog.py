@@ -439,3 +439,10 @@ def test_permission_denied_message_even_as_root(
 
     monkeypatch.setattr(Path, "read_bytes", read_bytes)
     assert_error(path, "frames.csv", "permission denied")
+
+
+def test_name_of_a_builtin_archive_points_at_its_catalog(tmp_path: Path) -> None:
+    """`arroyo run lab` (a built-in archive's name, not a path) said only that the file does
+    not exist; the message now gives the shipped catalog's path."""
+    shipped = Path(__file__).resolve().parents[2] / "catalogs" / "lab.toml"
+    assert_error(tmp_path / "lab", "does not exist", f"catalog is {shipped}")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import pytest
 
+from conftest import write_archive
 from pipeline.cli import main
 from pipeline.lock import RunLock
 
@@ -83,3 +84,105 @@ def test_products_option_places_products_and_a_bad_url_exits_2(archive, tmp_path
     assert f"products at {shared}" in capsys.readouterr().out
     assert main([*argv, "--products", "nosuch://bucket/x"]) == 2
     assert "unknown storage protocol 'nosuch'" in capsys.readouterr().err
+
+
+def test_out_that_is_a_file_exits_2_without_traceback(archive, tmp_path, capsys):
+    """Bug: `arroyo run CATALOG --out FILE` died with FileExistsError's traceback (exit 1)."""
+    afile = tmp_path / "afile"
+    afile.write_text("not a run")
+    for extra in ([], ["--dry-run"]):
+        argv = ["run", str(archive), "--out", str(afile), "--scheduler", "synchronous"]
+        assert main([*argv, *extra]) == 2
+        err = capsys.readouterr().err
+        assert "is a file, not a directory" in err and "Traceback" not in err
+    assert afile.read_text() == "not a run"
+    below = afile / "run"  # a parent that is a file: mkdir fails with ENOTDIR
+    assert main(["run", str(archive), "--out", str(below), "--scheduler", "synchronous"]) == 2
+    assert "cannot create the run directory" in capsys.readouterr().err
+
+
+def test_status_of_a_run_killed_before_its_first_frame(archive, tmp_path, capsys, monkeypatch):
+    """Bug: a run SIGKILLed before its first frame left run.json without frames.parquet, and
+    `arroyo status` printed only 'arroyo: error: RUNDIR/frames.parquet'."""
+    import pipeline.runner
+    from pipeline.status import status
+
+    out = tmp_path / "run"
+    seen = {}
+
+    def killed_here(**kwargs):  # the state a SIGKILL at executor start leaves on disk
+        seen["pending"] = status(out).per_stage["tally"]["pending"]
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(pipeline.runner, "open_executor", killed_here)
+    assert main(["run", str(archive), "--out", str(out), "--scheduler", "synchronous"]) == 130
+    assert seen == {"pending": 4}
+    (out / "frames.parquet").unlink()  # a run directory of the code before the fix
+    assert main(["status", str(out)]) == 2
+    assert "has no frames.parquet" in capsys.readouterr().err
+    (tmp_path / "afile").write_text("")
+    assert main(["status", str(tmp_path / "afile")]) == 2
+    assert "is a file, not a run directory" in capsys.readouterr().err
+
+
+def test_status_of_a_run_killed_while_planning(archive, tmp_path, capsys):
+    """A SIGKILL while planning leaves state.sqlite without run.json: status says so."""
+    from pipeline.state import RunState
+
+    out = tmp_path / "run"
+    out.mkdir()
+    RunState(out).close()
+    assert main(["status", str(out)]) == 2
+    assert "stopped while planning" in capsys.readouterr().err
+    assert main(["run", str(archive), "--out", str(out), "--scheduler", "synchronous"]) == 0
+
+
+def test_param_errors_say_whether_the_catalog_or_set_is_wrong(tmp_path, capsys):
+    """Bug: an unknown or bad parameter in the catalog's [params] gave the same message as
+    one from --set, naming neither the catalog nor the option."""
+    bad = write_archive(tmp_path / "a", extra_toml="\n[params]\nblend = { nosuch = 1 }\n")
+    argv = ["run", str(bad), "--out", str(tmp_path / "r"), "--scheduler", "synchronous"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert f"{bad}: [params]: stage 'blend' has no parameter 'nosuch'" in err
+    good = write_archive(tmp_path / "b")
+    argv = ["run", str(good), "--out", str(tmp_path / "r"), "--scheduler", "synchronous"]
+    assert main([*argv, "--set", "blend.weight=abc"]) == 2
+    assert "--set blend.weight=abc: parameter 'weight' expects float" in capsys.readouterr().err
+
+
+def test_status_at_the_end_of_a_run_is_not_interrupted(archive, tmp_path, capsys, monkeypatch):
+    """Bug: `arroyo status` that read run.json ('running') just before the run wrote its
+    final state, and checked the lock just after the run released it, said 'interrupted'."""
+    import json
+
+    import pipeline.lock
+    import pipeline.status
+
+    out = tmp_path / "run"
+    assert main(["run", str(archive), "--out", str(out), "--scheduler", "synchronous"]) == 0
+    meta = json.loads((out / "run.json").read_text())
+    final = dict(meta)
+    real_holder = pipeline.lock.lock_holder
+
+    def run_ends_now(rundir):  # the run writes its final run.json, then releases the lock
+        (out / "run.json").write_text(json.dumps(final))
+        return real_holder(rundir)
+
+    (out / "run.json").write_text(json.dumps({**meta, "status": "running"}))
+    monkeypatch.setattr(pipeline.lock, "lock_holder", run_ends_now)
+    assert pipeline.status.status(out).run_state == "finished"
+
+
+def test_damaged_run_json_says_how_to_recover(archive, tmp_path, capsys):
+    """A damaged run.json stopped every command with the JSON error alone; the message now
+    says to remove it and rerun, which resumes from the journal."""
+    out = tmp_path / "run"
+    argv = ["run", str(archive), "--out", str(out), "--scheduler", "synchronous"]
+    assert main(argv) == 0
+    (out / "run.json").write_text("{bad")
+    assert main(["status", str(out)]) == 2
+    assert "remove the file and rerun" in capsys.readouterr().err
+    (out / "run.json").unlink()
+    assert main(argv) == 0
+    assert "4 done" in capsys.readouterr().out

@@ -8,7 +8,13 @@ import os
 import dask
 import pytest
 
-from pipeline.executor import _ShutdownHeartbeatFilter, _worker_environ, open_executor
+from pipeline.errors import ParamError
+from pipeline.executor import (
+    _ShutdownHeartbeatFilter,
+    _worker_environ,
+    check_scheduler,
+    open_executor,
+)
 
 
 def _record(msg: str) -> logging.LogRecord:
@@ -77,3 +83,69 @@ def test_local_worker_processes_run_without_the_malloc_trim_threshold(monkeypatc
     assert len(seen) == 2 and set(seen.values()) == {(None, "1")}
     assert list(housekeeping.values()) == [(False, 500)] * 2  # the nannies passed it on
     assert results == {-1: 1, -2: 2, -3: 3}
+
+
+@pytest.mark.parametrize("address", ["bogus", "thread", "tcp://host"])
+def test_scheduler_that_is_no_address_is_a_param_error(address):
+    """Bug: `--scheduler bogus` said only "missing port number in address 'bogus'", after
+    the run directory was made."""
+    with pytest.raises(ParamError, match="expected 'threads', 'synchronous' or the address"):
+        check_scheduler(address)
+    for fine in (None, "threads", "synchronous", "tcp://10.0.0.5:8786", "10.0.0.5:8786"):
+        check_scheduler(fine)
+
+
+def test_unreachable_scheduler_is_a_param_error(monkeypatch):
+    """Bug: an unreachable --scheduler address ended in OSError's traceback (exit 1)."""
+    import distributed
+
+    def unreachable(address, timeout):
+        raise OSError(f"Timed out trying to connect to {address} after {timeout}")
+
+    monkeypatch.setattr(distributed, "Client", unreachable)
+    with pytest.raises(ParamError, match="cannot reach the dask scheduler .Timed out"):
+        open_executor(scheduler="tcp://127.0.0.1:9", workers=None)
+
+
+def test_a_run_whose_scheduler_is_unreachable_is_recorded_stopped(archive, tmp_path, monkeypatch):
+    """run.json said 'running' (status: 'interrupted') for a run whose cluster never came."""
+    import json
+
+    import distributed
+
+    from pipeline.runner import run
+    from pipeline.status import status
+
+    def unreachable(address, timeout):
+        raise OSError("Timed out")
+
+    monkeypatch.setattr(distributed, "Client", unreachable)
+    out = tmp_path / "run"
+    with pytest.raises(ParamError):
+        run(archive, out, scheduler="tcp://127.0.0.1:9", stage_package="arroyo_fake_stages")
+    assert json.loads((out / "run.json").read_text())["status"] == "stopped"
+    assert status(out).run_state == "stopped"
+
+
+def test_ctrl_c_while_a_local_cluster_starts_waits_for_it_then_closes_it(monkeypatch):
+    """Bug: a ^C while the local cluster started stopped the fork server under nannies still
+    forking workers, and dask logged a traceback per nanny; the ^C now waits for the
+    cluster, which is closed before the KeyboardInterrupt goes on."""
+    import signal
+
+    import distributed
+
+    real = distributed.LocalCluster
+    made = []
+
+    def interrupted_start(*args, **kwargs):
+        os.kill(os.getpid(), signal.SIGINT)  # the terminal's ^C, in the middle of the start
+        made.append(real(*args, **kwargs))
+        return made[-1]
+
+    monkeypatch.setattr(distributed, "LocalCluster", interrupted_start)
+    handler = signal.getsignal(signal.SIGINT)
+    with pytest.raises(KeyboardInterrupt):
+        open_executor(scheduler="threads", workers=1)
+    assert made and made[0].status.name == "closed"
+    assert signal.getsignal(signal.SIGINT) is handler

@@ -70,3 +70,25 @@ def test_shipped_graph_is_ordered_and_describable():
     assert dot.startswith("digraph arroyo")
     with pytest.raises(ValueError, match="'text' or 'dot'"):
         describe_graph(graph, fmt="svg")
+
+
+def test_stage_check_params_turns_a_bad_combination_into_a_param_error():
+    """Bug: a value each Param accepts but the stage rejects (depth.windows='abc') passed
+    planning and failed every frame (exit 1); a stage's check_params now stops the run."""
+
+    def odd_k(params):
+        if params["k"] % 2 == 0:
+            raise ValueError(f"k must be odd, got {params['k']}")
+
+    stage = Stage(
+        name="a",
+        version="1",
+        inputs=(),
+        outputs=(Product("x", dtype="float32"),),
+        params=(Param("k", int, 1, "a knob", minimum=0),),
+        run=lambda inputs, *, frame, params: StageResult(),
+        check_params=odd_k,
+    )
+    assert stage.resolve_params({"k": 3}) == {"k": 3}
+    with pytest.raises(ParamError, match="stage 'a': k must be odd, got 4"):
+        stage.resolve_params({"k": 4})

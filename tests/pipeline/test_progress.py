@@ -31,7 +31,8 @@ def test_the_eta_leaves_out_the_first_frame(clock, capsys):
     assert "rate and ETA from the next frame on" in lines[0] and "f1)" in lines[0]
     # the next line 5 s or more later: frames 2-4 in 6 s, 8 frames to go at 0.5 frames/s
     assert lines[1] == "arroyo: 4/12 frames, 0.50 frames/s, ETA 16 s (last f4)"
-    assert lines[-1] == "arroyo: 12/12 frames, all done (last f12)"
+    # not "all done" (a run with failed frames said so): done is a frame status
+    assert lines[-1] == "arroyo: 12/12 frames, all processed (last f12)"
 
 
 def test_disabled_progress_prints_nothing(clock, capsys):

@@ -582,6 +582,7 @@ def test_run_in_progress_is_refused_unless_allowed(tmp_path, capsys):
         )
         err = capsys.readouterr().err
         assert code == 2 and "still in progress" in err and not target.exists()
+        assert "--allow-running" in err  # it named the Python argument only
         rows = query_runs(run, "SELECT count(*) AS n FROM descriptors", allow_running=True)
         assert rows.to_pylist() == [{"n": _expected(run, "descriptors").num_rows}]
     # the lock's holder is gone (finished or killed): its published rows are readable

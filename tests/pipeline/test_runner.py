@@ -198,3 +198,58 @@ def test_products_on_s3_equal_a_local_run_and_every_reader_finds_them(
     data = xr.open_zarr(f"{s3_products}/products.zarr")
     left, right = data.left.values[0].astype(np.float32), data.right.values[0].astype(np.float32)
     np.testing.assert_allclose(data.blend.values[0], left * 0.25 + right * 0.75)
+
+
+def test_interrupt_publishes_the_finished_frames_rows(archive, tmp_path):
+    """Bug: after ^C, frames.parquet called the finished frames done while the published
+    tables (what `arroyo query` reads) held none of their rows until the next run."""
+    out = tmp_path / "run"
+
+    def interrupt_after_two(done, total, frame_id):
+        if done == 2:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        _run(archive, out, progress=interrupt_after_two)
+    frames = pq.read_table(out / "frames.parquet").to_pylist()
+    done = sorted(f["frame_id"] for f in frames if f["status"] == "done")
+    assert len(done) == 2
+    rows = pq.read_table(out / "tallies.parquet").to_pylist()
+    assert sorted({r["frame_id"] for r in rows}) == done and len(rows) == 6
+    assert json.loads((out / "run.json").read_text())["status"] == "interrupted"
+    assert _run(archive, out).done == 4
+    assert pq.read_table(out / "tallies.parquet").num_rows == 12
+
+
+def _fail_f001_on_rerun(archive, out):
+    assert _run(archive, out).done == 4
+    left = archive.parent / "images" / "f001_left.png"
+    saved = left.read_bytes()
+    left.unlink()
+    summary = _run(archive, out)
+    assert (summary.done, summary.failed) == (3, 1)
+    return left, saved
+
+
+def test_a_frame_failing_on_rerun_loses_its_old_rows(archive, tmp_path):
+    """Bug: a frame whose input was deleted after a finished run failed on the rerun, but
+    its earlier rows stayed in the published tables (frames.parquet: failed)."""
+    out = tmp_path / "run"
+    _fail_f001_on_rerun(archive, out)
+    rows = pq.read_table(out / "tallies.parquet").to_pylist()
+    assert "f001" not in {r["frame_id"] for r in rows} and len(rows) == 9
+
+
+def test_a_failed_frame_whose_file_is_restored_is_done_again(archive, tmp_path):
+    """Bug: with the deleted file restored, the frame's old records were current again, so
+    nothing ran, and it stayed 'failed' with the old error (exit 1)."""
+    out = tmp_path / "run"
+    left, saved = _fail_f001_on_rerun(archive, out)
+    left.write_bytes(saved)
+    plan = _run(archive, out, dry_run=True)
+    assert sum(bool(t) for t in plan.todo.values()) == 0
+    summary = _run(archive, out)
+    assert (summary.done, summary.failed, summary.exit_code) == (4, 0, 0)
+    assert pq.read_table(out / "tallies.parquet").num_rows == 12
+    frames = pq.read_table(out / "frames.parquet").to_pylist()
+    assert [f["status"] for f in frames] == ["done"] * 4 and frames[1]["error"] is None

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
-from pipeline.state import PartRecord, RunState, StageRecord
+import pytest
+
+from pipeline.errors import RunDirError
+from pipeline.state import STATE_NAME, PartRecord, RunState, StageRecord
 
 
 def _record(frame: str, stage: str, key: str, parts: dict[str, str]) -> StageRecord:
@@ -33,3 +36,12 @@ def test_light_readers_agree_with_the_full_records(tmp_path):
         assert [r.figures for r in light] == [r.figures for r in records]
     finally:
         state.close()
+
+
+@pytest.mark.parametrize("readonly", [False, True])
+def test_damaged_journal_is_a_run_dir_error(tmp_path, readonly):
+    """Bug: a damaged state.sqlite ended `arroyo status` and `arroyo run` in sqlite3's
+    DatabaseError traceback."""
+    (tmp_path / STATE_NAME).write_bytes(bytes(range(256)) * 12)
+    with pytest.raises(RunDirError, match="damaged .file is not a database.; move it away"):
+        RunState(tmp_path, readonly=readonly)

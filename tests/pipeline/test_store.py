@@ -225,3 +225,21 @@ def test_a_chunk_that_only_starts_with_the_fill_value_is_written_as_zarr_writes_
     assert "c/0/0/0" in ours
     assert ours == _chunk_files(tmp_path / "products.zarr" / "zarr")
     np.testing.assert_array_equal(read_frame_array(tmp_path, "ours", 0), data)
+
+
+def test_damaged_group_metadata_says_how_to_recover(tmp_path):
+    """Bug: a damaged products.zarr/zarr.json stopped `arroyo run` with the bare JSON error
+    ('Expecting property name...'), naming no file."""
+    from pipeline.errors import RunDirError
+
+    products = {"labels": (Product("labels", dtype="int32"), (8, 8), {})}
+    ensure_zarr(tmp_path, ["a"], products)
+    meta = tmp_path / "products.zarr" / "zarr.json"
+    meta.write_text("{garbage")
+    with pytest.raises(RunDirError, match="products.zarr cannot be opened: its zarr.json is"):
+        ensure_zarr(tmp_path, ["a"], products)
+    with pytest.raises(RunDirError, match="rerun the run's catalog"):
+        pipeline.store.open_products_group(tmp_path)  # evaluate, report
+    meta.unlink()  # the advice: arroyo writes it anew, the arrays are kept
+    assert ensure_zarr(tmp_path, ["a"], products) == set()
+    assert "labels" in zarr.open_group(tmp_path / "products.zarr", mode="r")

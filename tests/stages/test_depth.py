@@ -223,3 +223,20 @@ def test_subpixel_setting_changes_only_the_fraction():
     # only the subpixel estimate differs (its accuracy: tests/stages/test_stereo.py)
     assert 0 < np.max(np.abs(blend[ok] - parabola[ok])) <= 0.5
     assert np.median(np.abs(blend[ok] - truth[ok])) < 0.1
+
+
+@pytest.mark.parametrize(
+    ("override", "words"),
+    [
+        ({"windows": "abc"}, "comma-separated odd sizes"),
+        ({"windows": "9,5"}, "increasing"),
+        ({"prefilter": 4}, "prefilter must be 0 .off. or an odd int"),
+        ({"sgm_window": 4}, "sgm_window must be an odd integer"),
+    ],
+)
+def test_settings_only_the_matcher_checks_fail_at_planning(override, words):
+    """Bug: `--set depth.windows=abc` (and an even prefilter or sgm_window) passed planning
+    and failed every frame at the depth stage; they are now a ParamError before any work."""
+    with pytest.raises(ParamError, match=words):
+        STAGE.resolve_params(override)
+    assert STAGE.resolve_params({})["windows"] == STAGE.defaults()["windows"]

@@ -135,7 +135,19 @@ def test_stage_declaration() -> None:
 
 
 def test_check_pair_shapes_accepts_equal_sizes() -> None:
-    check_pair_shapes((4, 5), (4, 5), frame_id="f", left_path="l", right_path="r")
+    check_pair_shapes((8, 9), (8, 9), frame_id="f", left_path="l", right_path="r")
     check_pair_shapes(
-        (4, 5), (4, 5), frame_id="f", left_path="l", right_path="r", archive_shape=(4, 5)
+        (8, 9), (8, 9), frame_id="f", left_path="l", right_path="r", archive_shape=(8, 9)
     )
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (7, 40)])
+def test_frame_under_the_smallest_side_fails_naming_its_files(
+    tmp_path: Path, shape: tuple[int, int]
+) -> None:
+    """Bug: a 1x1 frame (alone or the archive's size) passed ingest and depth and failed at
+    segment with 'sectors must be in [2, 0]', naming no file."""
+    image = np.full(shape, 128, np.uint8)
+    left, right = write(tmp_path / "l.png", image), write(tmp_path / "r.png", image)
+    with pytest.raises(FrameError, match=r"l\.png and .*r\.png are .* smaller than the 8x8"):
+        ingest(context(left, right, shape=shape))
