@@ -1,6 +1,6 @@
 """``arroyo`` command line: parse arguments, call one library function, map errors to exit
-codes (0 ok, 1 frames failed, 2 bad catalog/params/run directory, 3 run locked, 4 store
-error, 130 interrupted)."""
+codes (0 ok, 1 frames failed or ``status --verify`` found damage, 2 bad catalog/params/run
+directory, 3 run locked, 4 store error, 130 interrupted)."""
 
 from __future__ import annotations
 
@@ -54,8 +54,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
 def _cmd_status(args: argparse.Namespace) -> int:
     from .status import format_status, status
 
-    print(format_status(status(args.rundir, verify=args.verify)), end="")
-    return EXIT_OK
+    report = status(args.rundir, verify=args.verify)
+    print(format_status(report), end="")
+    # a script checking an archive must see damage without parsing the text
+    return EXIT_FAILED_FRAMES if report.damaged else EXIT_OK
 
 
 def _cmd_graph(args: argparse.Namespace) -> int:
@@ -148,7 +150,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--verify",
         action="store_true",
-        help="check recorded checksums; damaged results are redone by the next run",
+        help="check recorded checksums (exit 1 if any is damaged); damaged results are "
+        "redone by the next run",
     )
     p.set_defaults(func=_cmd_status)
 

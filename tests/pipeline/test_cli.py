@@ -186,3 +186,17 @@ def test_damaged_run_json_says_how_to_recover(archive, tmp_path, capsys):
     (out / "run.json").unlink()
     assert main(argv) == 0
     assert "4 done" in capsys.readouterr().out
+
+
+def test_status_verify_exits_1_on_damage(archive, tmp_path, capsys):
+    """Regression: `status --verify` exited 0 after finding a deleted chunk, so a script
+    checking an archive could not tell damage from a clean run without parsing the text."""
+    out = tmp_path / "run"
+    assert main(["run", str(archive), "--out", str(out), "--scheduler", "synchronous"]) == 0
+    assert main(["status", str(out), "--verify"]) == 0
+    chunks = (out / "products.zarr" / "blend").rglob("*")
+    chunk = next(p for p in chunks if p.is_file() and p.name != "zarr.json")
+    chunk.unlink()
+    assert main(["status", str(out), "--verify"]) == 1
+    assert "problem(s)" in capsys.readouterr().out
+    assert main(["status", str(out)]) == 0  # without --verify: counts only
