@@ -10,6 +10,16 @@ The image's size is read from its header *before* decoding, so an oversized imag
 rejected without allocating its pixels, and truncation is checked from the header too
 (OpenCV silently decodes some truncated files partially): see :mod:`stages._imageheaders`.
 
+Corrupt JPEG scan data (bytes zeroed or flipped inside the entropy-coded data, a scan cut
+short with an end-of-image marker still after it) decodes *without error*: libjpeg only
+writes a warning such as ``Corrupt JPEG data: premature end of data segment`` to the
+process's standard error and fills the damaged blocks with made-up pixels. OpenCV offers no
+hook for these warnings (nor does Pillow, which swallows them), so a JPEG is decoded with
+file descriptor 2 redirected to a temporary file and libjpeg's corruption warnings found
+there fail the frame (:func:`_imdecode_jpeg`); other lines written meanwhile are passed on.
+Damage that still decodes to valid Huffman codes in the right number is invisible to libjpeg
+and is not detected.
+
 Conversion to 8-bit gray (each step adds a note to the frame's record):
 
 * colour (BGR/BGRA) -> gray with OpenCV's ``COLOR_BGR2GRAY`` weights
@@ -30,6 +40,9 @@ from __future__ import annotations
 import hashlib
 import os
 import stat
+import sys
+import tempfile
+import threading
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -131,12 +144,21 @@ def decode_gray(
                 f"{header.width * header.height} pixels, more than the limit of {max_pixels} "
                 "(ingest.max_pixels); raise the limit or tile/downsample the image"
             )
+        buffer = np.frombuffer(data, dtype=np.uint8)
+        corrupt: list[str] = []
         try:
-            decoded = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
+            if header.format == "JPEG":
+                decoded, corrupt = _imdecode_jpeg(buffer)
+            else:
+                decoded = cv2.imdecode(buffer, cv2.IMREAD_UNCHANGED)
         except cv2.error as exc:
             raise ValueError(
                 f"{header.format} data cannot be decoded ({_first_line(exc)})"
             ) from None
+        if corrupt:
+            raise ValueError(
+                f"corrupt JPEG data ({'; '.join(corrupt)}); re-export or replace the file"
+            )
         if decoded is None or decoded.size == 0:
             raise ValueError(
                 f"{header.format} data is corrupt or an unsupported variant of the format"
@@ -155,6 +177,65 @@ def decode_gray(
         nbytes=len(data),
         format=header.format,
     )
+
+
+# libjpeg's warnings that mean damaged entropy-coded data (jerror.h: JWRN_HIT_MARKER,
+# JWRN_EXTRANEOUS_DATA, JWRN_HUFF_BAD_CODE, JWRN_ARITH_BAD_CODE, JWRN_MUST_RESYNC,
+# JWRN_JPEG_EOF, JWRN_BOGUS_PROGRESSION, JWRN_NOT_SEQUENTIAL); harmless ones ("Warning:
+# unknown JFIF revision number") are passed on.
+_LIBJPEG_CORRUPT = (
+    "Corrupt JPEG data: ",
+    "Premature end of JPEG file",
+    "Inconsistent progression sequence",
+    "Invalid SOS parameters",
+)
+# fd 2 is one per process: a single JPEG decode at a time may redirect it.
+_STDERR_LOCK = threading.Lock()
+
+
+def _imdecode_jpeg(buffer: np.ndarray) -> tuple[np.ndarray | None, list[str]]:
+    """``cv2.imdecode`` of JPEG bytes, with libjpeg's corruption warnings.
+
+    libjpeg reports damaged scan data only by a line on the C ``stderr`` (file descriptor 2),
+    then decodes on with made-up blocks. The descriptor is pointed at a temporary file for
+    the decode; the corruption lines are returned (their ``Corrupt JPEG data: `` prefix
+    dropped) and every other line, perhaps written by another thread meanwhile, is written
+    on to the real standard error.
+    """
+    with _STDERR_LOCK, tempfile.TemporaryFile() as sink:
+        try:
+            sys.stderr.flush()  # Python's buffered text must not land in the sink
+        except (AttributeError, OSError, ValueError):
+            pass
+        try:
+            saved: int | None = os.dup(2)
+        except OSError:
+            saved = None  # fd 2 closed: libjpeg's fprintf would go nowhere
+        try:
+            os.dup2(sink.fileno(), 2)
+            try:
+                decoded = cv2.imdecode(buffer, cv2.IMREAD_UNCHANGED)
+            finally:
+                if saved is None:
+                    os.close(2)
+                else:
+                    os.dup2(saved, 2)
+            sink.seek(0)
+            lines = sink.read().decode("utf-8", "replace").splitlines(keepends=True)
+            corrupt, other = [], []
+            for line in lines:
+                text = line.strip()
+                if text.startswith(_LIBJPEG_CORRUPT):
+                    corrupt.append(text.removeprefix("Corrupt JPEG data: "))
+                elif text:
+                    other.append(line)
+            passed = "".join(other).encode("utf-8", "replace")
+            while passed and saved is not None:
+                passed = passed[os.write(saved, passed) :]
+        finally:
+            if saved is not None:
+                os.close(saved)
+    return decoded, corrupt
 
 
 def _coerce_max_pixels(max_pixels: Any) -> int:

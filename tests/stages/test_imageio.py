@@ -6,6 +6,8 @@ import hashlib
 import os
 import struct
 import zlib
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import cv2
@@ -385,3 +387,150 @@ def test_permission_denied_message_even_as_root(
 
     monkeypatch.setattr(_imageio, "open", denied, raising=False)
     assert_frame_error(path, "permission denied")
+
+
+# --- corrupt JPEG scan data ---------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def texture() -> np.ndarray:
+    rng = np.random.default_rng(12)
+    yy, xx = np.mgrid[:96, :128]
+    wave = 60 * np.sin(xx / 7.0) * np.cos(yy / 9.0)
+    return (128 + wave + rng.normal(0, 20, yy.shape)).clip(0, 255).astype(np.uint8)
+
+
+def _jpeg(image: np.ndarray, *params: int) -> bytes:
+    ok, buffer = cv2.imencode(".jpg", image, list(params))
+    assert ok
+    return buffer.tobytes()
+
+
+def _scan(data: bytes) -> tuple[int, int]:
+    """Start (after the SOS header) and end (the final FF D9) of a JPEG's scan data."""
+    sos = data.index(b"\xff\xda")
+    start = sos + 2 + struct.unpack(">H", data[sos + 2 : sos + 4])[0]
+    assert data.endswith(b"\xff\xd9")
+    return start, len(data) - 2
+
+
+def _zeroed_middle(data: bytes, count: int = 64) -> bytes:
+    start, end = _scan(data)
+    middle = (start + end) // 2
+    return data[:middle] + bytes(count) + data[middle + count :]
+
+
+def _flipped(data: bytes) -> bytes:
+    start, end = _scan(data)
+    damaged = bytearray(data)
+    for k in range(1, 6):
+        damaged[start + (end - start) * k // 7] ^= 0x5A
+    return bytes(damaged)
+
+
+def _cut_keeping_eoi(data: bytes) -> bytes:
+    start, end = _scan(data)
+    return data[: (start + end) // 2] + b"\xff\xd9"
+
+
+def _colour(texture: np.ndarray) -> np.ndarray:
+    return np.dstack([texture, np.roll(texture, 3, 0), np.roll(texture, 5, 1)])
+
+
+JPEG_VARIANTS = {
+    "baseline": (),
+    "restart markers": (cv2.IMWRITE_JPEG_RST_INTERVAL, 2),
+    "progressive": (cv2.IMWRITE_JPEG_PROGRESSIVE, 1),
+    "optimised": (cv2.IMWRITE_JPEG_OPTIMIZE, 1),
+}
+
+
+@pytest.mark.parametrize("variant", list(JPEG_VARIANTS))
+@pytest.mark.parametrize("channels", [1, 3])
+def test_good_jpeg_decodes_as_opencv_does(
+    tmp_path: Path, texture: np.ndarray, variant: str, channels: int, capfd: pytest.CaptureFixture
+) -> None:
+    image = texture if channels == 1 else _colour(texture)
+    data = _jpeg(image, *JPEG_VARIANTS[variant])
+    assert (b"\xff\xd0" in data) == (variant == "restart markers")  # RST0 markers
+    path = tmp_path / "good.jpg"
+    path.write_bytes(data)
+    expected = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
+    if channels == 3:
+        expected = cv2.cvtColor(expected, cv2.COLOR_BGR2GRAY)
+    decoded = read_gray(path)
+    assert decoded.format == "JPEG"
+    np.testing.assert_array_equal(decoded.image, expected)
+    assert "JPEG" not in capfd.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("damage", "reason"),
+    [
+        (_zeroed_middle, "corrupt JPEG data ("),
+        (_flipped, "corrupt JPEG data ("),
+        (_cut_keeping_eoi, "corrupt JPEG data (premature end of data segment)"),
+    ],
+)
+@pytest.mark.parametrize("variant", list(JPEG_VARIANTS))
+def test_corrupt_jpeg_scan_data_fails_the_frame(
+    tmp_path: Path,
+    texture: np.ndarray,
+    damage: Callable[[bytes], bytes],
+    reason: str,
+    variant: str,
+    capfd: pytest.CaptureFixture,
+) -> None:
+    path = tmp_path / "damaged.jpg"
+    path.write_bytes(damage(_jpeg(_colour(texture), *JPEG_VARIANTS[variant])))
+    message = assert_frame_error(path, reason, "re-export or replace the file")
+    assert message.startswith(f"{path}: corrupt JPEG data (")
+    # libjpeg's own line, which names no file, is not left on the process's stderr
+    assert "Corrupt JPEG data" not in capfd.readouterr().err
+
+
+def test_regression_corrupt_jpeg_scan_decoded_without_error(
+    tmp_path: Path, texture: np.ndarray
+) -> None:
+    """Audit bug: a JPEG whose scan data was zeroed in the middle (FF D9 still at the end)
+    decoded through cv2.imdecode with only libjpeg's "Corrupt JPEG data: ... extraneous bytes
+    before marker 0xd9" on stderr, and the frame ended done with damaged pixels."""
+    data = _jpeg(texture)
+    damaged = _zeroed_middle(data)
+    read_header(damaged)  # complete as far as the header check can tell
+    pixels = cv2.imdecode(np.frombuffer(damaged, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
+    assert pixels is not None and not np.array_equal(pixels, decode_gray(data).image)
+    path = tmp_path / "left_0007.jpg"
+    path.write_bytes(damaged)
+    assert_frame_error(path, "corrupt JPEG data (", "extraneous bytes before marker 0xd9")
+
+
+def test_other_stderr_lines_during_a_jpeg_decode_are_passed_on(
+    texture: np.ndarray, monkeypatch: pytest.MonkeyPatch, capfd: pytest.CaptureFixture
+) -> None:
+    data = _jpeg(texture)
+    imdecode = cv2.imdecode
+
+    def chatty(buffer: np.ndarray, flags: int) -> np.ndarray | None:
+        os.write(2, b"a line from another thread\n")
+        return imdecode(buffer, flags)
+
+    monkeypatch.setattr(_imageio.cv2, "imdecode", chatty)
+    assert decode_gray(data, name="a.jpg").image.shape == texture.shape
+    assert "a line from another thread" in capfd.readouterr().err
+
+
+def test_concurrent_jpeg_decodes_each_get_their_own_verdict(texture: np.ndarray) -> None:
+    good, bad = _jpeg(texture), _cut_keeping_eoi(_jpeg(texture))
+
+    def verdict(index: int) -> bool:
+        try:
+            decode_gray(bad if index % 2 else good, name=f"f{index}.jpg")
+        except FrameError as exc:
+            assert f"f{index}.jpg" in str(exc)
+            return False
+        return True
+
+    with ThreadPoolExecutor(max_workers=4) as pool:
+        verdicts = list(pool.map(verdict, range(24)))
+    assert verdicts == [index % 2 == 0 for index in range(24)]
