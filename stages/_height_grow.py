@@ -366,7 +366,6 @@ def _grow(
         return labels, 0
     mean_contrast = _ground_mean(contrast, labels == 0)
     rows, cols = labels.shape
-    step = np.ones((3, 3), np.uint8)
     disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * open_px + 1,) * 2)
     out = labels.copy()
     grown = 0
@@ -387,12 +386,10 @@ def _grow(
         # not above the object's top row: the stereo windows spread a rock's heights up
         # onto the ground behind it, which the camera sees beyond its top
         free[: sy.start - y0] = False
-        reached = obj
-        for _ in range(max_steps):
-            more = reached | (free & cv2.dilate(reached.view(np.uint8), step).view(bool))
-            if np.count_nonzero(more) == np.count_nonzero(reached):
-                break
-            reached = more
+        # up to max_steps 8-connected steps over free pixels (one compiled breadth-first
+        # pass: the pixels max_steps rounds of a 3x3 dilation within ``free`` reach)
+        reached = obj.copy()
+        _reach_steps(reached, free, max_steps)
         # less the tongues a grown object's opening cuts off: a rock's width is its widest
         # spread, and the fringe reaches out in strands
         reached = obj | cv2.morphologyEx(reached.view(np.uint8), cv2.MORPH_OPEN, disk).view(bool)
@@ -408,6 +405,36 @@ def _grow(
     for k, y0, y1, x0, x1 in changed:
         _remeasure(_measures, out, contrast, relative, k, (y0, y1, x0, x1))
     return out, grown
+
+
+@njit(cache=True)
+def _reach_steps(reached, free, max_steps):  # pragma: no cover - numba
+    # ``reached`` (the object, in place) grows by breadth-first 8-connected steps over
+    # ``free`` pixels, at most ``max_steps`` of them
+    rows, cols = reached.shape
+    frontier = np.empty((rows * cols, 2), np.int64)
+    n = 0
+    for y in range(rows):
+        for x in range(cols):
+            if reached[y, x]:
+                frontier[n, 0] = y
+                frontier[n, 1] = x
+                n += 1
+    start = 0
+    for _ in range(max_steps):
+        stop = n
+        for i in range(start, stop):
+            y, x = frontier[i, 0], frontier[i, 1]
+            for ny in range(max(y - 1, 0), min(y + 2, rows)):
+                for nx in range(max(x - 1, 0), min(x + 2, cols)):
+                    if free[ny, nx] and not reached[ny, nx]:
+                        reached[ny, nx] = True
+                        frontier[n, 0] = ny
+                        frontier[n, 1] = nx
+                        n += 1
+        if n == stop:
+            break
+        start = stop
 
 
 def _measure(

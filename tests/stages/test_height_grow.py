@@ -11,6 +11,7 @@ from stages._height_grow import (
     _grow,
     _measure,
     _median_row,
+    _reach_steps,
     grow_raised_parts,
 )
 
@@ -244,3 +245,23 @@ def test_cases_sharing_their_measures_equal_cases_measuring_again():
             np.testing.assert_array_equal(shared[key][1:], values[1:])
         total += grown
     assert total > 0
+
+
+def test_reach_steps_equal_rounds_of_a_dilation_within_the_free_pixels():
+    # the twin: the loop of 3x3 dilations the compiled breadth-first pass replaced
+    rng = np.random.default_rng(6)
+    for _ in range(60):
+        shape = tuple(rng.integers(1, 40, 2))
+        obj = rng.random(shape) < 0.03
+        free = (rng.random(shape) < rng.uniform(0.3, 0.9)) & ~obj
+        steps = int(rng.integers(1, 15))
+        twin = obj
+        for _ in range(steps):
+            near = cv2.dilate(twin.view(np.uint8), np.ones((3, 3), np.uint8)).view(bool)
+            more = twin | (free & near)
+            if np.count_nonzero(more) == np.count_nonzero(twin):
+                break
+            twin = more
+        reached = obj.copy()
+        _reach_steps(reached, free, steps)
+        np.testing.assert_array_equal(reached, twin)
