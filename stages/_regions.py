@@ -189,7 +189,10 @@ def _split_at_edges(labels: np.ndarray, edges: np.ndarray, min_area_px: int) -> 
         reach = int(np.ceil(np.hypot(y1 - y0 + 1, x1 - x0 + 1)))
         ys = slice(max(0, y0 - reach), min(h, y1 + reach + 1))
         xs = slice(max(0, x0 - reach), min(w, x1 + reach + 1))
-        _, (iy, ix) = distance_transform_edt(~core_pixels[ys, xs], return_indices=True)
+        # the nearest core's indices alone (the distances, worked out from them, unread)
+        iy, ix = distance_transform_edt(
+            ~core_pixels[ys, xs], return_distances=False, return_indices=True
+        )
         nearest = cores[ys, xs][iy, ix]
         mine = (labels[ys, xs] == k) & (parent[nearest] == k)
         result[ys, xs][mine] = offset + nearest[mine]
