@@ -304,3 +304,34 @@ def test_a_border_sector_whose_highest_mode_is_a_rock_finds_its_ramp_in_the_next
     assert not analysis.phantom.any()
     assert np.all((analysis.background[0] > 50) & (analysis.background[0] < 92))
     assert np.all(analysis.low[0, 2:5] > 15 + 4)  # the rock is still object
+
+
+def _predict_all_twin(level):
+    """_predict_all as it was before its compiled pass: shifted copies of a padded grid."""
+    n = level.shape[0]
+    padded = np.full((n + 2, n + 2), np.nan)
+    padded[1:-1, 1:-1] = level
+    decided = np.isfinite(padded)
+    values = np.where(decided, padded, 0.0)
+    total = np.zeros((n, n))
+    weight = np.zeros((n, n))
+    for dy, dx in [(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if (dy, dx) != (0, 0)]:
+        w = 1.0 if dy == 0 or dx == 0 else 1.0 / np.sqrt(2.0)
+        window = (slice(1 + dy, n + 1 + dy), slice(1 + dx, n + 1 + dx))
+        total += np.where(decided[window], w * values[window], 0.0)
+        weight += np.where(decided[window], w, 0.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        predicted = np.where(weight > 0, total / weight, np.nan)
+    return predicted, weight
+
+
+def test_predict_all_equals_its_shifted_copies_twin():
+    from stages._continuity import _predict_all
+
+    rng = np.random.default_rng(20)
+    for _ in range(50):
+        n = int(rng.integers(2, 20))
+        level = rng.uniform(0, 255, (n, n))
+        level[rng.random((n, n)) < rng.uniform(0, 1)] = np.nan
+        for got, want in zip(_predict_all(level), _predict_all_twin(level), strict=True):
+            np.testing.assert_array_equal(got.view(np.int64), want.view(np.int64))
