@@ -415,13 +415,26 @@ def _carried_level(level: np.ndarray, i: int, j: int, *, max_step: float, max_sp
 
 
 def _nearest_mode(positions, heights, predicted: float, reach: float) -> float | None:
-    """The mode nearest ``predicted`` within ``reach`` (the higher breaks ties), or None."""
-    distance = np.abs(positions - predicted)
-    candidates = np.flatnonzero(distance <= reach)
-    if candidates.size == 0:
-        return None
-    pick = candidates[np.lexsort((-heights[candidates], distance[candidates]))[0]]
-    return float(positions[pick])
+    """The mode nearest ``predicted`` within ``reach`` (the higher breaks ties, then the
+    first), or None; a compiled loop over the few modes (the pick of a lexsort by distance
+    and height, without its whole-array calls; ``test_continuity.py`` compares)."""
+    pick = _nearest_pass(positions, heights, float(predicted), float(reach))
+    return None if pick < 0 else float(positions[pick])
+
+
+@njit(cache=True)
+def _nearest_pass(positions, heights, predicted, reach):  # pragma: no cover - numba
+    pick = -1
+    best_distance = 0.0
+    for k in range(positions.size):
+        distance = abs(positions[k] - predicted)
+        if not distance <= reach:
+            continue
+        if pick < 0 or distance < best_distance or (
+            distance == best_distance and heights[k] > heights[pick]
+        ):
+            pick, best_distance = k, distance
+    return pick
 
 
 def _ground_shows(smoothed: np.ndarray, predicted: float) -> bool:

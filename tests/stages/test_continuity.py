@@ -335,3 +335,22 @@ def test_predict_all_equals_its_shifted_copies_twin():
         level[rng.random((n, n)) < rng.uniform(0, 1)] = np.nan
         for got, want in zip(_predict_all(level), _predict_all_twin(level), strict=True):
             np.testing.assert_array_equal(got.view(np.int64), want.view(np.int64))
+
+
+def test_nearest_mode_equals_the_pick_of_its_lexsort_twin():
+    # the twin: the mode nearest within reach by np.lexsort (height breaks ties, then order)
+    from stages._continuity import _nearest_mode
+
+    rng = np.random.default_rng(21)
+    for _ in range(500):
+        positions = np.sort(rng.choice(256, size=int(rng.integers(0, 8)), replace=False))
+        heights = rng.integers(1, 4, positions.size).astype(np.float64)  # ties happen
+        predicted = float(rng.choice([rng.uniform(0, 255), rng.integers(0, 256), np.nan]))
+        reach = float(rng.integers(1, 40))
+        distance = np.abs(positions - predicted)
+        candidates = np.flatnonzero(distance <= reach)
+        want = None
+        if candidates.size:
+            pick = candidates[np.lexsort((-heights[candidates], distance[candidates]))[0]]
+            want = float(positions[pick])
+        assert _nearest_mode(positions, heights, predicted, reach) == want
