@@ -435,25 +435,69 @@ def _reach_pass(reach, contrast, sign, free, out):  # pragma: no cover - numba
 
 def _fill_seeded_holes(seeded: np.ndarray, parts: np.ndarray) -> np.ndarray:
     """``seeded[parts]`` with every background pocket it encloses (8-connected outline)
-    filled; the padded flood image is written straight from the parts (one compiled pass
-    for the lookup, the padding and the negation; ``test_blobs.py`` compares)."""
-    outside = np.empty((parts.shape[0] + 2, parts.shape[1] + 2), np.uint8)
-    _pad_outside(seeded, np.ascontiguousarray(parts), outside)
-    # flood the background from the border; what it cannot reach is enclosed
-    cv2.floodFill(outside, None, (0, 0), 2, flags=4)
-    return outside[1:-1, 1:-1] != 2
+    filled.
+
+    Each seeded part's own pockets, flooded in its box alone (one compiled pass): the
+    parts are 8-connected components, so no two touch, and a pocket two of them enclose
+    together does not exist -- a 4-connected pocket is enclosed by one 8-connected part
+    (the 8/4 pairing of digital topology), with whatever lies inside. The same pixels as
+    flooding the whole frame's background from its border (``test_blobs.py`` compares
+    the pad-and-flood twin).
+    """
+    filled = np.empty(parts.shape, bool)
+    _fill_parts(np.ascontiguousarray(seeded), np.ascontiguousarray(parts), filled)
+    return filled
 
 
 @njit(cache=True)
-def _pad_outside(seeded, parts, outside):  # pragma: no cover - numba
+def _fill_parts(seeded, parts, filled):  # pragma: no cover - numba
     rows, cols = parts.shape
-    outside[0, :] = 1
-    outside[rows + 1, :] = 1
+    n = seeded.size
+    y0 = np.full(n, rows)
+    y1 = np.full(n, -1)
+    x0 = np.full(n, cols)
+    x1 = np.full(n, -1)
     for y in range(rows):
-        outside[y + 1, 0] = 1
-        outside[y + 1, cols + 1] = 1
         for x in range(cols):
-            outside[y + 1, x + 1] = 0 if seeded[parts[y, x]] else 1
+            p = parts[y, x]
+            filled[y, x] = seeded[p]
+            if seeded[p]:
+                y0[p] = min(y0[p], y)
+                y1[p] = y
+                x0[p] = min(x0[p], x)
+                x1[p] = max(x1[p], x)
+    stack = np.empty(((rows + 2) * (cols + 2), 2), np.int64)
+    for p in range(n):
+        if not seeded[p] or y1[p] < 0:
+            continue
+        # the part's box grown by a pixel (the edge, maybe outside the frame, is not the
+        # part's): its other pixels reached from that edge through 4-steps are outside
+        top_row, left = y0[p] - 1, x0[p] - 1
+        height, width = y1[p] - y0[p] + 3, x1[p] - x0[p] + 3
+        outside = np.zeros((height, width), np.bool_)
+        n_stack = 0
+        for i in range(height):
+            for j in range(width):
+                if i == 0 or j == 0 or i == height - 1 or j == width - 1:
+                    outside[i, j] = True
+                    stack[n_stack, 0] = i
+                    stack[n_stack, 1] = j
+                    n_stack += 1
+        while n_stack > 0:
+            n_stack -= 1
+            i, j = stack[n_stack, 0], stack[n_stack, 1]
+            for ni, nj in ((i + 1, j), (i - 1, j), (i, j + 1), (i, j - 1)):
+                # the edge is marked already: a neighbour not marked lies in the frame
+                if 0 <= ni < height and 0 <= nj < width and not outside[ni, nj]:
+                    if parts[top_row + ni, left + nj] != p:
+                        outside[ni, nj] = True
+                        stack[n_stack, 0] = ni
+                        stack[n_stack, 1] = nj
+                        n_stack += 1
+        for i in range(1, height - 1):
+            for j in range(1, width - 1):
+                if not outside[i, j]:
+                    filled[top_row + i, left + j] = True
 
 
 def _is_solid(region: np.ndarray, *, min_solidity: float) -> bool:

@@ -364,23 +364,43 @@ def _predict_all(level: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Weighted mean of decided neighbours' levels and the total weight, per sector.
 
     Edge neighbours weigh 1, diagonal ones 1/sqrt(2); NaN prediction where none is decided.
+    One compiled pass adding the neighbours in ``_NEIGHBOURS`` order, an undecided one as
+    0.0 (the sums of the whole-grid shifted copies it replaced; ``test_continuity.py``
+    compares them).
     """
     n = level.shape[0]
-    padded = np.full((n + 2, n + 2), np.nan)
-    padded[1:-1, 1:-1] = level
-    decided = np.isfinite(padded)
-    values = np.where(decided, padded, 0.0)
-    total = np.zeros((n, n))
-    weight = np.zeros((n, n))
-    for dy, dx in _NEIGHBOURS:
-        w = 1.0 if dy == 0 or dx == 0 else 1.0 / math.sqrt(2.0)
-        window = (slice(1 + dy, n + 1 + dy), slice(1 + dx, n + 1 + dx))
-        # undecided neighbours add exactly 0.0, which leaves the running sums unchanged
-        total += np.where(decided[window], w * values[window], 0.0)
-        weight += np.where(decided[window], w, 0.0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        predicted = np.where(weight > 0, total / weight, math.nan)
+    predicted = np.empty((n, n))
+    weight = np.empty((n, n))
+    _predict_pass(
+        np.ascontiguousarray(level, dtype=np.float64), _NEIGHBOUR_STEPS, predicted, weight
+    )
     return predicted, weight
+
+
+# _NEIGHBOURS as (dy, dx, weight) rows for the compiled pass
+_NEIGHBOUR_STEPS = np.array(
+    [(dy, dx, 1.0 if dy == 0 or dx == 0 else 1.0 / math.sqrt(2.0)) for dy, dx in _NEIGHBOURS]
+)
+
+
+@njit(cache=True)
+def _predict_pass(level, steps, predicted, weight):  # pragma: no cover - numba
+    n = level.shape[0]
+    for i in range(n):
+        for j in range(n):
+            total = 0.0
+            sum_w = 0.0
+            for s in range(steps.shape[0]):
+                y, x, w = i + int(steps[s, 0]), j + int(steps[s, 1]), steps[s, 2]
+                if 0 <= y < n and 0 <= x < n and np.isfinite(level[y, x]):
+                    total += w * level[y, x]
+                    sum_w += w
+                else:
+                    # as the whole-grid sums: an undecided neighbour adds exactly 0.0
+                    total += 0.0
+                    sum_w += 0.0
+            weight[i, j] = sum_w
+            predicted[i, j] = total / sum_w if sum_w > 0 else math.nan
 
 
 def _carried_level(level: np.ndarray, i: int, j: int, *, max_step: float, max_spread: float):
@@ -412,13 +432,26 @@ def _carried_level(level: np.ndarray, i: int, j: int, *, max_step: float, max_sp
 
 
 def _nearest_mode(positions, heights, predicted: float, reach: float) -> float | None:
-    """The mode nearest ``predicted`` within ``reach`` (the higher breaks ties), or None."""
-    distance = np.abs(positions - predicted)
-    candidates = np.flatnonzero(distance <= reach)
-    if candidates.size == 0:
-        return None
-    pick = candidates[np.lexsort((-heights[candidates], distance[candidates]))[0]]
-    return float(positions[pick])
+    """The mode nearest ``predicted`` within ``reach`` (the higher breaks ties, then the
+    first), or None; a compiled loop over the few modes (the pick of a lexsort by distance
+    and height, without its whole-array calls; ``test_continuity.py`` compares)."""
+    pick = _nearest_pass(positions, heights, float(predicted), float(reach))
+    return None if pick < 0 else float(positions[pick])
+
+
+@njit(cache=True)
+def _nearest_pass(positions, heights, predicted, reach):  # pragma: no cover - numba
+    pick = -1
+    best_distance = 0.0
+    for k in range(positions.size):
+        distance = abs(positions[k] - predicted)
+        if not distance <= reach:
+            continue
+        if pick < 0 or distance < best_distance or (
+            distance == best_distance and heights[k] > heights[pick]
+        ):
+            pick, best_distance = k, distance
+    return pick
 
 
 def _ground_shows(smoothed: np.ndarray, predicted: float) -> bool:

@@ -135,6 +135,7 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+from numba import njit
 
 from ._heights import _percentiles_by_label
 from ._regions import _box_window, _label_areas, _object_boxes
@@ -297,7 +298,14 @@ def grow_raised_parts(
         )
     if fraction == 0:
         return labels, 0
-    common = {"max_noise_m": max_noise_m, "min_height_m": min_height_m, "max_steps": max_steps}
+    # the objects' sizes, cores, sides and boxes, measured once and kept up to date by each
+    # case for the objects it grows (the others' pixels do not change)
+    common = {
+        "max_noise_m": max_noise_m,
+        "min_height_m": min_height_m,
+        "max_steps": max_steps,
+        "_measures": {},
+    }
     labels, grown = _grow(
         labels,
         contrast,
@@ -342,6 +350,7 @@ def grow_raised_parts(
             max_steps=_BROAD_STEPS,
             max_gain=_BROAD_GAIN,
             open_px=_BROAD_OPEN_PX,
+            _measures=common["_measures"],
         )
         grown += more
     return labels, grown
@@ -362,39 +371,35 @@ def _grow(
     max_steps: int,
     max_gain: float,
     open_px: int = _OPEN_PX,
+    _measures: dict | None = None,
 ) -> tuple[np.ndarray, int]:
-    """One case of R7f with its thresholds (checked by :func:`grow_raised_parts`)."""
+    """One case of R7f with its thresholds (checked by :func:`grow_raised_parts`).
+
+    ``_measures`` (empty at first) keeps :func:`_measure`'s sizes, cores, sides and boxes of
+    ``labels`` for the next case, which must be given this call's result.
+    """
     count = int(labels.max())
     if count == 0:
         return labels, 0
-    sizes = _label_areas(labels, count + 1)
-    inside = labels > 0
-    judged = inside & np.isfinite(relative)
-    core = _percentiles_by_label(
-        relative[judged].astype(np.float32), labels[judged], count + 1, (_CORE_PERCENTILE,)
-    )[0]
-    side = np.sign(
-        _percentiles_by_label(
-            contrast[inside].astype(np.float32), labels[inside], count + 1, (50.0,)
-        )[0]
-    )
-    core[~np.isfinite(core)] = -np.inf
+    if _measures is None:
+        _measures = {}
+    if not _measures:
+        _measures.update(_measure(labels, contrast, relative, count))
+    sizes, core, side, boxes = (_measures[key] for key in ("sizes", "core", "side", "boxes"))
     candidates = np.flatnonzero((sizes >= min_object_px) & (core >= min_height_m) & (side != 0))
     candidates = candidates[candidates > 0]
     if candidates.size == 0:
         return labels, 0
     mean_contrast = _ground_mean(contrast, labels == 0)
-    # find_objects' slices from one compiled pass (the candidates are present)
-    spans = [_box_window(box) for box in _object_boxes(labels, count)[1:]]
     rows, cols = labels.shape
-    step = np.ones((3, 3), np.uint8)
     disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * open_px + 1,) * 2)
     out = labels.copy()
     grown = 0
+    changed = []
     for k in candidates[np.argsort(-core[candidates], kind="stable")]:
-        sy, sx = spans[k - 1]
+        sy, sx = _box_window(boxes[k])
         own = labels[sy, sx] == k
-        noise = float(row_noise[sy.start + int(np.median(np.nonzero(own)[0]))])
+        noise = float(row_noise[sy.start + _median_row(own)])
         if noise > max_noise_m or core[k] < core_sigmas * noise:
             continue
         y0, x0 = max(0, sy.start - max_steps), max(0, sx.start - max_steps)
@@ -407,12 +412,10 @@ def _grow(
         # not above the object's top row: the stereo windows spread a rock's heights up
         # onto the ground behind it, which the camera sees beyond its top
         free[: sy.start - y0] = False
-        reached = obj
-        for _ in range(max_steps):
-            more = reached | (free & cv2.dilate(reached.view(np.uint8), step).view(bool))
-            if np.count_nonzero(more) == np.count_nonzero(reached):
-                break
-            reached = more
+        # up to max_steps 8-connected steps over free pixels (one compiled breadth-first
+        # pass: the pixels max_steps rounds of a 3x3 dilation within ``free`` reach)
+        reached = obj.copy()
+        _reach_steps(reached, free, max_steps)
         # less the tongues a grown object's opening cuts off: a rock's width is its widest
         # spread, and the fringe reaches out in strands
         reached = obj | cv2.morphologyEx(reached.view(np.uint8), cv2.MORPH_OPEN, disk).view(bool)
@@ -422,18 +425,198 @@ def _grow(
             continue
         box[added] = k
         grown += n_added
+        changed.append((k, y0, y1, x0, x1))
     if not grown:
         return labels, 0
+    for k, y0, y1, x0, x1 in changed:
+        _remeasure(_measures, out, contrast, relative, k, (y0, y1, x0, x1))
     return out, grown
+
+
+@njit(cache=True)
+def _reach_steps(reached, free, max_steps):  # pragma: no cover - numba
+    # ``reached`` (the object, in place) grows by breadth-first 8-connected steps over
+    # ``free`` pixels, at most ``max_steps`` of them
+    rows, cols = reached.shape
+    frontier = np.empty((rows * cols, 2), np.int64)
+    n = 0
+    for y in range(rows):
+        for x in range(cols):
+            if reached[y, x]:
+                frontier[n, 0] = y
+                frontier[n, 1] = x
+                n += 1
+    start = 0
+    for _ in range(max_steps):
+        stop = n
+        for i in range(start, stop):
+            y, x = frontier[i, 0], frontier[i, 1]
+            for ny in range(max(y - 1, 0), min(y + 2, rows)):
+                for nx in range(max(x - 1, 0), min(x + 2, cols)):
+                    if free[ny, nx] and not reached[ny, nx]:
+                        reached[ny, nx] = True
+                        frontier[n, 0] = ny
+                        frontier[n, 1] = nx
+                        n += 1
+        if n == stop:
+            break
+        start = stop
+
+
+def _measure(
+    labels: np.ndarray, contrast: np.ndarray, relative: np.ndarray, count: int
+) -> dict[str, np.ndarray]:
+    """Per label 0..count: pixels, core (75th percentile of the valid relative heights,
+    -inf without any), the sign of the median contrast, and the inclusive box."""
+    sizes = _label_areas(labels, count + 1)
+    inside = labels > 0
+    judged = inside & np.isfinite(relative)
+    core = _percentiles_by_label(
+        relative[judged].astype(np.float32), labels[judged], count + 1, (_CORE_PERCENTILE,)
+    )[0]
+    side = np.sign(
+        _percentiles_by_label(
+            contrast[inside].astype(np.float32), labels[inside], count + 1, (50.0,)
+        )[0]
+    )
+    core[~np.isfinite(core)] = -np.inf
+    # find_objects' boxes from one compiled pass
+    return {"sizes": sizes, "core": core, "side": side, "boxes": _object_boxes(labels, count)}
+
+
+def _remeasure(
+    measures: dict[str, np.ndarray],
+    labels: np.ndarray,
+    contrast: np.ndarray,
+    relative: np.ndarray,
+    k: int,
+    window: tuple[int, int, int, int],
+) -> None:
+    """:func:`_measure`'s values of object ``k`` after it grew inside ``window`` (y0, y1,
+    x0, x1, exclusive ends; it holds the old box): the same numbers, since a nearest-rank
+    percentile of one label is the value of that rank among its own values alone (selected
+    here; at most the sign of a zero differs, which no test reads)."""
+    y0, y1, x0, x1 = window
+    own = labels[y0:y1, x0:x1] == k
+    rows = np.flatnonzero(own.any(axis=1))
+    cols = np.flatnonzero(own.any(axis=0))
+    measures["boxes"][k] = (y0 + rows[0], y0 + rows[-1], x0 + cols[0], x0 + cols[-1])
+    measures["sizes"][k] = np.count_nonzero(own)
+    # float32 as _measure reads them
+    heights = relative[y0:y1, x0:x1][own].astype(np.float32, copy=False)
+    heights = heights[np.isfinite(heights)]
+    core = _nearest_rank(heights, _CORE_PERCENTILE)
+    measures["core"][k] = core if np.isfinite(core) else -np.inf
+    values = contrast[y0:y1, x0:x1][own].astype(np.float32, copy=False)
+    measures["side"][k] = np.sign(_nearest_rank(values, 50.0))
+
+
+def _nearest_rank(values: np.ndarray, percentile: float) -> float:
+    """:func:`stages._heights._percentiles_by_label`'s percentile of one label's values
+    (+inf if none): the value of rank ``floor(percentile / 100 * (n - 1))``."""
+    if values.size == 0:
+        return np.inf
+    rank = int(np.floor((percentile / 100.0) * (values.size - 1)))
+    return float(np.partition(values, rank)[rank])
+
+
+def _median_row(own: np.ndarray) -> int:
+    """``int(np.median(np.nonzero(own)[0]))`` from the row counts (own holds a pixel)."""
+    ends = np.cumsum(np.count_nonzero(own, axis=1))
+    n = int(ends[-1])
+    upper = int(np.searchsorted(ends, n // 2, side="right"))
+    if n % 2:
+        return upper
+    # the mean of the two middle rows, truncated as int() truncates np.median's float
+    return (int(np.searchsorted(ends, n // 2 - 1, side="right")) + upper) // 2
 
 
 def _ground_mean(contrast: np.ndarray, ground: np.ndarray) -> np.ndarray:
     """Mean contrast of the ``ground`` pixels in each pixel's 5x5 window (0 where none):
     a pixel's gray side over a few pixels, since the ground's single pixels scatter both
     ways; the objects' own pixels are left out, or a dark object's would make the raised
-    fringe next to it look dark."""
-    window = (_CONTRAST_WINDOW_PX, _CONTRAST_WINDOW_PX)
-    weight = ground.astype(np.float32)
-    total = cv2.blur(contrast.astype(np.float32) * weight, window)
-    share = cv2.blur(weight, window)
-    return np.where(share > 0, total / np.maximum(share, np.float32(1e-6)), np.float32(0.0))
+    fringe next to it look dark.
+
+    The same floats as ``cv2.blur`` of ``contrast * ground`` over ``cv2.blur`` of
+    ``ground`` (float32, 5x5, mirrored border), divided where the latter is positive, in
+    one compiled pass without the five whole-frame temporaries (``test_height_grow.py``
+    compares them).
+    """
+    rows, cols = contrast.shape
+    if min(rows, cols) < _CONTRAST_WINDOW_PX:
+        # the pass mirrors the border once: a frame narrower than the window is OpenCV's
+        window = (_CONTRAST_WINDOW_PX, _CONTRAST_WINDOW_PX)
+        weight = ground.astype(np.float32)
+        total = cv2.blur(contrast.astype(np.float32) * weight, window)
+        share = cv2.blur(weight, window)
+        return np.where(share > 0, total / np.maximum(share, np.float32(1e-6)), np.float32(0.0))
+    out = np.empty((rows, cols), np.float32)
+    _ground_mean_pass(
+        np.ascontiguousarray(contrast, dtype=np.float32), np.ascontiguousarray(ground), out
+    )
+    return out
+
+
+@njit(cache=True)
+def _mirror(i, n):  # pragma: no cover - numba
+    # OpenCV's BORDER_REFLECT_101 of an index at most n - 1 outside [0, n)
+    if i < 0:
+        return -i
+    if i >= n:
+        return 2 * n - 2 - i
+    return i
+
+
+@njit(cache=True)
+def _ground_mean_pass(contrast, ground, out):  # pragma: no cover - numba
+    # cv2.blur's float32 box filter, step by step: each row's 5-sums in double, added left
+    # to right (RowSum<float, double>), then down each column a running double sum that
+    # adds the new row and subtracts the old one (ColumnSum<double, float>), scaled by 1/25
+    # and rounded to float32; the row sums of the five rows in reach are kept in a ring
+    rows, cols = contrast.shape
+    half = _CONTRAST_WINDOW_PX // 2
+    scale = 1.0 / (_CONTRAST_WINDOW_PX * _CONTRAST_WINDOW_PX)
+    ring_t = np.empty((_CONTRAST_WINDOW_PX, cols))
+    ring_w = np.empty((_CONTRAST_WINDOW_PX, cols))
+    padded_t = np.empty(cols + 2 * half, np.float32)
+    padded_w = np.empty(cols + 2 * half, np.float32)
+    floor = np.float32(1e-6)
+
+    def row_sums(y):
+        slot = y % _CONTRAST_WINDOW_PX
+        for i in range(cols + 2 * half):
+            x = _mirror(i - half, cols)
+            w = np.float32(1.0) if ground[y, x] else np.float32(0.0)
+            padded_t[i] = contrast[y, x] * w
+            padded_w[i] = w
+        for x in range(cols):
+            t = np.float64(padded_t[x])
+            w = np.float64(padded_w[x])
+            for j in range(1, _CONTRAST_WINDOW_PX):
+                t += np.float64(padded_t[x + j])
+                w += np.float64(padded_w[x + j])
+            ring_t[slot, x] = t
+            ring_w[slot, x] = w
+
+    for y in range(min(half + 1, rows)):
+        row_sums(y)
+    sum_t = np.zeros(cols)
+    sum_w = np.zeros(cols)
+    for j in range(_CONTRAST_WINDOW_PX - 1):
+        slot = _mirror(j - half, rows) % _CONTRAST_WINDOW_PX
+        for x in range(cols):
+            sum_t[x] += ring_t[slot, x]
+            sum_w[x] += ring_w[slot, x]
+    for y in range(rows):
+        if y + half < rows and y >= 1:
+            row_sums(y + half)
+        new = _mirror(y + half, rows) % _CONTRAST_WINDOW_PX
+        old = _mirror(y - half, rows) % _CONTRAST_WINDOW_PX
+        for x in range(cols):
+            s_t = sum_t[x] + ring_t[new, x]
+            s_w = sum_w[x] + ring_w[new, x]
+            total = np.float32(s_t * scale)
+            share = np.float32(s_w * scale)
+            out[y, x] = total / max(share, floor) if share > 0 else np.float32(0.0)
+            sum_t[x] = s_t - ring_t[old, x]
+            sum_w[x] = s_w - ring_w[old, x]

@@ -67,7 +67,7 @@ import cv2
 import numpy as np
 
 from ._heights import _percentile_by_label
-from ._regions import _box_window, _lookup, _object_boxes, _renumber, _solidity
+from ._regions import _box_window, _object_boxes, _renumber, _solidity
 from ._texture_rules import elongation
 
 # R4b: an object splits where it narrows to at most this fraction of its lobes' depth ...
@@ -242,8 +242,12 @@ def trim_faint_rims(
     cross = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
     # outside the frame counts as nothing: an object cut by the border keeps its cut edge
     outline = (cv2.dilate((labels == 0).view(np.uint8), cross) > 0) & (labels > 0)
-    own_side = contrast * _lookup(np.sign(median), labels).astype(np.float32)
-    faint = outline & (own_side >= 0) & (own_side < fraction * _lookup(np.abs(median), labels))
+    # read at the outline pixels only (the same products and comparisons as whole-frame
+    # maps of the objects' signs and medians would give there)
+    owner = labels[outline]
+    own_side = contrast[outline] * np.sign(median)[owner].astype(np.float32)
+    faint = np.zeros(labels.shape, bool)
+    faint[outline] = (own_side >= 0) & (own_side < fraction * np.abs(median)[owner])
     trimmed = int(np.count_nonzero(faint))
     if not trimmed:
         return labels, 0

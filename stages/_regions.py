@@ -183,13 +183,23 @@ def _split_at_edges(labels: np.ndarray, edges: np.ndarray, min_area_px: int) -> 
     h, w = labels.shape
     for k in split_objects:
         y0, y1, x0, x1 = (int(v) for v in boxes[k])
-        # the object's own cores lie in its box, so no pixel of it is farther from its
-        # nearest core than the box's diagonal: a crop that much larger holds every core
-        # that can be nearest (whole-frame transforms cost 13 ms a frame on lava)
-        reach = int(np.ceil(np.hypot(y1 - y0 + 1, x1 - x0 + 1)))
+        # the object's own cores lie in its box: no pixel of it is farther from its nearest
+        # core than from its nearest own one, at most ``reach`` (measured in the box), so a
+        # crop that much larger holds every core that can be nearest (whole-frame transforms
+        # cost 13 ms a frame on lava; the box's diagonal, the bound before, 7 ms on dunes).
+        # The same indices as the whole frame's for the object's pixels: scipy's feature
+        # transform (Maurer's) gives a pixel the nearest feature of its column (the upper
+        # of two), then the leftmost of those nearest along its row -- all within reach,
+        # and a site nearest somewhere is never removed, whatever lies beyond
+        box = (slice(y0, y1 + 1), slice(x0, x1 + 1))
+        own = core_pixels[box] & (parent[cores[box]] == k)
+        reach = int(np.ceil(distance_transform_edt(~own)[labels[box] == k].max())) + 1
         ys = slice(max(0, y0 - reach), min(h, y1 + reach + 1))
         xs = slice(max(0, x0 - reach), min(w, x1 + reach + 1))
-        _, (iy, ix) = distance_transform_edt(~core_pixels[ys, xs], return_indices=True)
+        # the nearest core's indices alone (the distances, worked out from them, unread)
+        iy, ix = distance_transform_edt(
+            ~core_pixels[ys, xs], return_distances=False, return_indices=True
+        )
         nearest = cores[ys, xs][iy, ix]
         mine = (labels[ys, xs] == k) & (parent[nearest] == k)
         result[ys, xs][mine] = offset + nearest[mine]

@@ -129,6 +129,7 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+from numba import njit
 
 from ._fronts import grow_fronts
 from ._regions import (
@@ -511,13 +512,12 @@ def join_opposite_halves(
     lighter = sums >= 0
     anti_sun = anti_sun_direction(labels, contrast) if max_side_deg < 180 else None
     if anti_sun is not None:
-        rows_at, cols_at = np.indices(labels.shape)
         safe = np.maximum(area, 1)
-        centroids = np.stack(
-            [_label_sums(labels, rows_at.astype(np.float64), count + 1)[1] / safe,
-             _label_sums(labels, cols_at.astype(np.float64), count + 1)[1] / safe],
-            axis=1,
-        )
+        # the objects' row and column sums in one compiled pass: whole numbers, the same
+        # floats as _label_sums of the index maps (``test_rock_parts.py`` compares)
+        coordinate_sums = np.zeros((2, count + 1))
+        _coordinate_sums(np.ascontiguousarray(labels), coordinate_sums)
+        centroids = np.stack([coordinate_sums[0] / safe, coordinate_sums[1] / safe], axis=1)
         min_cos = np.cos(np.radians(max_side_deg))
     boxes = _object_boxes(labels, count)
     kernel = _ring_kernel(gap_px)
@@ -537,8 +537,10 @@ def join_opposite_halves(
         y1, x1 = min(rows, sy.stop + gap_px), min(cols, sx.stop + gap_px)
         window = labels[y0:y1, x0:x1]
         near = cv2.dilate((window == k).view(np.uint8), kernel).view(bool)
-        others, facing = np.unique(window[near], return_counts=True)
-        for j, n_facing in zip(others, facing, strict=True):
+        # np.unique's values and counts, from a bincount (no sort)
+        facing = np.bincount(window[near])
+        others = np.flatnonzero(facing)
+        for j, n_facing in zip(others, facing[others], strict=True):
             # each pair once (j > k), opposite sides, facing over a boundary of their size
             if j <= k or lighter[j] == lighter[k]:
                 continue
@@ -575,3 +577,15 @@ def join_opposite_halves(
         return labels, 0
     roots = np.array([root(k) for k in range(count + 1)])
     return _renumber(_lookup(roots, out), 1), joined
+
+
+@njit(cache=True)
+def _coordinate_sums(labels, sums):  # pragma: no cover - numba
+    # per object (label 0 left at 0): the sums of its pixels' rows and columns
+    rows, cols = labels.shape
+    for y in range(rows):
+        for x in range(cols):
+            k = labels[y, x]
+            if k > 0:
+                sums[0, k] += y
+                sums[1, k] += x

@@ -90,6 +90,7 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+from numba import njit
 
 from ._regions import _lookup, _object_boxes
 
@@ -160,19 +161,14 @@ def anti_sun_direction(
     count = int(labels.max())
     if count == 0:
         return None
-    # the objects' pixels only (a tenth of a frame): full-frame index maps cost more than
-    # the rest of the rule
-    where = np.flatnonzero(labels.ravel())
-    owners = labels.ravel()[where]
-    rows, cols = np.divmod(where, labels.shape[1])
-    values = contrast.ravel()[where]
-    size = np.bincount(owners, minlength=count + 1).astype(np.float64)
+    # per object: pixels, then per side (past the high threshold, past the low one) pixels
+    # and the sums of their rows and columns, in one compiled pass (whole numbers: the
+    # same floats as np.bincount's, in any order; ``test_sun_shadows.py`` compares)
+    sums = np.zeros((7, count + 1))
+    _side_sums(np.ascontiguousarray(labels), np.ascontiguousarray(contrast), sums)
+    size = sums[0]
     centroids = []
-    for side in (values > 1, values < -1):
-        k = owners[side]
-        n = np.bincount(k, minlength=count + 1).astype(np.float64)
-        y = np.bincount(k, weights=rows[side], minlength=count + 1)
-        x = np.bincount(k, weights=cols[side], minlength=count + 1)
+    for n, y, x in (sums[1:4], sums[4:7]):
         centroids.append((n, y / np.maximum(n, 1), x / np.maximum(n, 1)))
     (n_lit, y_lit, x_lit), (n_dark, y_dark, x_dark) = centroids
     pair = (n_lit >= _PAIR_SHARE * size) & (n_dark >= _PAIR_SHARE * size) & (size > 0)
@@ -406,3 +402,23 @@ def _shadow_pieces(
         if length >= _MIN_OFFSET * radius and offset @ away >= cos_max * length:
             shadow |= pieces == j
     return shadow
+
+
+@njit(cache=True)
+def _side_sums(labels, contrast, sums):  # pragma: no cover - numba
+    rows, cols = labels.shape
+    for y in range(rows):
+        for x in range(cols):
+            k = labels[y, x]
+            if k <= 0:
+                continue
+            sums[0, k] += 1.0
+            value = contrast[y, x]
+            if value > 1:
+                sums[1, k] += 1.0
+                sums[2, k] += y
+                sums[3, k] += x
+            elif value < -1:
+                sums[4, k] += 1.0
+                sums[5, k] += y
+                sums[6, k] += x

@@ -183,3 +183,27 @@ def test_tile_spread_memo_measures_changed_tiles_alike():
     np.testing.assert_array_equal(
         _tile_spread(values, use, 20, _memo=memo), _tile_spread(values, use, 20)
     )
+
+
+def test_seeded_fill_per_part_equals_the_whole_frame_flood():
+    # each part flooded in its own box: nested rings (a pocket between two parts, inside
+    # the outer one), parts on the frame's edge and random textures, against the flood of
+    # the whole frame's background from its border
+    rings = np.zeros((30, 30), np.uint8)
+    cv2.rectangle(rings, (2, 2), (27, 27), 1, 1)
+    cv2.rectangle(rings, (8, 8), (21, 21), 1, 1)
+    rings[14, 14] = 1
+    cases = [rings.astype(bool)]
+    rng = np.random.default_rng(18)
+    for _ in range(300):
+        shape = tuple(rng.integers(1, 45, 2))
+        cases.append(rng.random(shape) < rng.uniform(0.2, 0.8))
+    for past in cases:
+        n_parts, parts = cv2.connectedComponents(past.view(np.uint8), connectivity=8)
+        for seeded in (np.arange(n_parts) > 0, rng.random(n_parts) < 0.5):
+            seeded[0] = False
+            outside = np.pad(~seeded[parts], 1, constant_values=True).astype(np.uint8)
+            cv2.floodFill(outside, None, (0, 0), 2, flags=4)
+            np.testing.assert_array_equal(
+                _fill_seeded_holes(seeded, parts), outside[1:-1, 1:-1] != 2
+            )

@@ -351,3 +351,53 @@ def test_plane_level_needs_a_steep_plane_of_three_neighbours():
     gentle = np.where(np.isfinite(level), 70.0 + np.arange(3)[:, None] * 5.0, np.nan)
     # a gentle slope (lava's ground): the neighbours' mean stands, a plane must not tip it
     assert _plane_level(gentle, 1, 1, min_step=24.0) is None
+
+
+def _predict_all_twin(level):
+    """_predict_all as it was before its compiled pass: shifted copies of a padded grid."""
+    n = level.shape[0]
+    padded = np.full((n + 2, n + 2), np.nan)
+    padded[1:-1, 1:-1] = level
+    decided = np.isfinite(padded)
+    values = np.where(decided, padded, 0.0)
+    total = np.zeros((n, n))
+    weight = np.zeros((n, n))
+    for dy, dx in [(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if (dy, dx) != (0, 0)]:
+        w = 1.0 if dy == 0 or dx == 0 else 1.0 / np.sqrt(2.0)
+        window = (slice(1 + dy, n + 1 + dy), slice(1 + dx, n + 1 + dx))
+        total += np.where(decided[window], w * values[window], 0.0)
+        weight += np.where(decided[window], w, 0.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        predicted = np.where(weight > 0, total / weight, np.nan)
+    return predicted, weight
+
+
+def test_predict_all_equals_its_shifted_copies_twin():
+    from stages._continuity import _predict_all
+
+    rng = np.random.default_rng(20)
+    for _ in range(50):
+        n = int(rng.integers(2, 20))
+        level = rng.uniform(0, 255, (n, n))
+        level[rng.random((n, n)) < rng.uniform(0, 1)] = np.nan
+        for got, want in zip(_predict_all(level), _predict_all_twin(level), strict=True):
+            np.testing.assert_array_equal(got.view(np.int64), want.view(np.int64))
+
+
+def test_nearest_mode_equals_the_pick_of_its_lexsort_twin():
+    # the twin: the mode nearest within reach by np.lexsort (height breaks ties, then order)
+    from stages._continuity import _nearest_mode
+
+    rng = np.random.default_rng(21)
+    for _ in range(500):
+        positions = np.sort(rng.choice(256, size=int(rng.integers(0, 8)), replace=False))
+        heights = rng.integers(1, 4, positions.size).astype(np.float64)  # ties happen
+        predicted = float(rng.choice([rng.uniform(0, 255), rng.integers(0, 256), np.nan]))
+        reach = float(rng.integers(1, 40))
+        distance = np.abs(positions - predicted)
+        candidates = np.flatnonzero(distance <= reach)
+        want = None
+        if candidates.size:
+            pick = candidates[np.lexsort((-heights[candidates], distance[candidates]))[0]]
+            want = float(positions[pick])
+        assert _nearest_mode(positions, heights, predicted, reach) == want

@@ -2,10 +2,18 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 
-from stages._height_grow import grow_raised_parts
+from stages._height_grow import (
+    _ground_mean,
+    _grow,
+    _measure,
+    _median_row,
+    _reach_steps,
+    grow_raised_parts,
+)
 
 SHAPE = (60, 80)
 ROCK_M = 0.04  # a near rock's height, 10 sigmas of 4 mm
@@ -188,3 +196,89 @@ def test_raised_ground_above_the_top_row_and_thin_strands_are_not_taken():
     contrast[28:30, 50:60] = -0.6
     out, grown = grow_raised_parts(labels, contrast, relative, noise)
     assert grown == 0 and np.array_equal(out, labels)
+
+
+def test_ground_mean_equals_its_opencv_twin_bit_for_bit():
+    # the twin: the cv2.blur expressions the compiled pass replaced, on magnitudes whose
+    # double sums round (1e-6 to 1e6), NaN, -0 and frames down to 1 px (OpenCV's there)
+    rng = np.random.default_rng(3)
+    for _ in range(60):
+        shape = tuple(rng.integers(1, 40, 2))
+        contrast = rng.normal(0, 1, shape) * 10 ** rng.uniform(-6, 6, shape)
+        contrast = contrast.astype(np.float32)
+        contrast[rng.random(shape) < 0.03] = np.nan
+        contrast[rng.random(shape) < 0.03] = -0.0
+        ground = rng.random(shape) < rng.uniform(0, 1)
+        weight = ground.astype(np.float32)
+        with np.errstate(invalid="ignore"):
+            total = cv2.blur(contrast * weight, (5, 5))
+        share = cv2.blur(weight, (5, 5))
+        twin = np.where(share > 0, total / np.maximum(share, np.float32(1e-6)), np.float32(0))
+        mean = _ground_mean(contrast, ground)
+        np.testing.assert_array_equal(mean.view(np.int32), twin.view(np.int32))
+
+
+def test_median_row_equals_numpys_median_of_the_rows():
+    rng = np.random.default_rng(4)
+    for _ in range(200):
+        own = rng.random(tuple(rng.integers(1, 12, 2))) < rng.uniform(0.05, 1)
+        if own.any():
+            assert _median_row(own) == int(np.median(np.nonzero(own)[0]))
+
+
+def test_cases_sharing_their_measures_equal_cases_measuring_again():
+    # R7f's second and third cases read the first's measures, updated for the objects it
+    # grew: the same as measuring the grown labels again
+    rng = np.random.default_rng(5)
+    labels = np.zeros((120, 160), np.int32)
+    relative = rng.normal(0, 0.003, labels.shape).astype(np.float32)
+    contrast = rng.normal(0, 0.5, labels.shape).astype(np.float32)
+    for k, (y, x, r) in enumerate([(30, 30, 14), (80, 50, 10), (40, 110, 16), (95, 120, 9)]):
+        yy, xx = np.ogrid[: labels.shape[0], : labels.shape[1]]
+        rock = (yy - y) ** 2 + (xx - x) ** 2 <= r * r
+        relative[rock] += 0.03 + 0.005 * k
+        contrast[rock] += -1.0 if k % 2 else 1.0
+        labels[rock & (xx < x + (k - 1) * 3)] = k + 1
+    relative[rng.random(labels.shape) < 0.05] = np.nan
+    noise = np.full(labels.shape[0], 0.003)
+    settings = {"max_noise_m": 0.0075, "min_height_m": 0.008, "max_steps": 12, "max_gain": 3.0}
+    cases = [
+        {"fraction": 0.5, "min_object_px": 150, "core_sigmas": 5.0, "min_contrast": 0.25},
+        {"fraction": 0.25, "min_object_px": 60, "core_sigmas": 2.5, "min_contrast": 0.45},
+        {"fraction": 0.1, "min_object_px": 150, "core_sigmas": 1.0, "min_contrast": 0.15},
+    ]
+    shared: dict = {}
+    alone = with_measures = labels
+    total = 0
+    for case in cases:
+        alone, _ = _grow(alone, contrast, relative, noise, **settings, **case)
+        with_measures, grown = _grow(
+            with_measures, contrast, relative, noise, **settings, **case, _measures=shared
+        )
+        np.testing.assert_array_equal(with_measures, alone)
+        again = _measure(alone, contrast, relative, int(alone.max()))
+        for key, values in again.items():
+            # the objects' (label 0, the ground, is never grown nor read)
+            np.testing.assert_array_equal(shared[key][1:], values[1:])
+        total += grown
+    assert total > 0
+
+
+def test_reach_steps_equal_rounds_of_a_dilation_within_the_free_pixels():
+    # the twin: the loop of 3x3 dilations the compiled breadth-first pass replaced
+    rng = np.random.default_rng(6)
+    for _ in range(60):
+        shape = tuple(rng.integers(1, 40, 2))
+        obj = rng.random(shape) < 0.03
+        free = (rng.random(shape) < rng.uniform(0.3, 0.9)) & ~obj
+        steps = int(rng.integers(1, 15))
+        twin = obj
+        for _ in range(steps):
+            near = cv2.dilate(twin.view(np.uint8), np.ones((3, 3), np.uint8)).view(bool)
+            more = twin | (free & near)
+            if np.count_nonzero(more) == np.count_nonzero(twin):
+                break
+            twin = more
+        reached = obj.copy()
+        _reach_steps(reached, free, steps)
+        np.testing.assert_array_equal(reached, twin)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 from object_masks import disk
@@ -99,3 +100,35 @@ def test_trim_faint_rims_keeps_a_cut_at_the_frame_border():
         trim_faint_rims(labels, contrast, fraction=1.0)
     with pytest.raises(ValueError, match="one shape"):
         trim_faint_rims(labels, contrast[:5])
+
+
+def test_trim_faint_rims_equals_its_whole_frame_twin():
+    # the twin: the rule as it read whole-frame maps of the objects' signs and medians
+    from stages._heights import _percentile_by_label
+    from stages._regions import _lookup, _renumber
+
+    rng = np.random.default_rng(17)
+    for dtype in (np.float32, np.float64):
+        for _ in range(10):
+            shape = tuple(rng.integers(5, 60, 2))
+            labels = np.zeros(shape, np.int32)
+            for k in range(1, 6):
+                y, x = rng.integers(0, shape[0]), rng.integers(0, shape[1])
+                labels[y : y + rng.integers(3, 15), x : x + rng.integers(3, 15)] = k
+            labels = _renumber(labels, 1)
+            contrast = rng.normal(0, 2, shape).astype(dtype)
+            out, trimmed = trim_faint_rims(labels, contrast, fraction=0.3)
+            count = int(labels.max())
+            inside = labels.ravel() > 0
+            median = _percentile_by_label(
+                contrast.ravel()[inside].astype(np.float32), labels.ravel()[inside], count + 1, 50.0
+            )
+            median[~np.isfinite(median)] = 0.0
+            median[0] = 0.0
+            cross = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
+            outline = (cv2.dilate((labels == 0).view(np.uint8), cross) > 0) & (labels > 0)
+            own_side = contrast * _lookup(np.sign(median), labels).astype(np.float32)
+            faint = outline & (own_side >= 0) & (own_side < 0.3 * _lookup(np.abs(median), labels))
+            assert trimmed == np.count_nonzero(faint)
+            twin = _renumber(np.where(faint, 0, labels), 1) if trimmed else labels
+            np.testing.assert_array_equal(out, twin)

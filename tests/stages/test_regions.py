@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 from object_masks import disk
-from scipy.ndimage import find_objects
+from scipy.ndimage import distance_transform_edt, find_objects
 
 from stages._regions import (
     _box_window,
@@ -17,6 +17,7 @@ from stages._regions import (
     _object_boxes,
     _renumber,
     _renumber_numpy,
+    _split_at_edges,
     depth_edges,
     fill_holes,
     label_objects,
@@ -175,3 +176,45 @@ def test_label_sums_equal_bincounts():
         np.testing.assert_array_equal(
             sums, np.bincount(labels[inside], values[inside], minlength=7)
         )
+
+
+def _split_at_edges_twin(labels, edges, min_area_px):
+    """_split_at_edges with whole-frame feature transforms (no crop)."""
+    cores = _dense_components((labels > 0) & ~edges, min_area_px, connectivity=4)
+    if int(cores.max()) < 2:
+        return labels
+    core_pixels = cores > 0
+    parent = np.zeros(int(cores.max()) + 1, dtype=np.int64)
+    parent[cores[core_pixels]] = labels[core_pixels]
+    split_objects = np.flatnonzero(np.bincount(parent[1:], minlength=int(labels.max()) + 1) >= 2)
+    if split_objects.size == 0:
+        return labels
+    result = labels.astype(np.int64)
+    offset = int(labels.max())
+    _, (iy, ix) = distance_transform_edt(~core_pixels, return_indices=True)
+    nearest = cores[iy, ix]
+    for k in split_objects:
+        mine = (labels == k) & (parent[nearest] == k)
+        result[mine] = offset + nearest[mine]
+    return result
+
+
+def test_split_at_edges_crops_equal_the_whole_frame_transform():
+    # ties are common on the pixel grid (a pixel as far from two cores): the crops must
+    # pick the very core the whole frame's transform picks
+    rng = np.random.default_rng(19)
+    splits = 0
+    for _ in range(150):
+        shape = tuple(rng.integers(20, 90, 2))
+        noise = rng.random(shape).astype(np.float32)
+        mask = cv2.GaussianBlur(noise, (0, 0), rng.uniform(1, 5)) > 0.5
+        labels = _dense_components(mask, 5)
+        edges = rng.random(shape) < 0.02
+        for axis in (0, 1):
+            seeds = (rng.random(shape) < 0.003).astype(np.uint8)
+            size = (1, int(rng.integers(3, 40)))[:: 1 if axis else -1]
+            edges |= cv2.dilate(seeds, np.ones(size, np.uint8)).astype(bool)
+        result = _split_at_edges(labels, edges, 5)
+        np.testing.assert_array_equal(result, _split_at_edges_twin(labels, edges, 5))
+        splits += result is not labels
+    assert splits > 50

@@ -7,7 +7,9 @@ import numpy as np
 import pytest
 from object_masks import disk
 
+from stages._regions import _label_sums
 from stages._rock_parts import (
+    _coordinate_sums,
     grow_other_faces,
     grow_weak_halves,
     join_opposite_halves,
@@ -333,3 +335,19 @@ def test_join_opposite_halves_joins_a_shaded_half_away_from_the_sun_only():
     assert count == 1
     with pytest.raises(ValueError, match="max_side_deg"):
         join_opposite_halves(labels, contrast, max_side_deg=0.0)
+
+
+def test_coordinate_sums_equal_label_sums_of_the_index_maps():
+    # the twin R7b's centroids came from: _label_sums of the row and column index maps
+    rng = np.random.default_rng(12)
+    for _ in range(20):
+        shape = tuple(rng.integers(1, 60, 2))
+        labels = rng.integers(0, 9, shape).astype(np.int32)
+        labels[rng.random(shape) < 0.5] = 0
+        count = int(labels.max()) + 1
+        sums = np.zeros((2, count))
+        _coordinate_sums(labels, sums)
+        rows_at, cols_at = np.indices(shape)
+        for axis, at in enumerate((rows_at, cols_at)):
+            twin = _label_sums(labels, at.astype(np.float64), count)[1]
+            np.testing.assert_array_equal(sums[axis], twin)

@@ -151,3 +151,61 @@ def test_r7g_keeps_pieces_near_the_centre_and_needs_a_sun_direction():
         trim_off_side_pieces(labels, contrast, max_side_deg=-1.0)
     with pytest.raises(ValueError, match="one shape"):
         trim_off_side_pieces(labels[:-1], contrast)
+
+
+def _anti_sun_twin(labels, contrast, *, min_pairs=3, min_agreement=0.5):
+    """anti_sun_direction as it was before its compiled pass: bincounts of the objects'
+    pixels (its pair tests copied from the module's constants)."""
+    count = int(labels.max())
+    if count == 0:
+        return None
+    where = np.flatnonzero(labels.ravel())
+    owners = labels.ravel()[where]
+    rows, cols = np.divmod(where, labels.shape[1])
+    values = contrast.ravel()[where]
+    size = np.bincount(owners, minlength=count + 1).astype(np.float64)
+    centroids = []
+    for side in (values > 1, values < -1):
+        k = owners[side]
+        n = np.bincount(k, minlength=count + 1).astype(np.float64)
+        y = np.bincount(k, weights=rows[side], minlength=count + 1)
+        x = np.bincount(k, weights=cols[side], minlength=count + 1)
+        centroids.append((n, y / np.maximum(n, 1), x / np.maximum(n, 1)))
+    (n_lit, y_lit, x_lit), (n_dark, y_dark, x_dark) = centroids
+    pair = (n_lit >= 0.2 * size) & (n_dark >= 0.2 * size) & (size > 0)
+    pair[0] = False
+    offsets = np.stack([y_dark - y_lit, x_dark - x_lit], axis=1)[pair]
+    lengths = np.hypot(offsets[:, 0], offsets[:, 1])
+    keep = lengths >= 1.0
+    if np.count_nonzero(keep) < min_pairs:
+        return None
+    weights = np.minimum(n_lit, n_dark)[pair][keep]
+    total = (offsets[keep] / lengths[keep, None] * weights[:, None]).sum(axis=0)
+    length = float(np.hypot(*total))
+    if length < min_agreement * float(weights.sum()):
+        return None
+    return total / length
+
+
+def test_anti_sun_direction_equals_its_bincount_twin_bit_for_bit():
+    rng = np.random.default_rng(11)
+    found = 0
+    for _ in range(40):
+        shape = tuple(rng.integers(20, 90, 2))
+        labels = np.zeros(shape, np.int32)
+        contrast = rng.normal(0, 1.5, shape).astype(np.float32)
+        for k in range(1, rng.integers(2, 12)):
+            y, x = rng.integers(0, shape[0] - 8), rng.integers(0, shape[1] - 8)
+            h, w = rng.integers(3, 9, 2)
+            labels[y : y + h, x : x + w] = k
+            contrast[y : y + h, x : x + w // 2] += 2.5
+            contrast[y : y + h, x + w // 2 : x + w] -= 2.5 * rng.uniform(0.5, 1.5)
+        contrast[rng.random(shape) < 0.02] = np.nan
+        got = anti_sun_direction(labels, contrast, min_pairs=2, min_agreement=0.3)
+        want = _anti_sun_twin(labels, contrast, min_pairs=2, min_agreement=0.3)
+        if want is None:
+            assert got is None
+        else:
+            found += 1
+            np.testing.assert_array_equal(got, want)
+    assert found > 10

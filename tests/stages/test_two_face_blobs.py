@@ -8,7 +8,7 @@ import pytest
 from object_masks import disk
 
 from stages._blobs import add_compact_blobs
-from stages._two_face_blobs import add_two_faced_blobs, two_faced_candidates
+from stages._two_face_blobs import _face_counts, add_two_faced_blobs, two_faced_candidates
 from stages.segment import segment_image
 
 SHAPE = (160, 160)
@@ -171,3 +171,17 @@ def test_a_float_image_is_refused():
         two_faced_candidates(
             np.zeros(SHAPE, np.int32), two_faced_rock(0).astype(float), min_sigmas=3.0
         )
+
+
+def test_face_counts_equal_bincounts_of_masked_ids():
+    # the twin: the four bincounts R8c's candidate tests read before the compiled pass
+    rng = np.random.default_rng(13)
+    for _ in range(20):
+        shape = tuple(rng.integers(1, 50, 2))
+        ids = rng.integers(0, 7, shape).astype(np.int32)
+        dark, light, ring = (rng.random(shape) < share for share in (0.3, 0.2, 0.1))
+        counts = np.zeros((4, 7), np.int64)
+        _face_counts(ids, dark, light, ring, counts)
+        flat = ids.ravel()
+        for row, mask in zip(counts, (np.ones(shape, bool), dark, light, ring), strict=True):
+            np.testing.assert_array_equal(row, np.bincount(flat[mask.ravel()], minlength=7))
