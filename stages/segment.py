@@ -308,10 +308,16 @@ def segment_image(
         raise ValueError(f"method must be one of {list(METHODS)}, got {method!r}")
     if not isinstance(sectors, int | np.integer) or isinstance(sectors, bool):
         raise TypeError(f"sectors must be an int, got {type(sectors).__name__}")
+    if min(image.shape) < 8:
+        raise ValueError(
+            f"an image of shape {image.shape} is too small to segment: sectors need at least "
+            "4x4 pixels and there must be 2x2 of them (at least 8x8 pixels)"
+        )
     if not 2 <= sectors <= min(image.shape) // 4:
         raise ValueError(
             f"sectors must be in [2, {min(image.shape) // 4}] for an image of shape "
-            f"{image.shape} (at least 4x4 pixels per sector), got {sectors}"
+            f"{image.shape} (at least 4x4 pixels per sector), got {sectors}; pass fewer "
+            f"(arroyo run: --set segment.sectors={min(image.shape) // 4})"
         )
     if max_elongation != 0 and not max_elongation > 1:
         raise ValueError(f"max_elongation must be 0 (off) or > 1, got {max_elongation}")

@@ -149,8 +149,11 @@ def test_bad_parameters_raise_clear_errors():
     with pytest.raises(ParamError, match="height_smoothing_px"):
         STAGE.resolve_params({"height_smoothing_px": 4})
     image = scene(shape=(40, 40))
-    with pytest.raises(ValueError, match=r"sectors must be in \[2, 10\]"):
+    with pytest.raises(ValueError, match=r"sectors must be in \[2, 10\].*sectors=10\)"):
         segment_image(image, sectors=16)
+    # regression: a 6x6 frame was told "sectors must be in [2, 1]", a range no value fits
+    with pytest.raises(ValueError, match="too small to segment.*at least 8x8"):
+        segment_image(scene(shape=(40, 40))[:6, :6], sectors=2)
     with pytest.raises(ValueError, match="method must be one of"):
         segment_image(image, method="otsu", sectors=4)
     with pytest.raises(ValueError, match="uint8"):
