@@ -39,6 +39,7 @@ from ._ground import (
     pixel_points,
     silhouette_on_ground,
 )
+from ._small_stats import percentile64
 
 __all__ = [
     "GroundFrame",
@@ -210,13 +211,13 @@ def top_height(
     order = np.argsort(r, kind="stable")
     n = max(min_pixels, math.ceil(top_fraction * h.size))
     take = order[:n]
-    return float(np.median(h[take])), int(np.median(r[take]))
+    return float(_median(h[take])), int(_median(r[take]))  # np.median's values
 
 
 def _height_p98(heights: np.ndarray) -> float:
     """The 98th percentile of an object's finite heights (``height_max_m``), NaN if none."""
     finite = heights[np.isfinite(heights)]
-    return float(np.percentile(finite, 98)) if finite.size else math.nan
+    return percentile64(finite, 98) if finite.size else math.nan
 
 
 def classify_size(

@@ -80,6 +80,7 @@ import numpy as np
 from pipeline.camera import Camera
 
 from ._ground import GroundFrame, _median, fit_disparity_surface, pixel_points
+from ._small_stats import projection_spreads
 
 __all__ = [
     "widest_row_width_m",
@@ -358,8 +359,8 @@ def footprint_dimensions(
     if x.size < 2:
         return math.nan, math.nan
     angles = np.radians(np.arange(0.0, 180.0, step_deg))
-    proj = x[:, None] * np.cos(angles)[None, :] + y[:, None] * np.sin(angles)[None, :]
-    spread = proj.max(axis=0) - proj.min(axis=0)
+    # compiled: the max - min of every direction's projections, without the (K, D) array
+    spread = projection_spreads(x, y, np.cos(angles), np.sin(angles))
     k = int(np.argmax(spread))
     across = int(np.argmin(np.abs(((angles - angles[k]) % np.pi) - np.pi / 2)))
     return float(spread[k] + pixel_m), float(spread[across] + pixel_m)

@@ -29,12 +29,15 @@ import numpy as np
 
 from pipeline.camera import Camera
 
+from ._small_stats import median64
+
 try:  # the LAPACK gufunc np.linalg.solve calls, private to numpy
     from numpy.linalg import _umath_linalg
 
     _lapack_solve1: Any = _umath_linalg.solve1
+    _lapack_eigvalsh: Any = _umath_linalg.eigvalsh_lo
 except (ImportError, AttributeError):  # pragma: no cover - a numpy that moved it
-    _lapack_solve1 = None  # the public call then, same bits
+    _lapack_solve1 = _lapack_eigvalsh = None  # the public calls then, same bits
 
 __all__ = [
     "GroundFrame",
@@ -131,12 +134,16 @@ def _median(values: np.ndarray) -> np.float64:
     """``np.median`` of a 1-D float array (same partition, same value) without its overhead.
 
     The describe stage takes thousands of medians of small arrays per frame; the generic
-    ``np.median`` spends most of its time in argument handling.
+    ``np.median`` spends most of its time in argument handling. Float64 and integer values
+    go to a compiled selection (:func:`stages._small_stats.median64`, the same value).
     """
     values = np.ravel(values)
     size = values.size
     if size == 0:
         return np.float64(np.median(values))  # NaN with numpy's own warning
+    if values.dtype == np.float64 or values.dtype.kind in "iu":
+        # compiled (stages._small_stats); float32 sums would be float32 here, so not those
+        return median64(values)
     half = size // 2
     kth = [half - 1, half, -1] if size % 2 == 0 else [half, -1]
     part = values.copy(order="K")  # np.partition's own steps, without its dispatch
@@ -256,7 +263,17 @@ def _std(values: np.ndarray) -> float:
 
 def _well_conditioned(a: np.ndarray) -> bool:
     """Whether the normal equations of design ``a`` have a condition number below 1e10."""
-    eig = np.linalg.eigvalsh(a.T @ a)  # ascending
+    normal = a.T @ a
+    eig = None
+    if _lapack_eigvalsh is not None:
+        # np.linalg.eigvalsh's gufunc without its argument handling (one call per fit);
+        # NaN where LAPACK did not converge: the public call then raises as it would
+        with np.errstate(invalid="ignore"):
+            eig = _lapack_eigvalsh(normal, signature="d->d")
+        if not np.isfinite(eig).all():
+            eig = None
+    if eig is None:
+        eig = np.linalg.eigvalsh(normal)  # ascending
     return bool(eig[0] > 1e-10 * eig[-1])
 
 

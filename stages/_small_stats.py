@@ -1,0 +1,179 @@
+"""Numba kernels: ``np.median`` and ``np.percentile`` of small float64 arrays, the same floats.
+
+Private helpers of the describe stage (:mod:`stages._ground`, :mod:`stages._descriptors`),
+which takes thousands of medians and a percentile per object of arrays of tens to a few
+thousand values: the generic numpy functions spend most of that time in argument handling
+(``np.percentile`` ~60 us a call, a partition-based median ~6 us). Order statistics are
+exact whichever way they are selected, so only the arithmetic after the selection has to
+be numpy's, and it is written out operation by operation here:
+``np.median`` takes the mean of the two middle values as ``(0.0 + lower + upper) / 2``
+(np.mean's sum starts from +0.0), NaN when any value is NaN; ``np.percentile`` (method
+``'linear'``, a Python number ``q``) interpolates at the virtual index ``(n - 1) q / 100``
+as ``numpy.lib._function_base_impl._lerp`` does. ``tests/stages/test_small_stats.py``
+compares both with numpy.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from ._select import _kth
+
+__all__ = ["median64", "percentile64", "projection_spreads"]
+
+
+@njit(cache=True)
+def _has_nan(a):  # pragma: no cover - numba
+    for i in range(a.size):
+        if math.isnan(a[i]):
+            return True
+    return False
+
+
+@njit(cache=True)
+def _next_above(a, k):  # pragma: no cover - numba
+    """The smallest of ``a[k:]`` (after ``_kth(a, k - 1)``: the k-th smallest)."""
+    value = a[k]
+    for i in range(k + 1, a.size):
+        if a[i] < value:
+            value = a[i]
+    return value
+
+
+@njit(cache=True)
+def _median64(a):  # pragma: no cover - numba
+    """``np.median`` of a non-empty float64 array (reordered in place)."""
+    n = a.size
+    if _has_nan(a):
+        return np.nan
+    half = n // 2
+    upper = _kth(a, half)
+    if n % 2:
+        return 0.0 + upper
+    # after the selection every value before ``half`` is at most ``upper``
+    lower = a[0]
+    for i in range(1, half):
+        if a[i] > lower:
+            lower = a[i]
+    return (0.0 + lower + upper) / 2.0
+
+
+@njit(cache=True)
+def _percentile64(a, fraction):  # pragma: no cover - numba
+    """``np.percentile(a, q)`` of a non-empty float64 array, ``fraction = q / 100``
+    (reordered in place), and whether numpy must decide instead (a zero was selected: which
+    of +0.0 and -0.0 depends on numpy's own selection)."""
+    n = a.size
+    if _has_nan(a):
+        return np.nan, False
+    virtual = (n - 1) * fraction
+    if virtual >= n - 1:  # numpy takes the last value twice, at index -1 (gamma from it)
+        below = above = _kth(a, n - 1)
+        gamma = virtual - (-1.0)
+    else:
+        previous = int(math.floor(virtual))
+        below = _kth(a, previous)
+        above = _next_above(a, previous + 1)
+        gamma = virtual - previous
+    if below == 0.0 or above == 0.0:
+        return np.nan, True
+    diff = above - below
+    if gamma >= 0.5:
+        return above - diff * (1.0 - gamma), False
+    return below + diff * gamma, False
+
+
+def median64(values: np.ndarray) -> np.float64:
+    """``np.median(values)`` of a non-empty real array, as float64 (the same value).
+
+    Parameters
+    ----------
+    values : ndarray of float or int
+        Any shape, K >= 1 values (flattened); not modified. Integers are taken as float64
+        (exact below 2**53).
+
+    Returns
+    -------
+    numpy.float64
+        NaN when a value is NaN.
+    """
+    a = np.array(values, dtype=np.float64).ravel()  # a copy: the selection reorders it
+    if a.size == 0:
+        raise ValueError("values must hold at least one value, got an empty array")
+    return np.float64(_median64(a))
+
+
+def percentile64(values: np.ndarray, q: float) -> float:
+    """``float(np.percentile(values, q))`` of a non-empty real array (method 'linear').
+
+    Parameters
+    ----------
+    values : ndarray of float or int
+        Any shape, K >= 1 values (flattened); not modified.
+    q : int or float
+        Percentile in [0, 100], a Python number (numpy's arithmetic for a weak scalar ``q``).
+
+    Returns
+    -------
+    float
+        NaN when a value is NaN.
+    """
+    if not 0 <= q <= 100:
+        raise ValueError(f"q must be a percentile in [0, 100], got {q!r}")
+    a = np.array(values, dtype=np.float64).ravel()
+    if a.size == 0:
+        raise ValueError("values must hold at least one value, got an empty array")
+    # np.true_divide(q, 100): the float64 quotient
+    value, zero = _percentile64(a, float(np.true_divide(q, 100)))
+    return float(np.percentile(values, q)) if zero else value
+
+
+@njit(cache=True)
+def _projection_spreads(x, y, cos, sin):  # pragma: no cover - numba
+    spread = np.empty(cos.size)
+    for j in range(cos.size):
+        c, s = cos[j], sin[j]
+        low = high = x[0] * c + y[0] * s
+        for i in range(1, x.size):
+            p = x[i] * c + y[i] * s  # two products and a sum, as numpy's ufuncs (no FMA)
+            if p > high:
+                high = p
+            elif p < low:
+                low = p
+        spread[j] = high - low
+    return spread
+
+
+def projection_spreads(
+    x: np.ndarray, y: np.ndarray, cos: np.ndarray, sin: np.ndarray
+) -> np.ndarray:
+    """Spread (max - min) of the points' projections on each direction: ``proj.max(axis=0)
+    - proj.min(axis=0)`` of ``proj = x[:, None] * cos[None, :] + y[:, None] * sin[None, :]``,
+    the same floats, without the (K, D) array.
+
+    Parameters
+    ----------
+    x, y : (K,) ndarray of float64
+        Finite coordinates, K >= 1.
+    cos, sin : (D,) ndarray of float64
+        The directions' cosines and sines.
+
+    Returns
+    -------
+    (D,) ndarray of float64
+    """
+    x = np.ascontiguousarray(x, dtype=np.float64)
+    y = np.ascontiguousarray(y, dtype=np.float64)
+    if x.ndim != 1 or x.shape != y.shape or x.size == 0:
+        raise ValueError(
+            f"x and y must be equal non-empty 1-D arrays, got shapes {x.shape}, {y.shape}"
+        )
+    return _projection_spreads(
+        x,
+        y,
+        np.ascontiguousarray(cos, dtype=np.float64),
+        np.ascontiguousarray(sin, dtype=np.float64),
+    )

@@ -1,0 +1,77 @@
+"""Tests of stages/_small_stats.py: compiled median, percentile and projection spreads,
+twins of the numpy code they replace in the describe stage (bit for bit)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from stages._small_stats import median64, percentile64, projection_spreads
+
+
+def _bits(value) -> bytes:
+    return np.float64(value).tobytes()
+
+
+def _samples(rng: np.random.Generator, trials: int):
+    for trial in range(trials):
+        size = int(rng.integers(1, 400))
+        kind = trial % 5
+        if kind == 0:
+            values = rng.normal(size=size) * 10.0 ** rng.integers(-4, 2)
+        elif kind == 1:
+            values = rng.integers(-3, 4, size=size) * 0.5  # many ties and zeros
+        elif kind == 2:
+            values = np.where(rng.random(size) < 0.5, -0.0, 0.0)  # signed zeros
+        elif kind == 3:
+            values = rng.normal(size=size) * 1e-3 + 1.0
+        else:
+            values = rng.standard_t(3, size) * 0.004  # heights: heavy tails
+        if trial % 23 == 0:
+            values[rng.integers(size)] = np.nan
+        yield values
+
+
+def test_median64_is_numpys_median_bit_for_bit():
+    rng = np.random.default_rng(3)
+    for values in _samples(rng, 1500):
+        before = values.copy()
+        assert _bits(median64(values)) == _bits(np.median(values))
+        assert before.tobytes() == values.tobytes()  # not reordered
+    for size in (1, 2, 7, 8, 1001):
+        ints = rng.integers(0, 500, size=size)
+        assert _bits(median64(ints)) == _bits(np.median(ints))
+
+
+def test_percentile64_is_numpys_percentile_bit_for_bit():
+    rng = np.random.default_rng(4)
+    for values in _samples(rng, 1500):
+        for q in (98, 50, 0, 100, 2.5, 99.9):
+            assert _bits(percentile64(values, q)) == _bits(np.percentile(values, q))
+
+
+def test_small_stats_reject_empty_arrays_and_bad_percentiles():
+    with pytest.raises(ValueError, match="at least one"):
+        median64(np.zeros(0))
+    with pytest.raises(ValueError, match="at least one"):
+        percentile64(np.zeros(0), 98)
+    with pytest.raises(ValueError, match=r"\[0, 100\]"):
+        percentile64(np.ones(3), 101)
+
+
+def test_projection_spreads_are_numpys_max_minus_min_bit_for_bit():
+    rng = np.random.default_rng(5)
+    angles = np.radians(np.arange(0.0, 180.0, 3.0))
+    cos, sin = np.cos(angles), np.sin(angles)
+    for trial in range(300):
+        size = int(rng.integers(1, 1500))
+        if trial % 2:
+            x, y = rng.normal(size=size) * 0.1, rng.normal(size=size) * 0.1 + 2.0
+        else:  # pixel grids on the ground: ties and collinear points
+            grid = rng.integers(0, 40, size=(size, 2))
+            x, y = grid[:, 0] * 0.0031 - 0.05, grid[:, 1] * 0.0047 + 1.3
+        proj = x[:, None] * cos[None, :] + y[:, None] * sin[None, :]
+        expected = proj.max(axis=0) - proj.min(axis=0)
+        assert projection_spreads(x, y, cos, sin).tobytes() == expected.tobytes()
+    with pytest.raises(ValueError, match="non-empty"):
+        projection_spreads(np.zeros(0), np.zeros(0), cos, sin)
