@@ -29,7 +29,7 @@ import numpy as np
 
 from pipeline.camera import Camera
 
-from ._small_stats import median64
+from ._small_stats import _huber_weights, _median64
 
 try:  # the LAPACK gufunc np.linalg.solve calls, private to numpy
     from numpy.linalg import _umath_linalg
@@ -143,7 +143,7 @@ def _median(values: np.ndarray) -> np.float64:
         return np.float64(np.median(values))  # NaN with numpy's own warning
     if values.dtype == np.float64 or values.dtype.kind in "iu":
         # compiled (stages._small_stats); float32 sums would be float32 here, so not those
-        return median64(values)
+        return np.float64(_median64(values.astype(np.float64)))  # a copy: it reorders
     half = size // 2
     kth = [half - 1, half, -1] if size % 2 == 0 else [half, -1]
     part = values.copy(order="K")  # np.partition's own steps, without its dispatch
@@ -358,11 +358,12 @@ def fit_disparity_surface(
     with np.errstate(invalid="ignore", over="ignore", divide="ignore", under="ignore"):
         for round_ in range(iterations):  # (np.linalg.solve's error state, see _solve)
             coef = _weighted_least_squares(a, b, weights, well_conditioned=conditioned)
-            resid = np.abs(b - a @ coef)
-            sigma = 1.4826 * float(_median(resid)) + 1e-9
-            weights = 1.0 / np.maximum(1.0, resid / (_HUBER_K * sigma))
-            if round_ >= 1:  # once the fit is near, gross outliers get no say at all
-                weights[resid > _REJECT_K * sigma] = 0.0
+            # residuals beyond _HUBER_K robust sigmas down-weighted; once the fit is near
+            # (round >= 1), beyond _REJECT_K dropped: gross outliers get no say at all
+            # (compiled, numpy's arithmetic; the products a @ coef stay numpy's BLAS)
+            weights = _huber_weights(
+                b, a @ coef, _HUBER_K, _REJECT_K, round_ >= 1
+            )
     fitted = design @ coef
     on_valid = fitted[ok]
     return np.clip(fitted, on_valid.min(), on_valid.max())

@@ -22,7 +22,13 @@ from numba import njit
 
 from ._select import _kth
 
-__all__ = ["median64", "percentile64", "projection_spreads"]
+__all__ = [
+    "median64",
+    "percentile64",
+    "projection_spreads",
+    "boundary_jump_counts",
+    "huber_weights",
+]
 
 
 @njit(cache=True)
@@ -177,3 +183,107 @@ def projection_spreads(
         np.ascontiguousarray(cos, dtype=np.float64),
         np.ascontiguousarray(sin, dtype=np.float64),
     )
+
+
+@njit(cache=True)
+def _boundary_jump_counts(mask, background, disparity, jump_px):  # pragma: no cover - numba
+    total = hidden = 0
+    rows, cols = mask.shape
+    for i in range(rows):
+        for j in range(cols):
+            if not mask[i, j]:
+                continue
+            d_in = disparity[i, j]
+            if not math.isfinite(d_in):
+                continue
+            for di, dj in ((0, 1), (0, -1), (1, 0), (-1, 0)):
+                y, x = i + di, j + dj
+                if y < 0 or y >= rows or x < 0 or x >= cols or not background[y, x]:
+                    continue
+                d_out = disparity[y, x]
+                if not math.isfinite(d_out):
+                    continue
+                total += 1
+                if d_out - d_in > jump_px:
+                    hidden += 1
+    return total, hidden
+
+
+def boundary_jump_counts(
+    mask: np.ndarray, background: np.ndarray, disparity: np.ndarray, *, jump_px: float
+) -> tuple[int, int]:
+    """4-neighbour pairs (inside ``mask``, outside in ``background``) with both disparities
+    finite, and how many of them have the outside one more than ``jump_px`` larger.
+
+    Parameters
+    ----------
+    mask, background : (M, N) ndarray of bool
+    disparity : (M, N) ndarray of float64
+        NaN where invalid.
+    jump_px : float
+
+    Returns
+    -------
+    total, hidden : int
+    """
+    m = np.ascontiguousarray(mask, dtype=bool)
+    if not (m.shape == np.shape(background) == np.shape(disparity)) or m.ndim != 2:
+        raise ValueError(
+            f"mask, background and disparity must be equal 2-D arrays, got shapes {m.shape}, "
+            f"{np.shape(background)}, {np.shape(disparity)}"
+        )
+    total, hidden = _boundary_jump_counts(
+        m,
+        np.ascontiguousarray(background, dtype=bool),
+        np.ascontiguousarray(disparity, dtype=np.float64),
+        float(jump_px),
+    )
+    return int(total), int(hidden)
+
+
+@njit(cache=True)
+def _huber_weights(measured, fitted, huber_k, reject_k, reject):  # pragma: no cover - numba
+    n = measured.size
+    resid = np.empty(n)
+    for i in range(n):
+        resid[i] = abs(measured[i] - fitted[i])
+    sigma = 1.4826 * _median64(resid.copy()) + 1e-9
+    scale = huber_k * sigma
+    limit = reject_k * sigma
+    weights = np.empty(n)
+    for i in range(n):
+        ratio = resid[i] / scale
+        # np.maximum(1.0, ratio): NaN propagates
+        weights[i] = 1.0 / (ratio if (ratio > 1.0 or ratio != ratio) else 1.0)
+        if reject and resid[i] > limit:
+            weights[i] = 0.0
+    return weights
+
+
+def huber_weights(
+    measured: np.ndarray, fitted: np.ndarray, *, huber_k: float, reject_k: float, reject: bool
+) -> np.ndarray:
+    """The reweighting step of a robust fit, numpy's arithmetic in one pass:
+    ``resid = |measured - fitted|``, ``sigma = 1.4826 median(resid) + 1e-9``, weights
+    ``1 / max(1, resid / (huber_k sigma))``, and 0 where ``resid > reject_k sigma`` when
+    ``reject``.
+
+    Parameters
+    ----------
+    measured, fitted : (K,) ndarray of float64
+        K >= 1.
+    huber_k, reject_k : float
+    reject : bool
+
+    Returns
+    -------
+    (K,) ndarray of float64
+    """
+    measured = np.ascontiguousarray(measured, dtype=np.float64)
+    fitted = np.ascontiguousarray(fitted, dtype=np.float64)
+    if measured.ndim != 1 or measured.shape != fitted.shape or measured.size == 0:
+        raise ValueError(
+            f"measured and fitted must be equal non-empty 1-D arrays, got shapes "
+            f"{measured.shape}, {fitted.shape}"
+        )
+    return _huber_weights(measured, fitted, float(huber_k), float(reject_k), bool(reject))

@@ -6,7 +6,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from stages._small_stats import median64, percentile64, projection_spreads
+from stages._small_stats import (
+    boundary_jump_counts,
+    huber_weights,
+    median64,
+    percentile64,
+    projection_spreads,
+)
 
 
 def _bits(value) -> bytes:
@@ -75,3 +81,54 @@ def test_projection_spreads_are_numpys_max_minus_min_bit_for_bit():
         assert projection_spreads(x, y, cos, sin).tobytes() == expected.tobytes()
     with pytest.raises(ValueError, match="non-empty"):
         projection_spreads(np.zeros(0), np.zeros(0), cos, sin)
+
+
+def _numpy_jump_counts(mask, background, disparity, jump_px):
+    """The four shifted-array passes background_jump_fraction made before (describe v9)."""
+    total = hidden = 0
+    for first, second in (
+        ((slice(None), slice(None, -1)), (slice(None), slice(1, None))),
+        ((slice(None, -1), slice(None)), (slice(1, None), slice(None))),
+    ):
+        for inside, outside in ((first, second), (second, first)):
+            d_in, d_out = disparity[inside], disparity[outside]
+            ok = mask[inside] & background[outside] & np.isfinite(d_in) & np.isfinite(d_out)
+            total += int(np.count_nonzero(ok))
+            hidden += int(np.count_nonzero((d_out - d_in)[ok] > jump_px))
+    return total, hidden
+
+
+def test_boundary_jump_counts_are_the_shifted_array_counts():
+    rng = np.random.default_rng(6)
+    for _ in range(200):
+        shape = (int(rng.integers(1, 30)), int(rng.integers(1, 30)))
+        labels = rng.integers(0, 3, size=shape)
+        disparity = rng.normal(10.0, 1.0, size=shape)
+        disparity[rng.random(shape) < 0.2] = np.nan
+        mask = labels == 1
+        expected = _numpy_jump_counts(mask, labels == 0, disparity, 1.0)
+        assert boundary_jump_counts(mask, labels == 0, disparity, jump_px=1.0) == expected
+    with pytest.raises(ValueError, match="equal 2-D"):
+        boundary_jump_counts(
+            np.ones((2, 2), bool), np.ones((2, 3), bool), np.ones((2, 2)), jump_px=1.0
+        )
+
+
+def test_huber_weights_are_the_numpy_reweighting_bit_for_bit():
+    from stages._ground import _median
+
+    rng = np.random.default_rng(7)
+    for trial in range(300):
+        size = int(rng.integers(1, 500))
+        measured = rng.normal(10.0, 0.5, size=size)
+        fitted = measured + rng.standard_t(2, size) * 0.1
+        if trial % 5 == 0:
+            fitted[: size // 2] = measured[: size // 2]  # exact fits: zero residuals
+        reject = bool(trial % 2)
+        resid = np.abs(measured - fitted)
+        sigma = 1.4826 * float(_median(resid)) + 1e-9
+        expected = 1.0 / np.maximum(1.0, resid / (2.0 * sigma))
+        if reject:
+            expected[resid > 4.0 * sigma] = 0.0
+        got = huber_weights(measured, fitted, huber_k=2.0, reject_k=4.0, reject=reject)
+        assert got.tobytes() == expected.tobytes()
