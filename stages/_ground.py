@@ -29,7 +29,7 @@ import numpy as np
 
 from pipeline.camera import Camera
 
-from ._small_stats import _huber_weights, _median64
+from ._small_stats import _huber_weights, _median64, back_project
 
 try:  # the LAPACK gufunc np.linalg.solve calls, private to numpy
     from numpy.linalg import _umath_linalg
@@ -199,9 +199,14 @@ def pixel_points(
     shape : (int, int)
         Image shape, for the principal point.
     """
+    cx, cy = camera.principal_point(tuple(shape))
+    if np.ndim(disparity) == 1 and np.shape(rows) == np.shape(cols) == np.shape(disparity):
+        # compiled (a few thousand calls per frame), numpy's arithmetic
+        return back_project(
+            rows, cols, disparity, k_m_px=camera.k_m_px, focal_px=camera.focal_px, cx=cx, cy=cy
+        )
     d = np.asarray(disparity, dtype=np.float64)
     d = np.where(d > 0, d, np.nan)
-    cx, cy = camera.principal_point(tuple(shape))
     z = camera.k_m_px / d
     x = (np.asarray(cols, dtype=np.float64) - cx) * z / camera.focal_px
     y = (np.asarray(rows, dtype=np.float64) - cy) * z / camera.focal_px

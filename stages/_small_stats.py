@@ -28,6 +28,7 @@ __all__ = [
     "projection_spreads",
     "boundary_jump_counts",
     "huber_weights",
+    "back_project",
 ]
 
 
@@ -287,3 +288,48 @@ def huber_weights(
             f"{measured.shape}, {fitted.shape}"
         )
     return _huber_weights(measured, fitted, float(huber_k), float(reject_k), bool(reject))
+
+
+@njit(cache=True)
+def _back_project(rows, cols, disparity, k_m_px, focal_px, cx, cy):  # pragma: no cover
+    out = np.empty((disparity.size, 3))
+    for i in range(disparity.size):
+        d = disparity[i]
+        if not d > 0:  # NaN too
+            d = np.nan
+        z = k_m_px / d
+        out[i, 0] = (float(cols[i]) - cx) * z / focal_px
+        out[i, 1] = (float(rows[i]) - cy) * z / focal_px
+        out[i, 2] = z
+    return out
+
+
+def back_project(
+    rows: np.ndarray,
+    cols: np.ndarray,
+    disparity: np.ndarray,
+    *,
+    k_m_px: float,
+    focal_px: float,
+    cx: float,
+    cy: float,
+) -> np.ndarray:
+    """Camera-frame points ``(K, 3)``: ``z = k_m_px / d`` (NaN where ``d`` is not > 0),
+    ``x = (col - cx) z / f``, ``y = (row - cy) z / f``, numpy's operations in numpy's order
+    (:func:`stages._ground.pixel_points`).
+
+    Parameters
+    ----------
+    rows, cols : (K,) ndarray of int or float
+    disparity : (K,) ndarray of float64
+    k_m_px, focal_px, cx, cy : float
+    """
+    d = np.ascontiguousarray(disparity, dtype=np.float64)
+    r = np.ascontiguousarray(rows)
+    c = np.ascontiguousarray(cols)
+    if d.ndim != 1 or r.shape != d.shape or c.shape != d.shape:
+        raise ValueError(
+            f"rows, cols and disparity must be equal 1-D arrays, got shapes {r.shape}, "
+            f"{c.shape}, {d.shape}"
+        )
+    return _back_project(r, c, d, float(k_m_px), float(focal_px), float(cx), float(cy))

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from stages._small_stats import (
+    back_project,
     boundary_jump_counts,
     huber_weights,
     median64,
@@ -131,4 +132,25 @@ def test_huber_weights_are_the_numpy_reweighting_bit_for_bit():
         if reject:
             expected[resid > 4.0 * sigma] = 0.0
         got = huber_weights(measured, fitted, huber_k=2.0, reject_k=4.0, reject=reject)
+        assert got.tobytes() == expected.tobytes()
+
+
+def test_back_project_is_pixel_points_numpy_arithmetic_bit_for_bit():
+    rng = np.random.default_rng(8)
+    for trial in range(100):
+        size = int(rng.integers(1, 800))
+        rows = rng.integers(0, 500, size=size)
+        cols = rng.integers(0, 500, size=size)
+        disparity = rng.uniform(-1.0, 40.0, size=size)  # some not > 0: NaN points
+        disparity[rng.random(size) < 0.1] = np.nan
+        if trial % 2:
+            rows, cols = rows.astype(np.float64) + 0.5, cols.astype(np.float64)
+        k, f, cx, cy = 34.3, 490.0, 249.5, 251.25
+        d = np.where(disparity > 0, disparity, np.nan)
+        z = k / d
+        expected = np.stack(
+            [(cols.astype(np.float64) - cx) * z / f, (rows.astype(np.float64) - cy) * z / f, z],
+            axis=-1,
+        )
+        got = back_project(rows, cols, disparity, k_m_px=k, focal_px=f, cx=cx, cy=cy)
         assert got.tobytes() == expected.tobytes()
