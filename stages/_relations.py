@@ -286,7 +286,7 @@ def relate_objects(
     labels : (M, N) ndarray of int32
         0 = background.
     disparity : (M, N) ndarray of float
-        Pixels, NaN where invalid.
+        Pixels, NaN (or <= 0) where invalid.
     object_ids, x_m, y_m, bbox_x_min, bbox_x_max : (K,) ndarray
         Descriptor columns of the frame's objects.
     margin_m : float
@@ -310,7 +310,7 @@ def relate_objects(
         and object.
     """
     lab = np.asarray(labels)
-    disp = np.asarray(disparity, dtype=np.float64)
+    disp = np.asarray(disparity)  # crops are converted and cleaned where read
     if lab.ndim != 2 or disp.shape != lab.shape:
         raise ValueError(
             f"labels and disparity must be 2-D arrays of one shape, got {lab.shape} and "
@@ -362,7 +362,9 @@ def relate_objects(
             mask_a, mask_b = lab_c == obj, lab_c == other
             if contact_pixels(mask_a, mask_b, gap_px=contact_gap_px) < _MIN_CONTACT_PX:
                 continue
-            diff = boundary_disparity_difference(disp[crop], mask_a, mask_b, band_px=band_px)
+            disp_c = disp[crop].astype(np.float64)
+            disp_c[~(disp_c > 0)] = np.nan
+            diff = boundary_disparity_difference(disp_c, mask_a, mask_b, band_px=band_px)
             if diff > occlusion_jump_px:
                 occludes[i, j] = True
             elif -diff > occlusion_jump_px:

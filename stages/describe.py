@@ -159,10 +159,9 @@ def describe_frame(
         fringe_smoothing_px=fringe_smoothing_px,
         border_height_quantile=border_height_quantile,
     )
-    disp = np.asarray(disparity, dtype=np.float64)
     rel = relate_objects(
         labels,
-        np.where(disp > 0, disp, np.nan),
+        disparity,  # converted and cleaned (<= 0: NaN) crop by crop there
         object_ids=desc["object_id"],
         x_m=desc["x_m"],
         y_m=desc["y_m"],
