@@ -72,6 +72,7 @@ and a constant disparity beyond 2.5 m (k 0.030 on mojave and lava: far widths 5-
 
 from __future__ import annotations
 
+import functools
 import math
 
 import cv2
@@ -503,7 +504,15 @@ def _object_box_mean(mask: np.ndarray, values: np.ndarray, size: int) -> np.ndar
 
 def _dilate_diamond(mask: np.ndarray, radius: int) -> np.ndarray:
     """City-block dilation by ``radius`` pixels (``radius`` 4-connected dilations at once)."""
+    return cv2.dilate(np.ascontiguousarray(mask).view(np.uint8), _diamond(radius)).view(bool)
+
+
+@functools.lru_cache(maxsize=16)
+def _diamond(radius: int) -> np.ndarray:
+    """The city-block disk of ``radius`` as a uint8 kernel (built once per radius: the
+    describe stage dilates two or three times per object; cv2 only reads it)."""
     steps = np.abs(np.arange(-radius, radius + 1))
     kernel = (steps[:, None] + steps[None, :] <= radius).astype(np.uint8)
-    return cv2.dilate(np.ascontiguousarray(mask).view(np.uint8), kernel).view(bool)
+    kernel.flags.writeable = False  # shared between calls
+    return kernel
 
