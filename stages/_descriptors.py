@@ -525,7 +525,12 @@ def describe_objects(
             height_err = abs(float(ray @ ground.up)) * z_top**2 / kb * disparity_error_px
         mean_gray = float(gray_px.mean())
         major, minor, angle = second_moment_ellipse(rows, cols)
-        largest = np.nanmax([width, length]) if np.isfinite([width, length]).any() else math.nan
+        # np.nanmax([width, length]) when one is finite, in Python floats (a few us an object)
+        largest = (
+            max(v for v in (width, length) if not math.isnan(v))
+            if math.isfinite(width) or math.isfinite(length)
+            else math.nan
+        )
         jump = background_jump_fraction(mask, lab_c, disp_c, jump_px=background_jump_px)
         rows_out.append(
             {

@@ -309,7 +309,7 @@ def bound_footprint_slope(
     span = float(r.max() - r.min()) + 1.0
     share = face_px / span
     # the fitted footprint's extent along the line of sight over its extent across it
-    along = (1.0 / d.min() - 1.0 / d.max()) * _median(d) * focal_px / (np.ptp(c) + 1.0)
+    along = (1.0 / d.min() - 1.0 / d.max()) * _median(d) * focal_px / (c.max() - c.min() + 1.0)
     if span <= 1.0 or not (share >= min_face_share or along > max_along_ratio):
         return d
     first, last = int(np.argmin(r)), int(np.argmax(r))
