@@ -81,7 +81,7 @@ import numpy as np
 from pipeline.camera import Camera
 
 from ._ground import GroundFrame, _median, fit_disparity_surface, pixel_points
-from ._small_stats import projection_spreads
+from ._small_stats import footprint_spreads
 
 __all__ = [
     "widest_row_width_m",
@@ -346,25 +346,27 @@ def footprint_dimensions(
     width_m, length_m : float
         NaN when fewer than two finite points remain.
     """
-    x = np.asarray(x_m, dtype=np.float64)
-    y = np.asarray(y_m, dtype=np.float64)
-    keep = np.isfinite(x) & np.isfinite(y)
-    x, y = x[keep], y[keep]
-    for axis in (0, 1):
-        values = (x, y)[axis]
-        if values.size:
-            centre = _median(values)
-            mad = 1.4826 * _median(np.abs(values - centre))
-            inlier = np.abs(values - centre) <= 4.0 * mad + 1e-12
-            x, y = x[inlier], y[inlier]
-    if x.size < 2:
+    angles, cos, sin = _directions(float(step_deg))
+    # compiled (stages._small_stats.footprint_spreads): the finite points, those within 4
+    # scaled MADs of the median in x, then in y; the max - min of their projections on
+    # every direction, numpy's arithmetic without the (K, D) array
+    spread = footprint_spreads(x_m, y_m, cos, sin)
+    if spread.size == 0:  # fewer than two points
         return math.nan, math.nan
-    angles = np.radians(np.arange(0.0, 180.0, step_deg))
-    # compiled: the max - min of every direction's projections, without the (K, D) array
-    spread = projection_spreads(x, y, np.cos(angles), np.sin(angles))
     k = int(np.argmax(spread))
     across = int(np.argmin(np.abs(((angles - angles[k]) % np.pi) - np.pi / 2)))
     return float(spread[k] + pixel_m), float(spread[across] + pixel_m)
+
+
+@functools.lru_cache(maxsize=8)
+def _directions(step_deg: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Angles every ``step_deg`` degrees in [0, 180) (radians), their cosines and sines
+    (read-only, built once per step)."""
+    angles = np.radians(np.arange(0.0, 180.0, step_deg))
+    out = (angles, np.cos(angles), np.sin(angles))
+    for array in out:
+        array.flags.writeable = False
+    return out
 
 
 def ground_fringe_keep(

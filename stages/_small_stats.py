@@ -26,6 +26,7 @@ __all__ = [
     "median64",
     "percentile64",
     "projection_spreads",
+    "footprint_spreads",
     "boundary_jump_counts",
     "huber_weights",
     "back_project",
@@ -333,3 +334,80 @@ def back_project(
             f"{c.shape}, {d.shape}"
         )
     return _back_project(r, c, d, float(k_m_px), float(focal_px), float(cx), float(cy))
+
+
+@njit(cache=True)
+def _mad_inliers(values, keep):  # pragma: no cover - numba
+    """Clear ``keep`` where a kept value lies more than 4 scaled MADs (+1e-12) from the kept
+    values' median: ``_footprint.footprint_dimensions``' numpy steps, value for value."""
+    kept = np.empty(values.size)
+    n = 0
+    for i in range(values.size):
+        if keep[i]:
+            kept[n] = values[i]
+            n += 1
+    if n == 0:
+        return
+    centre = _median64(kept[:n].copy())
+    deviation = np.empty(n)
+    for i in range(n):
+        deviation[i] = abs(kept[i] - centre)
+    mad = 1.4826 * _median64(deviation.copy())
+    limit = 4.0 * mad + 1e-12
+    j = 0
+    for i in range(values.size):
+        if keep[i]:
+            if not deviation[j] <= limit:
+                keep[i] = False
+            j += 1
+
+
+@njit(cache=True)
+def _footprint_spreads(x, y, cos, sin):  # pragma: no cover - numba
+    keep = np.empty(x.size, np.bool_)
+    for i in range(x.size):
+        keep[i] = math.isfinite(x[i]) and math.isfinite(y[i])
+    _mad_inliers(x, keep)
+    _mad_inliers(y, keep)
+    n = 0
+    for i in range(x.size):
+        n += keep[i]
+    if n < 2:
+        return np.empty(0)
+    xs, ys = np.empty(n), np.empty(n)
+    j = 0
+    for i in range(x.size):
+        if keep[i]:
+            xs[j], ys[j] = x[i], y[i]
+            j += 1
+    return _projection_spreads(xs, ys, cos, sin)
+
+
+def footprint_spreads(
+    x: np.ndarray, y: np.ndarray, cos: np.ndarray, sin: np.ndarray
+) -> np.ndarray:
+    """:func:`projection_spreads` of the finite points within 4 scaled MADs (1.4826 MAD,
+    +1e-12) of the median in x, then of those in y: the spreads
+    :func:`stages._footprint.footprint_dimensions` measures, the same floats.
+
+    Parameters
+    ----------
+    x, y : (K,) ndarray of float64
+        Ground coordinates; NaN entries are ignored.
+    cos, sin : (D,) ndarray of float64
+
+    Returns
+    -------
+    (D,) ndarray of float64
+        Empty when fewer than two points remain.
+    """
+    x = np.ascontiguousarray(x, dtype=np.float64)
+    y = np.ascontiguousarray(y, dtype=np.float64)
+    if x.ndim != 1 or x.shape != y.shape:
+        raise ValueError(f"x and y must be equal 1-D arrays, got shapes {x.shape}, {y.shape}")
+    return _footprint_spreads(
+        x,
+        y,
+        np.ascontiguousarray(cos, dtype=np.float64),
+        np.ascontiguousarray(sin, dtype=np.float64),
+    )

@@ -9,6 +9,7 @@ import pytest
 from stages._small_stats import (
     back_project,
     boundary_jump_counts,
+    footprint_spreads,
     huber_weights,
     median64,
     percentile64,
@@ -154,3 +155,39 @@ def test_back_project_is_pixel_points_numpy_arithmetic_bit_for_bit():
         )
         got = back_project(rows, cols, disparity, k_m_px=k, focal_px=f, cx=cx, cy=cy)
         assert got.tobytes() == expected.tobytes()
+
+
+def _numpy_footprint_spreads(x, y, cos, sin):
+    """footprint_dimensions' numpy steps before they were compiled (describe v9)."""
+    keep = np.isfinite(x) & np.isfinite(y)
+    x, y = x[keep], y[keep]
+    for axis in (0, 1):
+        values = (x, y)[axis]
+        if values.size:
+            centre = np.median(values)
+            mad = 1.4826 * np.median(np.abs(values - centre))
+            inlier = np.abs(values - centre) <= 4.0 * mad + 1e-12
+            x, y = x[inlier], y[inlier]
+    if x.size < 2:
+        return np.empty(0)
+    proj = x[:, None] * cos[None, :] + y[:, None] * sin[None, :]
+    return proj.max(axis=0) - proj.min(axis=0)
+
+
+def test_footprint_spreads_are_the_numpy_outlier_filter_and_spreads_bit_for_bit():
+    rng = np.random.default_rng(9)
+    angles = np.radians(np.arange(0.0, 180.0, 3.0))
+    cos, sin = np.cos(angles), np.sin(angles)
+    for trial in range(300):
+        size = int(rng.integers(0, 600))
+        grid = rng.integers(0, 30, size=(size, 2))
+        x, y = grid[:, 0] * 0.004 - 0.06, grid[:, 1] * 0.006 + 1.5
+        if trial % 3 == 0 and size:  # ground behind the silhouette: far outliers
+            far = rng.random(size) < 0.05
+            y[far] += 0.5
+        if trial % 4 == 0 and size:
+            x[rng.random(size) < 0.1] = np.nan
+        if trial % 11 == 0:
+            x[:] = 0.25  # one column of points: MAD 0
+        expected = _numpy_footprint_spreads(x, y, cos, sin)
+        assert footprint_spreads(x, y, cos, sin).tobytes() == expected.tobytes()
