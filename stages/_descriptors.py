@@ -269,6 +269,12 @@ def background_jump_fraction(
     return hidden / total if total else 0.0
 
 
+def _object_slices(labels: np.ndarray) -> list:
+    """``scipy.ndimage.find_objects`` of a label image, values <= 0 as background."""
+    lab = np.asarray(labels)
+    return ndimage.find_objects(np.where(lab > 0, lab, 0))
+
+
 def _coerce_frame_inputs(
     labels: np.ndarray,
     gray: np.ndarray,
@@ -330,6 +336,7 @@ def describe_objects(
     fringe_smoothing_px: int = 7,
     fringe_dark_ratio: float = 0.15,
     border_height_quantile: float = 0.9,
+    object_slices: list | None = None,
 ) -> dict[str, np.ndarray]:
     """Descriptor columns of every object of a label image.
 
@@ -382,6 +389,9 @@ def describe_objects(
         visible width and its height over this quantile of height / width of the frame's
         objects seen whole (:mod:`stages._border`; at least 5 of them, 0.03 m wide or
         more); 0 classes it on its visible width.
+    object_slices : list of (slice, slice) or None, optional
+        ``scipy.ndimage.find_objects`` of ``labels`` with values <= 0 as background, when
+        the caller has it (describe does, for the relations too); computed if None.
 
     Returns
     -------
@@ -411,7 +421,7 @@ def describe_objects(
         raise TypeError(f"camera must be a pipeline.camera.Camera, got {type(camera).__name__}")
     ground = frame_ground(camera, ground_plane)
     has_height_map = bool(np.isfinite(hgt).any())
-    slices = ndimage.find_objects(np.where(lab > 0, lab, 0))
+    slices = object_slices if object_slices is not None else _object_slices(lab)
     rows_out: list[dict[str, object]] = []
     h_img, w_img = shape = lab.shape
     cx, cy = camera.principal_point(lab.shape)

@@ -278,6 +278,7 @@ def relate_objects(
     band_px: int = 3,
     contact_gap_px: int = 0,
     occlusion_jump_px: float = 0.1,
+    object_slices: list | None = None,
 ) -> dict[str, np.ndarray]:
     """Edge table of one frame.
 
@@ -302,6 +303,9 @@ def relate_objects(
         Background pixels allowed between two regions in contact, <= ``gap_px``.
     occlusion_jump_px : float
         Disparity difference (pixels) above which the nearer region occludes the other.
+    object_slices : list of (slice, slice) or None, optional
+        ``scipy.ndimage.find_objects`` of ``labels`` with values <= 0 as background, when
+        the caller has it (describe does: one whole-frame pass fewer); computed if None.
 
     Returns
     -------
@@ -339,7 +343,9 @@ def relate_objects(
     adjacent = np.zeros((k, k), dtype=bool)
     occludes = np.zeros((k, k), dtype=bool)
     position = {int(obj): i for i, obj in enumerate(ids)}
-    slices = ndimage.find_objects(np.where(lab > 0, lab, 0))
+    slices = object_slices
+    if slices is None:
+        slices = ndimage.find_objects(np.where(lab > 0, lab, 0))
     pad = gap_px + 1 + band_px
     h, w = lab.shape
     for i, obj in enumerate(ids):

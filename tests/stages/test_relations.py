@@ -301,3 +301,16 @@ def test_relate_objects_reads_disparity_not_above_zero_as_invalid():
     assert (1, "occludes", 2) in _edges(got)
     for name in RELATION_COLUMNS:
         assert got[name].tobytes() == expected[name].tobytes()
+
+
+def test_relate_objects_with_given_object_slices_equals_its_own():
+    from scipy import ndimage
+
+    labels = _squares(0)
+    disparity = np.where(labels == 1, 12.0, np.where(labels == 2, 10.0, 4.0))
+    given = _pair_columns(
+        labels, disparity, object_slices=ndimage.find_objects(np.where(labels > 0, labels, 0))
+    )
+    own = _pair_columns(labels, disparity)
+    for name in RELATION_COLUMNS:
+        assert given[name].tobytes() == own[name].tobytes()
