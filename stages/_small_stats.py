@@ -1,4 +1,12 @@
-"""Numba kernels: ``np.median`` and ``np.percentile`` of small float64 arrays, the same floats.
+"""Numba kernels of the describe stage, each the same floats as the numpy code it replaced.
+
+``median64`` / ``percentile64`` (``np.median`` / ``np.percentile`` of small arrays),
+``footprint_spreads`` / ``projection_spreads`` (:func:`stages._footprint.footprint_dimensions`),
+``boundary_jump_counts`` (:func:`stages._descriptors.background_jump_fraction`),
+``huber_weights`` (the reweighting of :func:`stages._ground.fit_disparity_surface`, whose
+products and solves stay numpy's BLAS/LAPACK) and ``back_project``
+(:func:`stages._ground.pixel_points`): elementwise arithmetic in numpy's order (no FMA),
+order statistics by selection.
 
 Private helpers of the describe stage (:mod:`stages._ground`, :mod:`stages._descriptors`),
 which takes thousands of medians and a percentile per object of arrays of tens to a few
