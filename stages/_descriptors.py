@@ -39,6 +39,7 @@ from ._ground import (
     pixel_points,
     silhouette_on_ground,
 )
+from ._small_stats import boundary_jump_counts, percentile64
 
 __all__ = [
     "GroundFrame",
@@ -210,13 +211,13 @@ def top_height(
     order = np.argsort(r, kind="stable")
     n = max(min_pixels, math.ceil(top_fraction * h.size))
     take = order[:n]
-    return float(np.median(h[take])), int(np.median(r[take]))
+    return float(_median(h[take])), int(_median(r[take]))  # np.median's values
 
 
 def _height_p98(heights: np.ndarray) -> float:
     """The 98th percentile of an object's finite heights (``height_max_m``), NaN if none."""
     finite = heights[np.isfinite(heights)]
-    return float(np.percentile(finite, 98)) if finite.size else math.nan
+    return percentile64(finite, 98) if finite.size else math.nan
 
 
 def classify_size(
@@ -261,21 +262,17 @@ def background_jump_fraction(
     float
         Fraction in [0, 1]; 0 when no valid boundary pair exists.
     """
-    m = np.asarray(mask, dtype=bool)
-    bg = np.asarray(labels) == 0
-    d = np.asarray(disparity, dtype=np.float64)
-    total = 0
-    hidden = 0
-    for first, second in (
-        ((slice(None), slice(None, -1)), (slice(None), slice(1, None))),  # left, right pixel
-        ((slice(None, -1), slice(None)), (slice(1, None), slice(None))),  # upper, lower pixel
-    ):
-        for inside, outside in ((first, second), (second, first)):
-            d_in, d_out = d[inside], d[outside]
-            ok = m[inside] & bg[outside] & np.isfinite(d_in) & np.isfinite(d_out)
-            total += int(np.count_nonzero(ok))
-            hidden += int(np.count_nonzero((d_out - d_in)[ok] > jump_px))
+    # compiled: one pass over the crop instead of four shifted-array passes
+    total, hidden = boundary_jump_counts(
+        mask, np.asarray(labels) == 0, disparity, jump_px=jump_px
+    )
     return hidden / total if total else 0.0
+
+
+def _object_slices(labels: np.ndarray) -> list:
+    """``scipy.ndimage.find_objects`` of a label image, values <= 0 as background."""
+    lab = np.asarray(labels)
+    return ndimage.find_objects(np.where(lab > 0, lab, 0))
 
 
 def _coerce_frame_inputs(
@@ -339,6 +336,7 @@ def describe_objects(
     fringe_smoothing_px: int = 7,
     fringe_dark_ratio: float = 0.15,
     border_height_quantile: float = 0.9,
+    object_slices: list | None = None,
 ) -> dict[str, np.ndarray]:
     """Descriptor columns of every object of a label image.
 
@@ -391,6 +389,9 @@ def describe_objects(
         visible width and its height over this quantile of height / width of the frame's
         objects seen whole (:mod:`stages._border`; at least 5 of them, 0.03 m wide or
         more); 0 classes it on its visible width.
+    object_slices : list of (slice, slice) or None, optional
+        ``scipy.ndimage.find_objects`` of ``labels`` with values <= 0 as background, when
+        the caller has it (describe does, for the relations too); computed if None.
 
     Returns
     -------
@@ -420,7 +421,7 @@ def describe_objects(
         raise TypeError(f"camera must be a pipeline.camera.Camera, got {type(camera).__name__}")
     ground = frame_ground(camera, ground_plane)
     has_height_map = bool(np.isfinite(hgt).any())
-    slices = ndimage.find_objects(np.where(lab > 0, lab, 0))
+    slices = object_slices if object_slices is not None else _object_slices(lab)
     rows_out: list[dict[str, object]] = []
     h_img, w_img = shape = lab.shape
     cx, cy = camera.principal_point(lab.shape)
@@ -534,7 +535,12 @@ def describe_objects(
             height_err = abs(float(ray @ ground.up)) * z_top**2 / kb * disparity_error_px
         mean_gray = float(gray_px.mean())
         major, minor, angle = second_moment_ellipse(rows, cols)
-        largest = np.nanmax([width, length]) if np.isfinite([width, length]).any() else math.nan
+        # np.nanmax([width, length]) when one is finite, in Python floats (a few us an object)
+        largest = (
+            max(v for v in (width, length) if not math.isnan(v))
+            if math.isfinite(width) or math.isfinite(length)
+            else math.nan
+        )
         jump = background_jump_fraction(mask, lab_c, disp_c, jump_px=background_jump_px)
         rows_out.append(
             {

@@ -72,6 +72,7 @@ and a constant disparity beyond 2.5 m (k 0.030 on mojave and lava: far widths 5-
 
 from __future__ import annotations
 
+import functools
 import math
 
 import cv2
@@ -80,6 +81,7 @@ import numpy as np
 from pipeline.camera import Camera
 
 from ._ground import GroundFrame, _median, fit_disparity_surface, pixel_points
+from ._small_stats import footprint_spreads
 
 __all__ = [
     "widest_row_width_m",
@@ -307,7 +309,7 @@ def bound_footprint_slope(
     span = float(r.max() - r.min()) + 1.0
     share = face_px / span
     # the fitted footprint's extent along the line of sight over its extent across it
-    along = (1.0 / d.min() - 1.0 / d.max()) * _median(d) * focal_px / (np.ptp(c) + 1.0)
+    along = (1.0 / d.min() - 1.0 / d.max()) * _median(d) * focal_px / (c.max() - c.min() + 1.0)
     if span <= 1.0 or not (share >= min_face_share or along > max_along_ratio):
         return d
     first, last = int(np.argmin(r)), int(np.argmax(r))
@@ -344,25 +346,27 @@ def footprint_dimensions(
     width_m, length_m : float
         NaN when fewer than two finite points remain.
     """
-    x = np.asarray(x_m, dtype=np.float64)
-    y = np.asarray(y_m, dtype=np.float64)
-    keep = np.isfinite(x) & np.isfinite(y)
-    x, y = x[keep], y[keep]
-    for axis in (0, 1):
-        values = (x, y)[axis]
-        if values.size:
-            centre = _median(values)
-            mad = 1.4826 * _median(np.abs(values - centre))
-            inlier = np.abs(values - centre) <= 4.0 * mad + 1e-12
-            x, y = x[inlier], y[inlier]
-    if x.size < 2:
+    angles, cos, sin = _directions(float(step_deg))
+    # compiled (stages._small_stats.footprint_spreads): the finite points, those within 4
+    # scaled MADs of the median in x, then in y; the max - min of their projections on
+    # every direction, numpy's arithmetic without the (K, D) array
+    spread = footprint_spreads(x_m, y_m, cos, sin)
+    if spread.size == 0:  # fewer than two points
         return math.nan, math.nan
-    angles = np.radians(np.arange(0.0, 180.0, step_deg))
-    proj = x[:, None] * np.cos(angles)[None, :] + y[:, None] * np.sin(angles)[None, :]
-    spread = proj.max(axis=0) - proj.min(axis=0)
     k = int(np.argmax(spread))
     across = int(np.argmin(np.abs(((angles - angles[k]) % np.pi) - np.pi / 2)))
     return float(spread[k] + pixel_m), float(spread[across] + pixel_m)
+
+
+@functools.lru_cache(maxsize=8)
+def _directions(step_deg: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Angles every ``step_deg`` degrees in [0, 180) (radians), their cosines and sines
+    (read-only, built once per step)."""
+    angles = np.radians(np.arange(0.0, 180.0, step_deg))
+    out = (angles, np.cos(angles), np.sin(angles))
+    for array in out:
+        array.flags.writeable = False
+    return out
 
 
 def ground_fringe_keep(
@@ -502,7 +506,15 @@ def _object_box_mean(mask: np.ndarray, values: np.ndarray, size: int) -> np.ndar
 
 def _dilate_diamond(mask: np.ndarray, radius: int) -> np.ndarray:
     """City-block dilation by ``radius`` pixels (``radius`` 4-connected dilations at once)."""
+    return cv2.dilate(np.ascontiguousarray(mask).view(np.uint8), _diamond(radius)).view(bool)
+
+
+@functools.lru_cache(maxsize=16)
+def _diamond(radius: int) -> np.ndarray:
+    """The city-block disk of ``radius`` as a uint8 kernel (built once per radius: the
+    describe stage dilates two or three times per object; cv2 only reads it)."""
     steps = np.abs(np.arange(-radius, radius + 1))
     kernel = (steps[:, None] + steps[None, :] <= radius).astype(np.uint8)
-    return cv2.dilate(np.ascontiguousarray(mask).view(np.uint8), kernel).view(bool)
+    kernel.flags.writeable = False  # shared between calls
+    return kernel
 

@@ -29,12 +29,15 @@ import numpy as np
 
 from pipeline.camera import Camera
 
+from ._small_stats import _huber_weights, _median64, back_project
+
 try:  # the LAPACK gufunc np.linalg.solve calls, private to numpy
     from numpy.linalg import _umath_linalg
 
     _lapack_solve1: Any = _umath_linalg.solve1
+    _lapack_eigvalsh: Any = _umath_linalg.eigvalsh_lo
 except (ImportError, AttributeError):  # pragma: no cover - a numpy that moved it
-    _lapack_solve1 = None  # the public call then, same bits
+    _lapack_solve1 = _lapack_eigvalsh = None  # the public calls then, same bits
 
 __all__ = [
     "GroundFrame",
@@ -131,12 +134,16 @@ def _median(values: np.ndarray) -> np.float64:
     """``np.median`` of a 1-D float array (same partition, same value) without its overhead.
 
     The describe stage takes thousands of medians of small arrays per frame; the generic
-    ``np.median`` spends most of its time in argument handling.
+    ``np.median`` spends most of its time in argument handling. Float64 and integer values
+    go to a compiled selection (:func:`stages._small_stats.median64`, the same value).
     """
     values = np.ravel(values)
     size = values.size
     if size == 0:
         return np.float64(np.median(values))  # NaN with numpy's own warning
+    if values.dtype == np.float64 or values.dtype.kind in "iu":
+        # compiled (stages._small_stats); float32 sums would be float32 here, so not those
+        return np.float64(_median64(values.astype(np.float64)))  # a copy: it reorders
     half = size // 2
     kth = [half - 1, half, -1] if size % 2 == 0 else [half, -1]
     part = values.copy(order="K")  # np.partition's own steps, without its dispatch
@@ -192,9 +199,14 @@ def pixel_points(
     shape : (int, int)
         Image shape, for the principal point.
     """
+    cx, cy = camera.principal_point(tuple(shape))
+    if np.ndim(disparity) == 1 and np.shape(rows) == np.shape(cols) == np.shape(disparity):
+        # compiled (a few thousand calls per frame), numpy's arithmetic
+        return back_project(
+            rows, cols, disparity, k_m_px=camera.k_m_px, focal_px=camera.focal_px, cx=cx, cy=cy
+        )
     d = np.asarray(disparity, dtype=np.float64)
     d = np.where(d > 0, d, np.nan)
-    cx, cy = camera.principal_point(tuple(shape))
     z = camera.k_m_px / d
     x = (np.asarray(cols, dtype=np.float64) - cx) * z / camera.focal_px
     y = (np.asarray(rows, dtype=np.float64) - cy) * z / camera.focal_px
@@ -256,7 +268,17 @@ def _std(values: np.ndarray) -> float:
 
 def _well_conditioned(a: np.ndarray) -> bool:
     """Whether the normal equations of design ``a`` have a condition number below 1e10."""
-    eig = np.linalg.eigvalsh(a.T @ a)  # ascending
+    normal = a.T @ a
+    eig = None
+    if _lapack_eigvalsh is not None:
+        # np.linalg.eigvalsh's gufunc without its argument handling (one call per fit);
+        # NaN where LAPACK did not converge: the public call then raises as it would
+        with np.errstate(invalid="ignore"):
+            eig = _lapack_eigvalsh(normal, signature="d->d")
+        if not np.isfinite(eig).all():
+            eig = None
+    if eig is None:
+        eig = np.linalg.eigvalsh(normal)  # ascending
     return bool(eig[0] > 1e-10 * eig[-1])
 
 
@@ -341,11 +363,12 @@ def fit_disparity_surface(
     with np.errstate(invalid="ignore", over="ignore", divide="ignore", under="ignore"):
         for round_ in range(iterations):  # (np.linalg.solve's error state, see _solve)
             coef = _weighted_least_squares(a, b, weights, well_conditioned=conditioned)
-            resid = np.abs(b - a @ coef)
-            sigma = 1.4826 * float(_median(resid)) + 1e-9
-            weights = 1.0 / np.maximum(1.0, resid / (_HUBER_K * sigma))
-            if round_ >= 1:  # once the fit is near, gross outliers get no say at all
-                weights[resid > _REJECT_K * sigma] = 0.0
+            # residuals beyond _HUBER_K robust sigmas down-weighted; once the fit is near
+            # (round >= 1), beyond _REJECT_K dropped: gross outliers get no say at all
+            # (compiled, numpy's arithmetic; the products a @ coef stay numpy's BLAS)
+            weights = _huber_weights(
+                b, a @ coef, _HUBER_K, _REJECT_K, round_ >= 1
+            )
     fitted = design @ coef
     on_valid = fitted[ok]
     return np.clip(fitted, on_valid.min(), on_valid.max())

@@ -278,6 +278,7 @@ def relate_objects(
     band_px: int = 3,
     contact_gap_px: int = 0,
     occlusion_jump_px: float = 0.1,
+    object_slices: list | None = None,
 ) -> dict[str, np.ndarray]:
     """Edge table of one frame.
 
@@ -286,7 +287,7 @@ def relate_objects(
     labels : (M, N) ndarray of int32
         0 = background.
     disparity : (M, N) ndarray of float
-        Pixels, NaN where invalid.
+        Pixels, NaN (or <= 0) where invalid.
     object_ids, x_m, y_m, bbox_x_min, bbox_x_max : (K,) ndarray
         Descriptor columns of the frame's objects.
     margin_m : float
@@ -302,6 +303,9 @@ def relate_objects(
         Background pixels allowed between two regions in contact, <= ``gap_px``.
     occlusion_jump_px : float
         Disparity difference (pixels) above which the nearer region occludes the other.
+    object_slices : list of (slice, slice) or None, optional
+        ``scipy.ndimage.find_objects`` of ``labels`` with values <= 0 as background, when
+        the caller has it (describe does: one whole-frame pass fewer); computed if None.
 
     Returns
     -------
@@ -310,7 +314,7 @@ def relate_objects(
         and object.
     """
     lab = np.asarray(labels)
-    disp = np.asarray(disparity, dtype=np.float64)
+    disp = np.asarray(disparity)  # crops are converted and cleaned where read
     if lab.ndim != 2 or disp.shape != lab.shape:
         raise ValueError(
             f"labels and disparity must be 2-D arrays of one shape, got {lab.shape} and "
@@ -339,7 +343,9 @@ def relate_objects(
     adjacent = np.zeros((k, k), dtype=bool)
     occludes = np.zeros((k, k), dtype=bool)
     position = {int(obj): i for i, obj in enumerate(ids)}
-    slices = ndimage.find_objects(np.where(lab > 0, lab, 0))
+    slices = object_slices
+    if slices is None:
+        slices = ndimage.find_objects(np.where(lab > 0, lab, 0))
     pad = gap_px + 1 + band_px
     h, w = lab.shape
     for i, obj in enumerate(ids):
@@ -362,7 +368,9 @@ def relate_objects(
             mask_a, mask_b = lab_c == obj, lab_c == other
             if contact_pixels(mask_a, mask_b, gap_px=contact_gap_px) < _MIN_CONTACT_PX:
                 continue
-            diff = boundary_disparity_difference(disp[crop], mask_a, mask_b, band_px=band_px)
+            disp_c = disp[crop].astype(np.float64)
+            disp_c[~(disp_c > 0)] = np.nan
+            diff = boundary_disparity_difference(disp_c, mask_a, mask_b, band_px=band_px)
             if diff > occlusion_jump_px:
                 occludes[i, j] = True
             elif -diff > occlusion_jump_px:

@@ -30,7 +30,7 @@ import pyarrow as pa
 from pipeline.camera import Camera
 from pipeline.stage import FrameContext, Param, Product, Stage, StageResult
 
-from ._descriptors import DESCRIPTOR_COLUMNS, describe_objects, frame_ground
+from ._descriptors import DESCRIPTOR_COLUMNS, _object_slices, describe_objects, frame_ground
 from ._ground import coerce_ground_plane
 from ._relations import RELATION_COLUMNS, relate_objects
 from ._sizefreq import fit_size_frequency, visible_ground_area_m2
@@ -142,6 +142,9 @@ def describe_frame(
         Per-frame figures.
     """
     plane = coerce_ground_plane(ground_plane)
+    # one whole-frame find_objects for both tables (other inputs: describe_objects' errors)
+    lab = np.asarray(labels)
+    slices = _object_slices(lab) if lab.ndim == 2 and lab.dtype.kind in "iu" else None
     desc = describe_objects(
         labels,
         gray,
@@ -158,11 +161,11 @@ def describe_frame(
         fringe_reach_px=fringe_reach_px,
         fringe_smoothing_px=fringe_smoothing_px,
         border_height_quantile=border_height_quantile,
+        object_slices=slices,
     )
-    disp = np.asarray(disparity, dtype=np.float64)
     rel = relate_objects(
         labels,
-        np.where(disp > 0, disp, np.nan),
+        disparity,  # converted and cleaned (<= 0: NaN) crop by crop there
         object_ids=desc["object_id"],
         x_m=desc["x_m"],
         y_m=desc["y_m"],
@@ -174,6 +177,7 @@ def describe_frame(
         band_px=band_px,
         contact_gap_px=contact_gap_px,
         occlusion_jump_px=occlusion_jump_px,
+        object_slices=slices,
     )
     hidden = np.unique(rel["object_id"][rel["relation"] == "occludes"])
     desc["occluded"] = desc["occluded"] | np.isin(desc["object_id"], hidden)

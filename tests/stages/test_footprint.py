@@ -319,3 +319,15 @@ def test_a_rock_seen_from_above_keeps_its_fitted_slope():
     assert 0.7 * slope < per_row[0] < 0.9 * slope
     with pytest.raises(ValueError, match="min_face_share"):
         bound_footprint_slope(rows, cols, exact, face_px=1.0, min_face_share=2, **kw)
+
+
+def test_dilate_diamond_reaches_city_block_distance_with_its_cached_kernel():
+    from scipy import ndimage
+
+    from stages._footprint import _dilate_diamond
+
+    mask = np.zeros((15, 17), dtype=bool)
+    mask[7, 8] = mask[2, 3] = True
+    distance = ndimage.distance_transform_cdt(~mask, metric="taxicab")
+    for radius in (1, 3, 1, 3):  # the second call of a radius reads the cached kernel
+        assert np.array_equal(_dilate_diamond(mask, radius), distance <= radius)

@@ -251,3 +251,18 @@ def test_silhouette_height_of_a_dome_seen_from_above():
         assert sil["y_m"] == pytest.approx(1.2 - radius, abs=0.01)
         assert sil["width_m"] == pytest.approx(2 * radius, rel=0.1)
         assert sil["height_m"] == pytest.approx(height, rel=0.2)
+
+
+def test_well_conditioned_is_the_public_eigvalsh_decision():
+    """The direct LAPACK gufunc gives the same eigenvalues, so the same design decision."""
+    from stages._ground import _well_conditioned
+
+    rng = np.random.default_rng(12)
+    for trial in range(200):
+        size = int(rng.integers(2, 60))
+        a = np.ones((size, 6))
+        a[:, 1:] = rng.normal(size=(size, 5))
+        if trial % 3 == 0:
+            a[:, 2] = a[:, 1] * 2.0  # collinear: ill-conditioned
+        eig = np.linalg.eigvalsh(a.T @ a)
+        assert _well_conditioned(a) == bool(eig[0] > 1e-10 * eig[-1])

@@ -285,3 +285,32 @@ def test_small_disparity_step_at_a_contact_is_an_occlusion():
     disparity = np.where(labels == 1, 10.0, np.where(labels == 2, 10.3, 4.0))
     assert (2, "occludes", 1) in _edges(_pair_columns(labels, disparity))
     assert "occludes" not in _pair_columns(labels, disparity, occlusion_jump_px=0.5)["relation"]
+
+
+def test_relate_objects_reads_disparity_not_above_zero_as_invalid():
+    """describe passes the raw float32 disparity (crops cleaned where read): the edges must
+    be those of the float64 map with NaN for every value <= 0, as describe passed before."""
+    labels = _squares(0)
+    raw = np.where(labels == 1, 12.0, np.where(labels == 2, 10.0, 4.0)).astype(np.float32)
+    raw[labels == 1] = np.where(np.arange(np.count_nonzero(labels == 1)) % 2, -1.0, 12.0)
+    raw[:, 7] = 0.0
+    clean = raw.astype(np.float64)
+    clean[~(clean > 0)] = np.nan
+    got, expected = _pair_columns(labels, raw), _pair_columns(labels, clean)
+    assert _edges(got) == _edges(expected)
+    assert (1, "occludes", 2) in _edges(got)
+    for name in RELATION_COLUMNS:
+        assert got[name].tobytes() == expected[name].tobytes()
+
+
+def test_relate_objects_with_given_object_slices_equals_its_own():
+    from scipy import ndimage
+
+    labels = _squares(0)
+    disparity = np.where(labels == 1, 12.0, np.where(labels == 2, 10.0, 4.0))
+    given = _pair_columns(
+        labels, disparity, object_slices=ndimage.find_objects(np.where(labels > 0, labels, 0))
+    )
+    own = _pair_columns(labels, disparity)
+    for name in RELATION_COLUMNS:
+        assert given[name].tobytes() == own[name].tobytes()
