@@ -287,9 +287,14 @@ def timed_run(
     workers: int | None,
     stage_package: str,
 ) -> dict[str, Any]:
-    """One fresh ``run`` with wall time, steady-state rate, per-stage seconds and peak RSS."""
+    """One fresh ``run`` with wall time, steady-state rate, per-stage seconds and peak RSS.
+
+    ``rundir`` is removed first when it exists; benchmarks that time the engine's own cost
+    give a new directory instead (:func:`_fresh_rundir`).
+    """
     shutil.rmtree(rundir, ignore_errors=True)
     finished: list[float] = []
+    times0 = os.times()
 
     def progress(done: int, total: int, frame_id: str) -> None:
         finished.append(time.perf_counter())
@@ -305,6 +310,7 @@ def timed_run(
             progress=progress,
         )
         wall = time.perf_counter() - start
+    sys_s = os.times().system - times0.system  # this process: the engine of synchronous runs
     frames = pq.read_table(rundir / "frames.parquet").to_pylist()
     stages = [k[: -len("_seconds")] for k in frames[0] if k.endswith("_seconds")]
     per_stage = {
@@ -326,6 +332,7 @@ def timed_run(
         "time_to_first_frame_s": round(finished[0] - start, 2) if finished else None,
         "cpu_s": round(cpu, 2),
         "cpu_s_per_frame": round(cpu / n, 4) if n else None,
+        "driver_sys_cpu_s_per_frame": round(sys_s / n, 4) if n else None,
         "stage_seconds_mean": {s: round(v, 4) for s, v in per_stage.items()},
         "task_seconds_mean": round(sum(per_stage.values()), 4),
         "tasks_per_frame": 1,  # process_frame: one task runs every pending stage of a frame
@@ -379,17 +386,19 @@ def pure_compute(catalog: Path, stage_package: str, limit: int) -> dict[str, Any
     per_stage = dict.fromkeys(per_stage, 0.0)
     # sampled like the engine's runs (timed_run), so that the sampler's own CPU cancels
     with PeakRSS():
-        start, cpu_start = time.perf_counter(), time.process_time()
+        start, cpu_start, times0 = time.perf_counter(), time.process_time(), os.times()
         for ctx in contexts:
             one(ctx)
         wall = time.perf_counter() - start
         cpu = time.process_time() - cpu_start
+        sys_s = os.times().system - times0.system
     n = len(contexts)
     return {
         "frames": n,
         "wall_s": round(wall, 2),
         "cpu_s": round(cpu, 2),
         "cpu_s_per_frame": round(cpu / n, 4),
+        "sys_cpu_s_per_frame": round(sys_s / n, 4),
         "pairs_per_s": round(n / wall, 3),
         "stage_seconds_mean": {s: round(v / n, 4) for s, v in per_stage.items()},
     }
@@ -552,6 +561,29 @@ def _stage_cpu_meter(stage_package: str) -> Any:
     return meter()
 
 
+def _fresh_rundir(args: argparse.Namespace, label: str) -> Path:
+    """A run directory of a new name, to be removed by :func:`_remove_rundirs` after the
+    last measurement.
+
+    The engine creates ~65 files and directories per frame. On ext4 without a journal (this
+    machine's root filesystem) allocating an inode skips, one by one, the inodes deleted in
+    the last 60 s (6 min while their inode table block is dirty; ``find_inode_bit`` /
+    ``recently_deleted``): removing the previous run's directory (~2,000 inodes) just before
+    a run raised the engine's system CPU from 2-3 to 17-25 ms per frame, growing with every
+    round (measured with the stages replayed, 30 frames), which the pure loop, creating no
+    files, never paid.
+    """
+    rundir = args.workdir / "runs" / f"{label}-{os.getpid()}-{time.monotonic_ns():x}"
+    args.rundirs.append(rundir)
+    return rundir
+
+
+def _remove_rundirs(args: argparse.Namespace) -> None:
+    for rundir in args.rundirs:
+        shutil.rmtree(rundir, ignore_errors=True)
+    args.rundirs.clear()
+
+
 def cmd_overhead(args: argparse.Namespace) -> dict[str, Any]:
     """Pure compute and the engine alternately (``--repeats`` rounds) so that load drift on a
     shared machine hits both; the engine's own time is also measured inside each run as
@@ -564,11 +596,10 @@ def cmd_overhead(args: argparse.Namespace) -> dict[str, Any]:
     for round_ in range(args.repeats):
         pures.append(pure_compute(catalog, args.stage_package, frames))
         print("pure", json.dumps(pures[-1]), flush=True)
-        rundir = args.workdir / "runs" / "overhead-sync"
         with _stage_cpu_meter(args.stage_package) as spent:
             engine = timed_run(
                 catalog,
-                rundir,
+                _fresh_rundir(args, "overhead-sync"),
                 scheduler="synchronous",
                 workers=None,
                 stage_package=args.stage_package,
@@ -584,7 +615,7 @@ def cmd_overhead(args: argparse.Namespace) -> dict[str, Any]:
                 bare.append(
                     timed_run(
                         catalog,
-                        rundir,
+                        _fresh_rundir(args, "overhead-sync"),
                         scheduler="synchronous",
                         workers=None,
                         stage_package=args.stage_package,
@@ -593,6 +624,7 @@ def cmd_overhead(args: argparse.Namespace) -> dict[str, Any]:
             print("engine without fsync", json.dumps(bare[-1]), flush=True)
     sgbm = sgbm_alone(catalog, args.stage_package, frames)
     print("sgbm", json.dumps(sgbm), flush=True)
+    _remove_rundirs(args)
 
     def own(run_: dict[str, Any]) -> float:
         return run_["wall_s"] / run_["frames"] - run_["task_seconds_mean"]
@@ -619,6 +651,12 @@ def cmd_overhead(args: argparse.Namespace) -> dict[str, Any]:
         "rounds": rounds,
         "engine_over_pure_cpu": statistics.median(r["cpu"] for r in rounds),
         "engine_own_cpu_s_per_frame": statistics.median(r["own_cpu_s_per_frame"] for r in rounds),
+        # system CPU (the kernel's, os.times): the engine's file creation and writes show
+        # as the engine's excess over the pure loop's (page faults of the stages' arrays)
+        "engine_sys_cpu_s_per_frame": statistics.median(
+            e["driver_sys_cpu_s_per_frame"] for e in engines
+        ),
+        "pure_sys_cpu_s_per_frame": statistics.median(p["sys_cpu_s_per_frame"] for p in pures),
         # measured inside each engine run: its CPU minus the CPU spent in the stages' run()
         "engine_own_cpu_in_run_s_per_frame": statistics.median(
             e["own_cpu_s_per_frame"] for e in engines
@@ -673,8 +711,7 @@ def cmd_cpu(args: argparse.Namespace) -> dict[str, Any]:
     named parts of it under ``engine:...``."""
     frames = args.frames[0]
     catalog = _catalog(args, frames)
-    rundir = args.workdir / "runs" / "cpu-sync"
-    shutil.rmtree(rundir, ignore_errors=True)
+    rundir = _fresh_rundir(args, "cpu-sync")
     import pipeline.worker
 
     pipeline.worker._stages(args.stage_package)  # import the stages outside the timing
@@ -685,6 +722,7 @@ def cmd_cpu(args: argparse.Namespace) -> dict[str, Any]:
         start = time.process_time()
         summary = run(catalog, rundir, scheduler="synchronous", stage_package=args.stage_package)
         total = time.process_time() - start
+    _remove_rundirs(args)
     n = summary.done + summary.failed
     per_frame = {k: round(v / n, 4) for k, v in spent.items() if k != "stages"}
     return {
@@ -734,6 +772,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--json", type=Path, default=None, help="append results here")
     args = parser.parse_args(argv)
     args.workdir.mkdir(parents=True, exist_ok=True)
+    args.rundirs = []  # run directories to remove after the measurements
     command = {
         "throughput": cmd_throughput,
         "overhead": cmd_overhead,

@@ -42,7 +42,12 @@ class Journal:
         ):
             self.flush()
 
-    def flush(self) -> None:
+    def flush(self, *, frames_table: bool = True) -> None:
+        """Commit the buffered frames: their parts, then their records.
+
+        ``frames_table=False`` leaves ``frames.parquet`` to the caller, which rewrites it
+        right after (the run's last flush): it is rewritten whole, once is enough.
+        """
         if not self.outcomes:
             return
         # workers' chunks on disk before they are recorded; an object store's PUTs are
@@ -92,7 +97,7 @@ class Journal:
         self.state.commit_batch(records, failures, parts, cleared)
         self.outcomes.clear()
         self.last_flush = time.monotonic()
-        if self.last_flush - self.last_table >= _FRAMES_TABLE_SECONDS:
+        if frames_table and self.last_flush - self.last_table >= _FRAMES_TABLE_SECONDS:
             write_frames_table(self.plan, self.state)
             self.last_table = time.monotonic()
 

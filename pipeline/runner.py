@@ -305,7 +305,7 @@ def _execute(
                 interrupted = True
                 _close_quietly(executor)
                 executor = None
-        journal.flush()
+        journal.flush(frames_table=False)  # written in `finally`, after the tables
         for product in plan.graph.table_products:
             publish(plan, state, product.name)
     finally:

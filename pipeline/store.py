@@ -528,10 +528,11 @@ def write_frame_array(
     if is_url(root):
         array = _remote_array(f"{zarr_location(root)}/{name}", token)
     else:
-        path = _zarr_path(root) / name
-        meta = os.stat(path / "zarr.json")  # one stat keys both cached handles
-        array = _cached_array(str(path), "r+", meta.st_ino, meta.st_mtime_ns)
-        writer = _cached_writer(str(path), meta.st_ino, meta.st_mtime_ns)
+        # plain strings: three pathlib objects per array and frame cost more than the stat
+        path = os.path.join(root, ZARR_NAME, name)
+        meta = os.stat(os.path.join(path, "zarr.json"))  # one stat keys both cached handles
+        array = _cached_array(path, "r+", meta.st_ino, meta.st_mtime_ns)
+        writer = _cached_writer(path, meta.st_ino, meta.st_mtime_ns)
     if tuple(array.shape[1:]) != data.shape or array.dtype != data.dtype:
         raise ValueError(
             f"product {name!r} expects per-frame shape {tuple(array.shape[1:])} and dtype "
