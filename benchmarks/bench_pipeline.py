@@ -497,8 +497,9 @@ def cmd_throughput(args: argparse.Namespace) -> dict[str, Any]:
         setups.append(("threads", 2))
     for scheduler, workers in setups:
         label = f"{scheduler or 'processes'}-{workers}"
-        result = _fresh_run(catalog, args.workdir / "runs" / label, scheduler, workers, args)
+        result = _fresh_run(catalog, _fresh_rundir(args, label), scheduler, workers, args)
         runs.append(result)
+    _remove_rundirs(args)  # after the last run: a deletion slows the next run's file creation
     one, two = runs[0], runs[1]
     efficiency = {
         "whole_run": round(two["pairs_per_s"] / (2 * one["pairs_per_s"]), 3),
@@ -740,9 +741,9 @@ def cmd_memory(args: argparse.Namespace) -> dict[str, Any]:
     runs = []
     for frames in args.frames:
         catalog = _catalog(args, frames)
-        rundir = args.workdir / "runs" / f"memory-{frames}"
-        result = _fresh_run(catalog, rundir, None, 2, args)
+        result = _fresh_run(catalog, _fresh_rundir(args, f"memory-{frames}"), None, 2, args)
         runs.append(result)
+    _remove_rundirs(args)
     first, last = runs[0], runs[-1]
     growth = {
         key: round(last[key] / first[key] - 1, 3)
