@@ -7,7 +7,12 @@ import numpy as np
 import pytest
 from scipy.ndimage import median_filter
 
-from stages._select import median32, median_abs_deviation32, median_filter_nearest32
+from stages._select import (
+    median32,
+    median_abs_deviation32,
+    median_filter_nearest32,
+    median_u8,
+)
 
 
 def _numpy_mad(values: np.ndarray) -> np.float32:
@@ -99,3 +104,20 @@ def test_median_filter_nearest32_rejects_other_arrays_and_even_windows():
         median_filter_nearest32(np.zeros((4, 4)), size=3)
     with pytest.raises(ValueError, match="odd"):
         median_filter_nearest32(np.zeros((4, 4), np.float32), size=4)
+
+
+def test_median_u8_is_the_float_np_median_gives_rules_r6_and_r6b():
+    rng = np.random.default_rng(12)
+    for trial in range(400):
+        size = int(rng.integers(1, 600))
+        low, high = sorted(int(v) for v in rng.integers(0, 256, 2))
+        values = rng.integers(low, high + 1, size).astype(np.uint8)  # narrow spreads: ties
+        if trial % 7 == 0:
+            values[:] = 255 if trial % 2 else 0
+        expected = float(np.median(values))
+        assert median_u8(values) == expected
+        assert isinstance(median_u8(values), float)
+    with pytest.raises(ValueError, match="uint8"):
+        median_u8(np.zeros(3, np.int32))
+    with pytest.raises(ValueError, match="non-empty"):
+        median_u8(np.zeros(0, np.uint8))
