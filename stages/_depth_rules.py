@@ -117,6 +117,7 @@ from ._heights import (
     relative_height,
 )
 from ._regions import CLEAR_CONTRAST, _coerce_mask, _label_areas, _lookup, _renumber
+from ._select import median32
 
 # Ground height noise (MAD sigma, metres) above which single heights are not trusted.
 _NOISY_SIGMA_M = 0.005
@@ -336,10 +337,15 @@ def _frame_bands(
 ) -> tuple[float, float]:
     """Median low and high threshold bands of the frame (every fourth row and column)."""
     coarse = np.s_[::4, ::4]
-    return (
-        float(np.median(background[coarse] - low[coarse])),
-        float(np.median(high[coarse] - background[coarse])),
-    )
+    bands = (background[coarse] - low[coarse], high[coarse] - background[coarse])
+
+    def middle(band: np.ndarray) -> float:
+        if band.dtype == np.float32 and band.size and np.isfinite(band).all():
+            # np.median's float32 by counting and selection, at a fraction of its cost
+            return float(median32(band.ravel()))
+        return float(np.median(band))
+
+    return middle(bands[0]), middle(bands[1])
 
 
 def gray_contrast(

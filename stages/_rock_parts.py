@@ -142,6 +142,7 @@ from ._regions import (
     _ring_kernel,
     _solidity,
 )
+from ._select import median_u8
 from ._sun_shadows import anti_sun_direction
 
 # R7: objects grow into pixels at least this many threshold bands out on their side ...
@@ -231,8 +232,8 @@ def trim_attached_shadows(
         ring = cv2.dilate(inside.view(np.uint8), kernel).view(bool) & (window == 0)
         if not ring.any():
             continue
-        ground = float(np.median(image[y0:y1, x0:x1][ring]))
-        if np.median(gray) >= ground:
+        ground = median_u8(image[y0:y1, x0:x1][ring])
+        if median_u8(gray) >= ground:
             continue  # a light object's shadow is darker than the ground: never merged
         split, _ = cv2.threshold(gray.reshape(1, -1), 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
         core = gray <= split

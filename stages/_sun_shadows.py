@@ -93,6 +93,7 @@ import numpy as np
 from numba import njit
 
 from ._regions import _lookup, _object_boxes
+from ._select import median_u8
 
 __all__ = ["anti_sun_direction", "trim_off_side_pieces", "trim_sun_shadows"]
 
@@ -273,8 +274,8 @@ def trim_sun_shadows(
         ring = cv2.dilate(inside.view(np.uint8), kernel).view(bool) & (window == 0)
         if not ring.any():
             continue
-        ground = float(np.median(image[y0:y1, x0:x1][ring]))
-        if np.median(gray) >= ground:
+        ground = median_u8(image[y0:y1, x0:x1][ring])
+        if median_u8(gray) >= ground:
             continue  # a light object: its shadow is darker than it, never its lighter class
         split, _ = cv2.threshold(gray.reshape(1, -1), 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
         core = gray <= split

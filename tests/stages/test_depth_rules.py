@@ -8,6 +8,7 @@ from height_maps import correlated_noise
 from object_masks import disk
 
 from stages._depth_rules import (
+    _frame_bands,
     _row_band_sigma,
     apply_depth_rules,
     drop_faint_depthless,
@@ -284,3 +285,24 @@ def test_row_band_sigma_memo_gives_the_same_noise():
         usable = usable.copy()
         usable[y : y + 10, x : x + 20] = False
     assert len(memo) == 10
+
+
+def test_frame_bands_are_the_floats_np_median_gave():
+    def numpy_bands(background, low, high):  # the code median32 replaced
+        coarse = np.s_[::4, ::4]
+        return (
+            float(np.median(background[coarse] - low[coarse])),
+            float(np.median(high[coarse] - background[coarse])),
+        )
+
+    rng = np.random.default_rng(21)
+    for trial in range(30):
+        shape = tuple(int(v) for v in rng.integers(1, 120, 2))
+        background = rng.normal(120, 20, shape).astype(np.float32)
+        low = background - rng.gamma(2, 5, shape).astype(np.float32)
+        high = np.round(background + rng.gamma(2, 5, shape)).astype(np.float32)  # ties
+        if trial % 5 == 0:
+            low[rng.random(shape) < 0.2] = np.nan  # NaN bands: np.median's NaN
+        got = _frame_bands(background, low, high)
+        expected = numpy_bands(background, low, high)
+        np.testing.assert_array_equal(np.array(got), np.array(expected))
