@@ -3,14 +3,25 @@
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import pyarrow.parquet as pq
 
-from .errors import RunDirError
+from .errors import RunDirError, RunLockedError, StoreError
+from .lock import RunLock
 from .state import STATE_NAME, RunState
-from .store import file_sha256, frame_checksum, products_root, read_frame_array
+from .store import (
+    ZARR_NAME,
+    file_sha256,
+    frame_checksum,
+    is_url,
+    products_root,
+    read_frame_array,
+    zarr_location,
+)
 
 __all__ = ["RunStatus", "status", "format_status"]
 
@@ -31,7 +42,14 @@ class RunStatus:
 
 def status(rundir: str | os.PathLike[str], *, verify: bool = False) -> RunStatus:
     """Per-stage counts of a run directory; with ``verify``, also check every recorded
-    checksum and reset what is damaged so the next ``arroyo run`` redoes it."""
+    checksum and reset what is damaged so the next ``arroyo run`` redoes it.
+
+    ``verify`` takes the run directory's lock: it raises RunLockedError while a run writes
+    the directory (whose chunks can be newer than their records until its next journal
+    flush), and RunDirError / StoreError, resetting nothing, when the products root that
+    ``run.json`` records elsewhere cannot be reached (a moved or unmounted directory, an
+    object store without credentials).
+    """
     from .runner import load_run_json
 
     rundir = Path(rundir)
@@ -47,11 +65,19 @@ def status(rundir: str | os.PathLike[str], *, verify: bool = False) -> RunStatus
     frame_ids = frames_table["frame_id"].to_pylist()
     index = dict(zip(frame_ids, frames_table["index"].to_pylist(), strict=True))
     stages = list(meta.get("stages", {}))
+    damaged: list[str] = []
+    if verify:
+        root = products_root(rundir, meta)
+        if meta.get("products"):
+            _check_products_reachable(rundir, root)
+        with _verify_lock(rundir):
+            state = RunState(rundir)
+            try:
+                damaged = _verify(rundir, root, state, index, stages)
+            finally:
+                state.close()
     state = RunState(rundir)
     try:
-        damaged: list[str] = []
-        if verify:
-            damaged = _verify(rundir, products_root(rundir, meta), state, index, stages)
         done = state.done()
         failed = state.failed()
     finally:
@@ -86,6 +112,58 @@ def status(rundir: str | os.PathLike[str], *, verify: bool = False) -> RunStatus
         verified=verify,
         products=str(meta.get("products") or ""),
     )
+
+
+@contextmanager
+def _verify_lock(rundir: Path) -> Iterator[None]:
+    """Hold the run lock while verifying, with a message of its own when a run holds it."""
+    try:
+        lock = RunLock(rundir).__enter__()
+    except RunLockedError as exc:
+        # a live run's chunks are ahead of their records until its next journal flush:
+        # verify read them as damage (exit 1) and reset results the run then recorded
+        holder = str(exc).split("; wait")[0]
+        raise RunLockedError(
+            f"{holder}; `arroyo status --verify` checks a run directory only while no run "
+            "writes it: wait for that run to finish (plain `arroyo status` works meanwhile)"
+        ) from None
+    except OSError as exc:
+        raise RunDirError(
+            f"cannot lock {rundir} for --verify: {exc.strerror or exc}; verify resets what "
+            "is damaged, so it needs write access to the run directory"
+        ) from None
+    try:
+        yield
+    finally:
+        lock.__exit__(None, None, None)
+
+
+def _check_products_reachable(rundir: Path, root: str) -> None:
+    """Raise, before anything is reset, when the recorded products root is not there."""
+    if not is_url(root):
+        if not Path(root).is_dir():
+            raise RunDirError(
+                f"the products of {rundir} are recorded at {root}, which does not exist "
+                "(moved or unmounted?); nothing was checked or reset. Mount or move them back "
+                f"there; if they are lost for good, create the empty directory {root} and "
+                "verify again to reset every frame for the next run"
+            )
+        return
+    import fsspec.core
+
+    try:
+        fs, path = fsspec.core.url_to_fs(zarr_location(root))
+        found = fs.exists(f"{path}/zarr.json")
+    except Exception as exc:  # noqa: BLE001 - credentials, network, missing bucket
+        raise StoreError(
+            f"cannot reach the products of {rundir} at {root}: {type(exc).__name__}: {exc}; "
+            "nothing was checked or reset. Check the URL, credentials and network"
+        ) from None
+    if not found:
+        raise RunDirError(
+            f"the products of {rundir} are recorded at {root}, but {ZARR_NAME} is not there; "
+            "nothing was checked or reset. Check the URL (a moved bucket or prefix?)"
+        )
 
 
 def _verify(

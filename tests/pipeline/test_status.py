@@ -1,0 +1,61 @@
+"""`arroyo status`: counts, and `--verify`'s checks that must never reset sound results."""
+
+from __future__ import annotations
+
+import shutil
+
+import pytest
+
+from pipeline.errors import RunDirError, RunLockedError
+from pipeline.lock import RunLock
+from pipeline.runner import run
+from pipeline.status import status
+
+FAKE = "arroyo_fake_stages"
+
+
+def _run(catalog, out, **kw):
+    return run(catalog, out, stage_package=FAKE, scheduler="synchronous", **kw)
+
+
+def test_verify_during_live_run_refuses_instead_of_reporting_false_damage(archive, tmp_path):
+    """Regression: `status --verify` while a run rewrote frames read chunks newer than
+    their records (committed at the run's next journal flush) as damage, exited 1 and reset
+    the results under the live run. It now waits for no run to hold the directory."""
+    out = tmp_path / "run"
+    assert _run(archive, out).done == 4
+    with RunLock(out), pytest.raises(RunLockedError, match="only while no run writes it"):
+        status(out, verify=True)
+    report = status(out)  # counts alone still work during a run
+    assert all(row["done"] == 4 for row in report.per_stage.values())
+    assert status(out, verify=True).damaged == []  # the lock is free again
+
+
+def test_verify_with_moved_products_root_resets_nothing(archive, tmp_path):
+    """Regression: with `--products DIR` moved or unmounted, `status --verify` called every
+    array damaged and reset every frame's records (a later rerun redid the whole archive).
+    It now refuses, names the recorded root, and resets nothing."""
+    out, shared = tmp_path / "run", tmp_path / "shared"
+    assert _run(archive, out, products=shared).done == 4
+    moved = tmp_path / "moved"
+    shutil.move(shared, moved)
+    with pytest.raises(RunDirError, match="does not exist \\(moved or unmounted\\?\\)"):
+        status(out, verify=True)
+    shutil.move(moved, shared)
+    report = status(out, verify=True)
+    assert report.damaged == []
+    assert all(row["done"] == 4 for row in report.per_stage.values())
+
+
+def test_verify_after_products_deleted_for_good_resets_for_rerun(archive, tmp_path):
+    """The way out the message gives: an empty directory at the recorded root, then verify
+    resets every frame and the next run redoes them."""
+    out, shared = tmp_path / "run", tmp_path / "shared"
+    _run(archive, out, products=shared)
+    shutil.rmtree(shared)
+    shared.mkdir()
+    report = status(out, verify=True)
+    assert report.damaged
+    assert all(row["done"] == 0 for row in report.per_stage.values())
+    assert _run(archive, out).done == 4
+    assert status(out, verify=True).damaged == []
