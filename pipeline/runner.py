@@ -49,6 +49,9 @@ class RunSummary:
         return 1 if self.failed else 0
 
 
+_EVALUATION_NAME = "evaluation.parquet"  # written by `arroyo evaluate` (pipeline.evaluate)
+
+
 # -- running ------------------------------------------------------------------------------
 def run(
     catalog_path: str | os.PathLike[str],
@@ -271,6 +274,9 @@ def _execute(
     total = len(pending)
     try:
         if pending:
+            # its scores are of the products this run is about to change: `arroyo query`
+            # and `arroyo report` showed the old run's figures as if they were this one's
+            (plan.rundir / _EVALUATION_NAME).unlink(missing_ok=True)
             try:
                 executor = open_executor(
                     scheduler=scheduler, workers=workers, stage_package=plan.stage_package

@@ -253,3 +253,26 @@ def test_a_failed_frame_whose_file_is_restored_is_done_again(archive, tmp_path):
     assert pq.read_table(out / "tallies.parquet").num_rows == 12
     frames = pq.read_table(out / "frames.parquet").to_pylist()
     assert [f["status"] for f in frames] == ["done"] * 4 and frames[1]["error"] is None
+
+
+def test_rerun_that_changes_products_removes_stale_evaluation(archive, tmp_path):
+    """Regression: `evaluation.parquet` outlived a rerun that changed the products, so
+    `arroyo query ... FROM evaluation` and `arroyo report` showed the old run's scores as
+    the run directory's. A run that recomputes frames removes it; one with nothing to do
+    keeps it."""
+    import pyarrow as pa
+
+    from pipeline.evaluate import EVALUATION_SCHEMA
+    from pipeline.query import query_runs
+
+    out = tmp_path / "run"
+    first = _run(archive, out)
+    row = {"run_id": first.run_id, "archive": "testarch", "frame_id": "*"}
+    row |= {"product": "depth", "method": "arroyo", "metric": "epe", "value": 0.5}
+    scores = pa.Table.from_pylist([row], schema=EVALUATION_SCHEMA)
+    pq.write_table(scores, out / "evaluation.parquet")
+    assert _run(archive, out).done == 4  # nothing recomputed: the scores still hold
+    assert query_runs([out], "SELECT * FROM evaluation").num_rows == 1
+    assert _run(archive, out, overrides=["blend.weight=0.3"]).done == 4
+    assert not (out / "evaluation.parquet").exists()
+    assert query_runs([out], "SELECT * FROM evaluation").num_rows == 0
