@@ -49,6 +49,7 @@ from . import metrics
 from ._baselines import otsu_labels, sgbm_disparity
 from ._evaluation_display import evaluation_tables, format_evaluation
 from .errors import RunDirError
+from .lock import lock_holder
 from .store import open_products_group, products_root, zarr_location
 
 __all__ = [
@@ -105,6 +106,21 @@ def _load_run_json(rundir: Path) -> dict[str, Any]:
             f"{rundir / 'run.json'} must hold a JSON object, got {type(run).__name__}"
         )
     return run
+
+
+def _check_not_running(rundir: Path, run: Mapping[str, Any]) -> None:
+    """Refuse a run directory a live run writes: its scores would cover whichever frames
+    were done, and its evaluation.parquet would outlive the run's later frames."""
+    if run.get("status") != "running":
+        return
+    holder = lock_holder(rundir)
+    if holder is None:
+        return  # a killed run: its recorded frames are complete
+    raise RunDirError(
+        f"run {rundir} is still in progress (arroyo pid {holder.get('pid', '?')} on host "
+        f"{holder.get('host', '?')} since {holder.get('since', '?')}); evaluate it when it "
+        "has finished"
+    )
 
 
 def _truth_dir(run: Mapping[str, Any], rundir: Path) -> Path:
@@ -299,10 +315,12 @@ def evaluate_run(rundir: str | os.PathLike[str]) -> pa.Table:
     Raises
     ------
     RunDirError
-        The directory is not a run, its records are missing, or its catalog has no truth.
+        The directory is not a run, its records are missing, its catalog has no truth, or
+        a live run is writing it.
     """
     path = _coerce_rundir(rundir)
     run = _load_run_json(path)
+    _check_not_running(path, run)
     truth_dir = _truth_dir(run, path)
     frames = _read_frames(path)
     products = _open_products(path, run)

@@ -395,3 +395,17 @@ def test_end_to_end_render_run_evaluate(tmp_path: Path):
         assert aggregate[("depth", method, "n_px")] > 0.5 * 2 * 160 * 160
     assert 0.0 <= aggregate[("segmentation", "arroyo", "f1")] <= 1.0
     assert "lab" in format_evaluation(table)
+
+
+def test_evaluate_refuses_a_run_in_progress(rundir: Path):
+    """Regression: `arroyo evaluate` on a live run scored whichever frames were done and
+    wrote evaluation.parquet into the run directory (`arroyo query` and `arroyo report`
+    refuse a live run), scores the run's later frames never entered."""
+    from pipeline.lock import RunLock
+
+    meta = json.loads((rundir / "run.json").read_text())
+    (rundir / "run.json").write_text(json.dumps({**meta, "status": "running"}))
+    with RunLock(rundir), pytest.raises(RunDirError, match="still in progress"):
+        evaluate_run(rundir)
+    assert not (rundir / "evaluation.parquet").exists()
+    assert evaluate_run(rundir).num_rows > 0  # a killed run (no lock holder) is scored
