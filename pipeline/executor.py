@@ -20,6 +20,7 @@ __all__ = [
     "prestart_local_workers",
     "describe_scheduler",
     "check_scheduler",
+    "check_workers",
 ]
 
 _SCHEDULER_EXPECTED = (
@@ -151,8 +152,7 @@ def open_executor(
         The stage package local worker processes import before their first task (see
         :mod:`pipeline._forkserver`); default: :func:`pipeline.graph.stage_package_name`.
     """
-    if workers is not None and workers < 1:
-        raise ValueError(f"--workers must be >= 1, got {workers}")
+    check_workers(workers)
     if scheduler == "synchronous":
         return Executor()
     from distributed import Client, LocalCluster
@@ -228,6 +228,21 @@ class _DeferredInterrupt:
     def __exit__(self, *exc: object) -> None:
         if self._saved is not None:
             signal.signal(signal.SIGINT, self._saved)
+
+
+def check_workers(workers: int | None) -> None:
+    """Raise ParamError unless ``workers`` is None (the machine's cores) or an int >= 1."""
+    if workers is None:
+        return
+    if isinstance(workers, bool) or not isinstance(workers, int):
+        raise ParamError(
+            f"--workers expects a whole number of local workers, got {workers!r} "
+            f"({type(workers).__name__}); leave it out for one per core"
+        )
+    if workers < 1:
+        raise ParamError(
+            f"--workers must be >= 1, got {workers}; leave it out for one per core"
+        )
 
 
 def check_scheduler(scheduler: str | None) -> None:

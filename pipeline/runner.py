@@ -13,7 +13,7 @@ from typing import Any
 
 from ._forkserver import stop_forkserver
 from .errors import ParamError, RunDirError, StoreError
-from .executor import check_scheduler, open_executor, prestart_local_workers
+from .executor import check_scheduler, check_workers, open_executor, prestart_local_workers
 from .journal import Journal, publish, stage_attrs, write_frames_table
 from .lock import RunLock
 from .plan import RunPlan, default_rundir, plan_run, validate_request
@@ -78,6 +78,9 @@ def run(
     when products cannot be written.
     """
     check_scheduler(scheduler)  # a typo stops the run before the run directory exists
+    # checked here, not when the executor opens: `--workers 0` passed a dry run and a run
+    # with nothing pending, and a run with work stopped only after writing run.json
+    check_workers(workers)
     # local workers' imports run beside the planning (pipeline._forkserver)
     forked = not dry_run and prestart_local_workers(scheduler, workers, stage_package)
     try:

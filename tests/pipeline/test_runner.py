@@ -276,3 +276,18 @@ def test_rerun_that_changes_products_removes_stale_evaluation(archive, tmp_path)
     assert _run(archive, out, overrides=["blend.weight=0.3"]).done == 4
     assert not (out / "evaluation.parquet").exists()
     assert query_runs([out], "SELECT * FROM evaluation").num_rows == 0
+
+
+@pytest.mark.parametrize("workers", [0, -2, 1.5, True])
+def test_bad_workers_stop_before_any_work(archive, tmp_path, workers):
+    """Regression: `--workers 0` passed a dry run and a run with nothing pending (exit 0);
+    with frames pending it failed only after writing run.json as a new 'stopped' run."""
+    out = tmp_path / "run"
+    with pytest.raises(ParamError, match="--workers"):
+        run(archive, out, stage_package=FAKE, workers=workers, dry_run=True)
+    assert not out.exists()
+    assert _run(archive, out).done == 4
+    meta = json.loads((out / "run.json").read_text())
+    with pytest.raises(ParamError, match="--workers"):
+        run(archive, out, stage_package=FAKE, workers=workers)
+    assert json.loads((out / "run.json").read_text()) == meta
