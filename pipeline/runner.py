@@ -22,6 +22,7 @@ from .stage import FrameContext
 from .state import STATE_NAME, RunState
 from .store import (
     atomic_write_bytes,
+    check_frame_list,
     coerce_products_root,
     ensure_zarr,
     is_url,
@@ -88,6 +89,8 @@ def run(
         rundir = Path(out) if out is not None else default_rundir(request.catalog)
         _check_rundir(rundir)
         root = _resolve_products(rundir, products)
+        if not is_url(root):  # a dry run said what would run where the run then refused
+            check_frame_list(root or rundir, [f.frame_id for f in request.catalog.frames])
         if dry_run:
             return plan_run(request, rundir, products=root)
         try:

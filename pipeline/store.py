@@ -60,6 +60,7 @@ __all__ = [
     "compressor_for",
     "atomic_write_bytes",
     "ensure_zarr",
+    "check_frame_list",
     "write_frame_array",
     "read_frame_array",
     "frame_checksum",
@@ -260,6 +261,34 @@ def _zarr_path(rundir: str | os.PathLike[str]) -> Path:
     return Path(rundir) / ZARR_NAME
 
 
+def check_frame_list(root: str | os.PathLike[str], frame_ids: Sequence[str]) -> None:
+    """Raise RunDirError when the products at ``root`` hold another frame list than the
+    catalog's ``frame_ids`` (which may only extend it at the end); reads, never writes."""
+    group = open_products_group(root)
+    if group is None or "frame" not in group:
+        return
+    old = [str(v) for v in np.asarray(_array(group, "frame")[:]).ravel()]
+    _check_frame_list(zarr_location(root), old, list(frame_ids))
+
+
+def _check_frame_list(path: str, old: list[str], new: list[str]) -> None:
+    if len(old) <= len(new) and old == new[: len(old)]:
+        return
+    if len(old) > len(new) and old[: len(new)] == new:
+        what = f"{len(old)} frames, the catalog's {len(new)} and then {old[len(new)]!r}..."
+    else:
+        k = next(i for i, (a, b) in enumerate(zip(old, new, strict=False)) if a != b)
+        what = (
+            f"{len(old)} frames whose frame {k} is {old[k]!r} where the catalog has "
+            f"{new[k]!r}"
+        )
+    raise RunDirError(
+        f"{path} holds {what}: not the catalog's frame list (a different archive, or frames "
+        "removed, renamed or reordered?). A run directory's frames may only be extended at "
+        "the end of the index; use a new --out directory for this catalog"
+    )
+
+
 def ensure_zarr(
     root: str | os.PathLike[str],
     frame_ids: Sequence[str],
@@ -295,13 +324,8 @@ def ensure_zarr(
     ids = np.array(list(frame_ids), dtype=str)
     if "frame" in group:
         coord = _array(group, "frame")
-        old = np.array([str(v) for v in np.asarray(coord[:]).ravel()], dtype=str)
-        if len(old) > n or not np.array_equal(old, ids[: len(old)]):
-            raise RunDirError(
-                f"{path} holds frames {list(old[:3])}... that do not match the catalog's "
-                f"frame list; the catalog's frames may only be extended at the end. Use a "
-                "new --out directory for a different frame list"
-            )
+        old = [str(v) for v in np.asarray(coord[:]).ravel()]
+        _check_frame_list(path, old, list(frame_ids))
         if len(old) < n:
             coord.resize((n,))
             coord[:] = ids

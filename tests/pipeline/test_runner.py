@@ -291,3 +291,20 @@ def test_bad_workers_stop_before_any_work(archive, tmp_path, workers):
     with pytest.raises(ParamError, match="--workers"):
         run(archive, out, stage_package=FAKE, workers=workers)
     assert json.loads((out / "run.json").read_text()) == meta
+
+
+def test_other_frame_list_is_refused_by_the_dry_run_too(archive, tmp_path):
+    """Regression: a catalog whose frames differ from the run directory's (another archive,
+    a reordered index) planned fine with --dry-run ('4 frame(s) would run') while the run
+    refused it (exit 2), with a message of numpy reprs (`np.str_('f000')`)."""
+    out = tmp_path / "run"
+    _run(archive, out)
+    index = archive.parent / "frames.csv"
+    header, *rows = index.read_text().splitlines()
+    index.write_text("\n".join([header, rows[1], rows[0], *rows[2:]]) + "\n")
+    for dry_run in (True, False):
+        with pytest.raises(RunDirError, match="frame 0 is 'f000' where the catalog has 'f001'"):
+            _run(archive, out, dry_run=dry_run)
+    index.write_text("\n".join([header, *rows, rows[0].replace("f000,", "f004,")]) + "\n")
+    assert _run(archive, out, dry_run=True).todo["f004"]  # extended at the end: fine
+    assert _run(archive, out).done == 5
