@@ -76,6 +76,7 @@ EVALUATION_SCHEMA = pa.schema(
 )
 
 _DISPARITY_MARGIN_PX = 8
+_TRUTH_REFERENCE = "right"  # the geometry of truth/<frame_id>.npz (pipeline.synth)
 
 
 # ------------------------------------------------------------------------------ run reading
@@ -322,12 +323,22 @@ def evaluate_run(rundir: str | os.PathLike[str]) -> pa.Table:
     run = _load_run_json(path)
     _check_not_running(path, run)
     truth_dir = _truth_dir(run, path)
+    reference = str((run.get("camera") or {}).get("reference", "right"))
+    if reference != _TRUTH_REFERENCE:
+        # every map was compared pixel by pixel with a view 'd' columns away: segmentation
+        # F1 0.000 and inflated depth errors, printed as if they were the run's scores
+        raise RunDirError(
+            f"run {str(path)!r} used the {reference} image as reference, but the ground truth "
+            f"is in the {_TRUTH_REFERENCE} image's geometry (docs/synth.md), so its maps "
+            f"cannot be scored against it; run the catalog with reference = "
+            f'"{_TRUTH_REFERENCE}" (the default) into another --out to evaluate'
+        )
     frames = _read_frames(path)
     products = _open_products(path, run)
     rocks_path = truth_dir / "rocks.parquet"
     ctx = _RunData(
         run=run,
-        reference=str((run.get("camera") or {}).get("reference", "right")),
+        reference=reference,
         variables=set(products.data_vars) if products is not None else set(),
         truth_rocks=_rows_by_frame(pq.read_table(rocks_path) if rocks_path.exists() else None),
         descriptors=_rows_by_frame(_read_table(path / "descriptors.parquet")),

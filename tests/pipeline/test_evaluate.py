@@ -409,3 +409,15 @@ def test_evaluate_refuses_a_run_in_progress(rundir: Path):
         evaluate_run(rundir)
     assert not (rundir / "evaluation.parquet").exists()
     assert evaluate_run(rundir).num_rows > 0  # a killed run (no lock holder) is scored
+
+
+def test_evaluate_refuses_a_left_referenced_run(rundir: Path):
+    """Regression: a run with `reference = "left"` was scored against the truth, which is
+    in the right image's geometry: mojave's segmentation F1 printed 0.000 (Otsu's too) and
+    its depth bad-2 5.6 % instead of 0.9 %, as if those were the run's scores."""
+    meta = json.loads((rundir / "run.json").read_text())
+    meta["camera"]["reference"] = "left"
+    (rundir / "run.json").write_text(json.dumps(meta))
+    with pytest.raises(RunDirError, match="the ground truth is in the right image's geometry"):
+        evaluate_run(rundir)
+    assert not (rundir / "evaluation.parquet").exists()
