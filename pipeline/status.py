@@ -83,8 +83,15 @@ def status(rundir: str | os.PathLike[str], *, verify: bool = False) -> RunStatus
     finally:
         state.close()
     per_stage = {}
+    order = {s: i for i, s in enumerate(stages)}
+    # a frame failed at stage S keeps the records of S and later stages of earlier inputs
+    # (they may match again): counted as done, ingest read "done 2, failed 1, pending -1"
+    stale = {
+        (f, s) for f, (failed_stage, _e) in failed.items() for s in stages
+        if order[s] >= order.get(failed_stage, 0)
+    }
     for stage in stages:
-        n_done = sum(1 for f in frame_ids if (f, stage) in done)
+        n_done = sum(1 for f in frame_ids if (f, stage) in done and (f, stage) not in stale)
         n_failed = sum(1 for f in frame_ids if f in failed and failed[f][0] == stage)
         per_stage[stage] = {
             "done": n_done,

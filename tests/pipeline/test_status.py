@@ -59,3 +59,17 @@ def test_verify_after_products_deleted_for_good_resets_for_rerun(archive, tmp_pa
     assert all(row["done"] == 0 for row in report.per_stage.values())
     assert _run(archive, out).done == 4
     assert status(out, verify=True).damaged == []
+
+
+def test_frame_failed_on_rerun_is_not_also_counted_done(archive, tmp_path):
+    """Regression: a frame that failed at ingest on a rerun (its file cut short) still had
+    its earlier run's records, so `arroyo status` printed ingest "done 4, failed 1,
+    pending -1" for 4 frames."""
+    out = tmp_path / "run"
+    _run(archive, out)
+    image = archive.parent / "images" / "f001_left.png"
+    image.write_bytes(image.read_bytes()[:60])
+    _run(archive, out)
+    report = status(out)
+    assert report.per_stage["ingest"] == {"done": 3, "failed": 1, "pending": 0}
+    assert report.per_stage["tally"] == {"done": 3, "failed": 0, "pending": 1}
