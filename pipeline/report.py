@@ -364,6 +364,8 @@ def _frames(run: RunInfo, frames: pa.Table, desc: pa.Table, max_frames: int) -> 
     if products is not None and "frame" in products:
         frame_index = {str(f): i for i, f in enumerate(products["frame"][:])}
     step = float(_stage_params(run.meta, "quicklook").get("range_step_m", 0.25))
+    reference = str((run.meta.get("camera") or {}).get("reference", "right"))
+    stages = list(run.meta.get("stages") or {})
     shown = rows[:max_frames]
     parts = ['<section id="frames"><h2>Frames</h2>']
     if len(rows) > len(shown):
@@ -408,6 +410,9 @@ def _frames(run: RunInfo, frames: pa.Table, desc: pa.Table, max_frames: int) -> 
             frame_index.get(fid, -1),
             products=products if fid in frame_index else None,
             range_step_m=step,
+            reference=reference,
+            # a failed or pending frame's quicklook files and slabs may be an earlier run's
+            done_stages={s for s in stages if row.get(f"{s}_seconds") is not None},
         )
         if images:
             body.append('<div class="quicklooks">')
