@@ -272,13 +272,16 @@ def ensure_archive(
         try:
             _render_into(tmp, archetype, frames, seed, variant, size)
             os.chmod(tmp, 0o755)
-            if target.exists():  # a stale, incomplete render: set it aside
-                shutil.rmtree(target, ignore_errors=True)
-            try:
-                os.rename(tmp, target)
-            except OSError:
-                if not (target / COMPLETE_MARKER).is_file():
-                    raise
+            # another caller may have finished first, and its run may be reading the frames:
+            # removing its complete archive failed that run's frames as missing files
+            if not (target / COMPLETE_MARKER).is_file():
+                if target.exists():  # a stale, incomplete render: set it aside
+                    shutil.rmtree(target, ignore_errors=True)
+                try:
+                    os.rename(tmp, target)
+                except OSError:
+                    if not (target / COMPLETE_MARKER).is_file():
+                        raise
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
     return target / "catalog.toml"

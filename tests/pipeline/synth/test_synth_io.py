@@ -121,3 +121,29 @@ def test_shipped_catalogs_name_valid_archetypes():
         synth = data["synth"]
         get_spec(synth["archetype"], synth.get("variant"))
         assert synth["frames"] >= 1 and synth["seed"] >= 0
+
+
+def test_ensure_archive_keeps_the_archive_a_concurrent_caller_completed(tmp_path, monkeypatch):
+    """Regression: two `arroyo run catalogs/lab.toml` started together on an empty cache
+    both rendered; the later one removed the earlier one's complete archive to put its own
+    in place, while the earlier run was reading its frames (they failed as missing)."""
+    import pipeline.synth.io as synth_io
+
+    render = synth_io._render_into
+    in_use: list[Path] = []
+    calls: list[Path] = []
+
+    def render_while_another_finishes(directory, *args):
+        calls.append(directory)
+        if len(calls) == 1:  # the other caller renders and completes during our rendering
+            other = ensure_archive("dunes", frames=1, seed=0, cache_dir=tmp_path, size=SIZE)
+            (other.parent / "being-read").write_text("a run reads these frames")
+            in_use.append(other)
+        render(directory, *args)
+
+    monkeypatch.setattr(synth_io, "_render_into", render_while_another_finishes)
+    catalog = ensure_archive("dunes", frames=1, seed=0, cache_dir=tmp_path, size=SIZE)
+    assert catalog == in_use[0]
+    assert (catalog.parent / "being-read").is_file()  # the same directory, untouched
+    leftovers = [p for p in catalog.parent.parent.iterdir() if p.name.startswith(".")]
+    assert leftovers == []
