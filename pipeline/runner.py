@@ -23,10 +23,13 @@ from .state import STATE_NAME, RunState
 from .store import (
     atomic_write_bytes,
     check_frame_list,
+    claim_products,
     coerce_products_root,
     ensure_zarr,
     is_url,
+    products_writer,
     remove_orphan_temp_files,
+    zarr_location,
 )
 from .worker import FrameJob, FrameOutcome, process_frame
 
@@ -90,6 +93,7 @@ def run(
         _check_rundir(rundir)
         root = _resolve_products(rundir, products)
         if not is_url(root):  # a dry run said what would run where the run then refused
+            _check_products_owner(rundir, root)
             check_frame_list(root or rundir, [f.frame_id for f in request.catalog.frames])
         if dry_run:
             return plan_run(request, rundir, products=root)
@@ -150,6 +154,33 @@ def _resolve_products(rundir: Path, requested: str | os.PathLike[str] | None) ->
     return wanted
 
 
+def _check_products_owner(rundir: Path, root: str) -> None:
+    """Refuse products claimed by another run directory.
+
+    Two run directories given the same ``--products`` wrote the same slabs: the second
+    silently replaced the first's maps, whose journal and tables then described other data.
+    A run directory's token (``run.json``'s ``products_owner``, kept from run to run) is
+    recorded in the products it writes, so a moved run directory still owns its products.
+    """
+    writer = products_writer(root or rundir)
+    if writer is None or writer == _products_owner(rundir):
+        return
+    raise RunDirError(
+        f"{zarr_location(root or rundir)} holds the products of another run directory; two "
+        "run directories that share a products root overwrite each other's maps. Give this "
+        f"run directory its own --products, such as {str(root or rundir).rstrip('/')}/"
+        f"{rundir.resolve().name}"
+    )
+
+
+def _products_owner(rundir: Path) -> str | None:
+    """The run directory's token in the products it writes (None before its first run)."""
+    if not (rundir / RUN_JSON).is_file():
+        return None
+    owner = load_run_json(rundir).get("products_owner")
+    return str(owner) if owner else None
+
+
 def _prepare_store(plan: RunPlan, state: RunState) -> dict[str, tuple[tuple[int, ...], str]]:
     if plan.image_shape is None:
         return {}
@@ -165,6 +196,7 @@ def _prepare_store(plan: RunPlan, state: RunState) -> dict[str, tuple[tuple[int,
                 )
     frame_ids = [f.frame_id for f in plan.catalog.frames]
     try:
+        _check_products_owner(plan.rundir, plan.products)
         recreated = ensure_zarr(plan.products_root, frame_ids, arrays)
     except Exception as exc:
         if not is_url(plan.products_root) or isinstance(exc, RunDirError):
@@ -271,10 +303,21 @@ def _execute(
         state.commit_batch([], {}, [], recovered)
     journal = Journal(plan, state, run_id)
     meta = _run_json(plan, run_id, "not started", started)
+    meta["products_owner"] = _products_owner(plan.rundir) or run_id
     # frames.parquet before run.json: `arroyo status` of a run killed before its first
     # frame finished read a run.json without the frames table and printed only its path
     write_frames_table(plan, state)
     _write_json(plan.rundir / RUN_JSON, meta)
+    if expected:  # after run.json, which holds the token
+        try:
+            claim_products(plan.products_root, meta["products_owner"])
+        except Exception as exc:
+            if not is_url(plan.products_root):
+                raise
+            raise StoreError(
+                f"cannot write to the product store at {plan.products_root}: "
+                f"{type(exc).__name__}: {exc}; check the URL, credentials and network"
+            ) from exc
     fatal: str | None = None
     interrupted = False
     total = len(pending)

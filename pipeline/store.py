@@ -61,6 +61,9 @@ __all__ = [
     "atomic_write_bytes",
     "ensure_zarr",
     "check_frame_list",
+    "claim_products",
+    "products_writer",
+    "WRITER_ATTR",
     "write_frame_array",
     "read_frame_array",
     "frame_checksum",
@@ -259,6 +262,26 @@ def read_product_file(root: str | os.PathLike[str], rel: str) -> bytes | None:
 # -- zarr ---------------------------------------------------------------------------------
 def _zarr_path(rundir: str | os.PathLike[str]) -> Path:
     return Path(rundir) / ZARR_NAME
+
+
+WRITER_ATTR = "arroyo_owner"
+"""Attribute of ``products.zarr``: the token of the run directory whose runs write it."""
+
+
+def products_writer(root: str | os.PathLike[str]) -> str | None:
+    """The token of the run directory that claimed the products at ``root`` (None: none)."""
+    group = open_products_group(root)
+    if group is None:
+        return None
+    writer = group.attrs.get(WRITER_ATTR)
+    return str(writer) if writer else None
+
+
+def claim_products(root: str | os.PathLike[str], owner: str) -> None:
+    """Record ``owner``, a run directory's token, in the products at ``root``."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", zarr.errors.ZarrUserWarning)
+        zarr.open_group(zarr_location(root), mode="a").attrs[WRITER_ATTR] = owner
 
 
 def check_frame_list(root: str | os.PathLike[str], frame_ids: Sequence[str]) -> None:

@@ -308,3 +308,22 @@ def test_other_frame_list_is_refused_by_the_dry_run_too(archive, tmp_path):
     index.write_text("\n".join([header, *rows, rows[0].replace("f000,", "f004,")]) + "\n")
     assert _run(archive, out, dry_run=True).todo["f004"]  # extended at the end: fine
     assert _run(archive, out).done == 5
+
+
+def test_two_run_directories_cannot_share_a_products_root(archive, tmp_path):
+    """Regression: a second run directory given the same --products rewrote the first's
+    maps without a word; the first's descriptors then described other labels and its
+    `status --verify` found every rewritten slab damaged."""
+    shared = tmp_path / "shared"
+    first, second = tmp_path / "a", tmp_path / "b"
+    assert _run(archive, first, products=shared).done == 4
+    for dry_run in (True, False):
+        with pytest.raises(RunDirError, match="holds the products of another run directory"):
+            _run(archive, second, products=shared, overrides=["blend.weight=0.3"],
+                 dry_run=dry_run)
+    assert status(first, verify=True).damaged == []
+    moved = tmp_path / "moved"
+    first.rename(moved)  # a moved run directory still owns its products
+    assert _run(archive, moved, overrides=["blend.weight=0.3"]).done == 4
+    assert status(moved, verify=True).damaged == []
+    assert _run(archive, second, products=shared / "b").done == 4
