@@ -54,6 +54,7 @@ class RunSummary:
 
 
 _EVALUATION_NAME = "evaluation.parquet"  # written by `arroyo evaluate` (pipeline.evaluate)
+_OWNER_KEY = "products_owner"  # journal meta: the token the run directory's products carry
 
 
 # -- running ------------------------------------------------------------------------------
@@ -93,7 +94,7 @@ def run(
         _check_rundir(rundir)
         root = _resolve_products(rundir, products)
         if not is_url(root):  # a dry run said what would run where the run then refused
-            _check_products_owner(rundir, root)
+            _check_products_owner(rundir, root, _journal_owner(rundir))
             check_frame_list(root or rundir, [f.frame_id for f in request.catalog.frames])
         if dry_run:
             return plan_run(request, rundir, products=root)
@@ -154,16 +155,16 @@ def _resolve_products(rundir: Path, requested: str | os.PathLike[str] | None) ->
     return wanted
 
 
-def _check_products_owner(rundir: Path, root: str) -> None:
+def _check_products_owner(rundir: Path, root: str, owner: str | None) -> None:
     """Refuse products claimed by another run directory.
 
     Two run directories given the same ``--products`` wrote the same slabs: the second
     silently replaced the first's maps, whose journal and tables then described other data.
-    A run directory's token (``run.json``'s ``products_owner``, kept from run to run) is
-    recorded in the products it writes, so a moved run directory still owns its products.
+    A run directory's token (``owner``, in its journal) is recorded in the products it
+    writes, so a moved run directory still owns its products.
     """
     writer = products_writer(root or rundir)
-    if writer is None or writer == _products_owner(rundir):
+    if writer is None or writer == owner:
         return
     raise RunDirError(
         f"{zarr_location(root or rundir)} holds the products of another run directory; two "
@@ -173,12 +174,15 @@ def _check_products_owner(rundir: Path, root: str) -> None:
     )
 
 
-def _products_owner(rundir: Path) -> str | None:
-    """The run directory's token in the products it writes (None before its first run)."""
-    if not (rundir / RUN_JSON).is_file():
+def _journal_owner(rundir: Path) -> str | None:
+    """The run directory's products token, read without creating a journal."""
+    if not (rundir / STATE_NAME).is_file():
         return None
-    owner = load_run_json(rundir).get("products_owner")
-    return str(owner) if owner else None
+    state = RunState(rundir, readonly=True)
+    try:
+        return state.get_meta(_OWNER_KEY)
+    finally:
+        state.close()
 
 
 def _prepare_store(plan: RunPlan, state: RunState) -> dict[str, tuple[tuple[int, ...], str]]:
@@ -196,7 +200,7 @@ def _prepare_store(plan: RunPlan, state: RunState) -> dict[str, tuple[tuple[int,
                 )
     frame_ids = [f.frame_id for f in plan.catalog.frames]
     try:
-        _check_products_owner(plan.rundir, plan.products)
+        _check_products_owner(plan.rundir, plan.products, state.get_meta(_OWNER_KEY))
         recreated = ensure_zarr(plan.products_root, frame_ids, arrays)
     except Exception as exc:
         if not is_url(plan.products_root) or isinstance(exc, RunDirError):
@@ -303,14 +307,15 @@ def _execute(
         state.commit_batch([], {}, [], recovered)
     journal = Journal(plan, state, run_id)
     meta = _run_json(plan, run_id, "not started", started)
-    meta["products_owner"] = _products_owner(plan.rundir) or run_id
     # frames.parquet before run.json: `arroyo status` of a run killed before its first
     # frame finished read a run.json without the frames table and printed only its path
     write_frames_table(plan, state)
     _write_json(plan.rundir / RUN_JSON, meta)
-    if expected:  # after run.json, which holds the token
+    if expected:  # the journal holds the token first: a kill in between leaves no claim
+        owner = state.get_meta(_OWNER_KEY) or run_id
+        state.set_meta(_OWNER_KEY, owner)
         try:
-            claim_products(plan.products_root, meta["products_owner"])
+            claim_products(plan.products_root, owner)
         except Exception as exc:
             if not is_url(plan.products_root):
                 raise
