@@ -7,6 +7,7 @@ import os
 import signal
 import threading
 from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
 from typing import Any
 
 from ._forkserver import forkserver_supported, start_forkserver, stop_forkserver
@@ -21,6 +22,7 @@ __all__ = [
     "describe_scheduler",
     "check_scheduler",
     "check_workers",
+    "terminate_as_interrupt",
 ]
 
 _SCHEDULER_EXPECTED = (
@@ -209,25 +211,51 @@ def open_executor(
 
 
 class _DeferredInterrupt:
-    """Hold a ^C (SIGINT in the main thread) until the block ends; ``caught`` says whether
-    one came. A ^C while a local cluster started stopped the fork server under nannies still
-    forking their workers, and dask logged a traceback for each."""
+    """Hold a ^C (SIGINT in the main thread) or a SIGTERM until the block ends; ``caught``
+    says whether one came. A ^C while a local cluster started stopped the fork server under
+    nannies still forking their workers, and dask logged a traceback for each."""
 
     def __init__(self) -> None:
         self.caught = False
-        self._saved: Any = None
+        self._saved: dict[int, Any] = {}
 
     def _hold(self, signum: int, frame: Any) -> None:
         self.caught = True
 
     def __enter__(self) -> _DeferredInterrupt:
         if threading.current_thread() is threading.main_thread():
-            self._saved = signal.signal(signal.SIGINT, self._hold)
+            for signum in (signal.SIGINT, signal.SIGTERM):
+                self._saved[signum] = signal.signal(signum, self._hold)
         return self
 
     def __exit__(self, *exc: object) -> None:
-        if self._saved is not None:
-            signal.signal(signal.SIGINT, self._saved)
+        for signum, handler in self._saved.items():
+            signal.signal(signum, handler)
+        self._saved.clear()
+
+
+@contextmanager
+def terminate_as_interrupt() -> Iterator[None]:
+    """Within the block, a SIGTERM stops the main thread as a ^C does (KeyboardInterrupt).
+
+    A batch system's time limit (SLURM, PBS), ``timeout`` and ``docker stop`` send SIGTERM:
+    it killed the driver outright, so the frames of the journal's last batch were lost and
+    the finished frames' rows stayed unpublished until a rerun. Further SIGTERMs are ignored
+    while the run stops, so the publication finishes; the previous handler comes back after.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def _stop(signum: int, frame: Any) -> None:
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        raise KeyboardInterrupt
+
+    saved = signal.signal(signal.SIGTERM, _stop)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, saved)
 
 
 def check_workers(workers: int | None) -> None:

@@ -13,7 +13,13 @@ from typing import Any
 
 from ._forkserver import stop_forkserver
 from .errors import ParamError, RunDirError, StoreError
-from .executor import check_scheduler, check_workers, open_executor, prestart_local_workers
+from .executor import (
+    check_scheduler,
+    check_workers,
+    open_executor,
+    prestart_local_workers,
+    terminate_as_interrupt,
+)
 from .journal import Journal, publish, stage_attrs, write_frames_table
 from .lock import RunLock
 from .plan import RunPlan, default_rundir, plan_run, validate_request
@@ -80,12 +86,34 @@ def run(
     RunSummary whose ``exit_code`` is 1 when some frames failed. Raises CatalogError /
     ParamError before any work, RunDirError when ``products`` differs from the root the run
     directory already uses, RunLockedError when another run holds the directory, StoreError
-    when products cannot be written.
+    when products cannot be written. A SIGTERM to the main thread stops the run as a ^C
+    does: the finished frames are committed and published, then KeyboardInterrupt.
     """
     check_scheduler(scheduler)  # a typo stops the run before the run directory exists
     # checked here, not when the executor opens: `--workers 0` passed a dry run and a run
     # with nothing pending, and a run with work stopped only after writing run.json
     check_workers(workers)
+    with terminate_as_interrupt():  # batch time limits, `timeout`, `docker stop`: as ^C
+        return _run(
+            catalog_path, out, overrides=overrides, workers=workers, scheduler=scheduler,
+            frames=frames, dry_run=dry_run, progress=progress, stage_package=stage_package,
+            products=products,
+        )
+
+
+def _run(
+    catalog_path: str | os.PathLike[str],
+    out: str | os.PathLike[str] | None,
+    *,
+    overrides: Iterable[str],
+    workers: int | None,
+    scheduler: str | None,
+    frames: str | None,
+    dry_run: bool,
+    progress: Callable[[int, int, str], None] | None,
+    stage_package: str | None,
+    products: str | os.PathLike[str] | None,
+) -> RunSummary | RunPlan:
     # local workers' imports run beside the planning (pipeline._forkserver)
     forked = not dry_run and prestart_local_workers(scheduler, workers, stage_package)
     try:

@@ -327,3 +327,29 @@ def test_two_run_directories_cannot_share_a_products_root(archive, tmp_path):
     assert _run(archive, moved, overrides=["blend.weight=0.3"]).done == 4
     assert status(moved, verify=True).damaged == []
     assert _run(archive, second, products=shared / "b").done == 4
+
+
+def test_sigterm_stops_the_run_as_ctrl_c_does(archive, tmp_path):
+    """Regression: SIGTERM (a batch system's time limit, `timeout`, `docker stop`) killed the
+    driver outright: the frames finished since the journal's last commit were redone and
+    no finished frame's rows were published until a rerun. It now stops the run as ^C."""
+    import os
+    import signal
+
+    out = tmp_path / "run"
+    handler = signal.getsignal(signal.SIGTERM)
+
+    def terminated_after_two(done, total, frame_id):
+        if done == 2:
+            os.kill(os.getpid(), signal.SIGTERM)
+
+    with pytest.raises(KeyboardInterrupt):
+        _run(archive, out, progress=terminated_after_two)
+    assert signal.getsignal(signal.SIGTERM) is handler
+    assert json.loads((out / "run.json").read_text())["status"] == "interrupted"
+    frames = pq.read_table(out / "frames.parquet").to_pylist()
+    done = sorted(f["frame_id"] for f in frames if f["status"] == "done")
+    assert len(done) == 2
+    rows = pq.read_table(out / "tallies.parquet").to_pylist()
+    assert sorted({r["frame_id"] for r in rows}) == done
+    assert _run(archive, out).done == 4
