@@ -33,7 +33,7 @@ import math
 import os
 import uuid
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -55,6 +55,7 @@ __all__ = [
     "zarr_location",
     "open_products_group",
     "write_product_file",
+    "remove_other_product_files",
     "read_product_file",
     "tile_chunks",
     "compressor_for",
@@ -245,6 +246,33 @@ def write_product_file(root: str | os.PathLike[str], rel: str, content: bytes) -
         fs.pipe_file(path, content)
     else:
         atomic_write_bytes(Path(root) / rel, content, durable=False)
+
+
+def remove_other_product_files(
+    root: str | os.PathLike[str], folder: str, keep: Iterable[str]
+) -> None:
+    """Remove the files under ``folder`` (relative to a products root) not in ``keep``.
+
+    A files product's frame folder holds what its stage wrote for the frame's current
+    result only: the quicklooks of a frame that ``quicklook.every`` now skips were an
+    earlier run's drawing of earlier labels, and the report showed them as current.
+    """
+    kept = {str(k) for k in keep}
+    if is_url(root):
+        fs, base = _remote(f"{str(root).rstrip('/')}/{folder}")
+        if not fs.exists(base):
+            return
+        prefix = base.rstrip("/") + "/"
+        for path in fs.find(base):
+            if f"{folder}/{path[len(prefix):]}" not in kept:
+                fs.rm_file(path)
+        return
+    directory = Path(root) / folder
+    if not directory.is_dir():
+        return
+    for path in directory.rglob("*"):
+        if path.is_file() and path.relative_to(root).as_posix() not in kept:
+            path.unlink()
 
 
 def read_product_file(root: str | os.PathLike[str], rel: str) -> bytes | None:

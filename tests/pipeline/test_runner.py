@@ -353,3 +353,31 @@ def test_sigterm_stops_the_run_as_ctrl_c_does(archive, tmp_path):
     rows = pq.read_table(out / "tallies.parquet").to_pylist()
     assert sorted({r["frame_id"] for r in rows}) == done
     assert _run(archive, out).done == 4
+
+
+def test_frame_files_a_rerun_does_not_write_are_removed(archive, tmp_path):
+    """Regression: with `--set quicklook.every=4` a rerun drew 3 of lab's 12 frames and
+    left the other 9 frames' quicklooks of the earlier run, outlines of earlier labels
+    that the report showed as current. A files product's frame folder now holds only what
+    the stage returned for the frame's current result."""
+    out = tmp_path / "run"
+    _run(archive, out)
+    notes = sorted(p.relative_to(out).as_posix() for p in (out / "quicklooks").rglob("*.txt"))
+    assert notes == [f"quicklooks/f00{k}/note.txt" for k in range(4)]
+    (out / "quicklooks" / "f001" / "old.png").write_bytes(b"an earlier stage version's file")
+    assert _run(archive, out, overrides=["tally.note=false"]).done == 4
+    assert [p for p in (out / "quicklooks").rglob("*") if p.is_file()] == []
+
+
+def test_frame_files_a_rerun_does_not_write_are_removed_from_an_object_store(
+    archive, tmp_path, s3_products
+):
+    import fsspec
+
+    out = tmp_path / "run"
+    _run(archive, out, products=s3_products)
+    s3 = fsspec.filesystem("s3")
+    assert s3.exists(f"{s3_products}/quicklooks/f002/note.txt")
+    _run(archive, out, overrides=["tally.note=false"])
+    s3.invalidate_cache()
+    assert not s3.exists(f"{s3_products}/quicklooks/f002/note.txt")
