@@ -273,6 +273,9 @@ def remove_other_product_files(
     for path in directory.rglob("*"):
         if path.is_file() and path.relative_to(root).as_posix() not in kept:
             path.unlink()
+    for path in sorted(directory.rglob("*"), reverse=True) + [directory]:
+        if path.is_dir() and not any(path.iterdir()):
+            path.rmdir()  # deepest first: an emptied folder goes too
 
 
 def read_product_file(root: str | os.PathLike[str], rel: str) -> bytes | None:
