@@ -32,6 +32,7 @@ from .store import (
     claim_products,
     coerce_products_root,
     ensure_zarr,
+    is_disk_full,
     is_url,
     products_writer,
     remove_orphan_temp_files,
@@ -174,6 +175,12 @@ def _resolve_products(rundir: Path, requested: str | os.PathLike[str] | None) ->
         raise ParamError(f"--products: {exc}") from None
     if not is_url(wanted) and Path(wanted) == rundir.resolve():
         wanted = ""
+    if wanted and not is_url(wanted) and Path(wanted).exists() and not Path(wanted).is_dir():
+        # zarr's NotADirectoryError came out as a traceback (exit 1) after the journal
+        raise ParamError(
+            f"--products {requested}: {wanted} is a file, not a directory; give a new or "
+            "existing directory (or a URL such as s3://bucket/prefix)"
+        )
     if (rundir / RUN_JSON).is_file() and wanted != recorded:
         raise RunDirError(
             f"{rundir} keeps its products in {recorded or 'the run directory'}, not "
@@ -231,8 +238,20 @@ def _prepare_store(plan: RunPlan, state: RunState) -> dict[str, tuple[tuple[int,
         _check_products_owner(plan.rundir, plan.products, state.get_meta(_OWNER_KEY))
         recreated = ensure_zarr(plan.products_root, frame_ids, arrays)
     except Exception as exc:
-        if not is_url(plan.products_root) or isinstance(exc, RunDirError):
+        if isinstance(exc, RunDirError):
             raise
+        if not is_url(plan.products_root):
+            if not isinstance(exc, OSError):
+                raise
+            if is_disk_full(exc):  # exit 4 as for the frames' writes, not a traceback
+                raise StoreError(
+                    f"cannot write the product store {zarr_location(plan.products_root)}: "
+                    f"{exc.strerror} (errno {exc.errno}); free space and rerun"
+                ) from None
+            raise RunDirError(  # a parent that is a file, no permission...
+                f"cannot create the product store {zarr_location(plan.products_root)}: "
+                f"{exc.strerror or exc}; give --out (or --products) a directory you can write"
+            ) from None
         raise StoreError(
             f"cannot open the product store at {plan.products_root}: {type(exc).__name__}: "
             f"{exc}; check the URL, credentials and network, then rerun"

@@ -381,3 +381,15 @@ def test_frame_files_a_rerun_does_not_write_are_removed_from_an_object_store(
     _run(archive, out, overrides=["tally.note=false"])
     s3.invalidate_cache()
     assert not s3.exists(f"{s3_products}/quicklooks/f002/note.txt")
+
+
+def test_products_root_that_is_a_file_or_under_one_is_a_clear_error(archive, tmp_path):
+    """Regression: `--products FILE` (and a root under a file) ended in zarr's
+    NotADirectoryError traceback, exit 1, after the journal was created."""
+    afile = tmp_path / "afile"
+    afile.write_text("")
+    with pytest.raises(ParamError, match="is a file, not a directory"):
+        _run(archive, tmp_path / "a", products=afile)
+    assert not (tmp_path / "a").exists()
+    with pytest.raises(RunDirError, match="cannot create the product store"):
+        _run(archive, tmp_path / "b", products=afile / "below")
