@@ -212,7 +212,13 @@ def synthesize_archive(
             f"{target} exists and is not an empty directory or an arroyo archive; "
             "choose a new --out directory"
         )
-    target.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:  # a parent that is a file came out as a FileExistsError traceback
+        raise ValueError(
+            f"cannot create {target.parent}: {exc.strerror or exc}; choose an --out "
+            "directory whose parents are directories you can write"
+        ) from None
     tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.tmp-", dir=target.parent))
     try:
         _render_into(tmp, archetype, frames, seed, variant, size)

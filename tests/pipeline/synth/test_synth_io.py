@@ -84,6 +84,14 @@ def test_refuses_foreign_directory(tmp_path):
     assert (tmp_path / "notes.txt").read_text() == "mine"
 
 
+def test_out_below_a_file_is_a_clear_error(tmp_path):
+    """Regression: `arroyo synth --out FILE/x` ended in a FileExistsError traceback."""
+    (tmp_path / "afile").write_text("mine")
+    with pytest.raises(ValueError, match="cannot create .*afile"):
+        synthesize_archive("lab", tmp_path / "afile" / "x", frames=1, size=SIZE)
+    assert (tmp_path / "afile").read_text() == "mine"
+
+
 def test_bad_frames_rejected(tmp_path):
     with pytest.raises(ValueError):
         synthesize_archive("lab", tmp_path / "x", frames=0, size=SIZE)
