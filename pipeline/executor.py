@@ -207,7 +207,21 @@ def open_executor(
             "`dask scheduler` runs there and its port is open, or leave --scheduler out for "
             "local worker processes"
         ) from None
+    try:
+        # a scheduler without workers took the frames and the run waited without a word
+        client.wait_for_workers(1, timeout=WORKER_WAIT_SECONDS)
+    except (TimeoutError, OSError) as exc:
+        client.close()
+        raise ParamError(
+            f"--scheduler {scheduler}: the dask scheduler has no worker (none joined within "
+            f"{WORKER_WAIT_SECONDS:g} s: {type(exc).__name__}); start workers with `dask worker "
+            f"{scheduler}`, or leave --scheduler out for local worker processes"
+        ) from None
     return _DistributedExecutor(client, None, f"dask.distributed at {scheduler}")
+
+
+WORKER_WAIT_SECONDS = 60.0
+"""How long a run waits for a remote scheduler's first worker before it stops (exit 2)."""
 
 
 class _DeferredInterrupt:
