@@ -50,7 +50,12 @@ from ._baselines import otsu_labels, sgbm_disparity
 from ._evaluation_display import evaluation_tables, format_evaluation
 from .errors import RunDirError
 from .lock import lock_holder
-from .store import open_products_group, products_root, zarr_location
+from .store import (
+    check_products_reachable,
+    open_products_group,
+    products_root,
+    zarr_location,
+)
 
 __all__ = [
     "EVALUATION_SCHEMA",
@@ -167,6 +172,8 @@ def _open_products(rundir: Path, run: Mapping[str, Any]):
     import xarray as xr
 
     root = products_root(rundir, run)
+    if run.get("products"):  # a moved products directory printed "nothing to score", exit 0
+        check_products_reachable(rundir, root, doing="nothing was scored")
     group = open_products_group(root)
     if group is None:
         return None

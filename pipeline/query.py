@@ -59,7 +59,13 @@ import pyarrow.parquet as pq
 
 from .errors import ParamError, RunDirError
 from .lock import lock_holder
-from .store import atomic_write_bytes, open_products_group, products_root, zarr_location
+from .store import (
+    atomic_write_bytes,
+    check_products_reachable,
+    open_products_group,
+    products_root,
+    zarr_location,
+)
 from .tables import FRAMES_NAME, published_path
 
 __all__ = [
@@ -448,6 +454,8 @@ def frame_dataset(rundir: str | os.PathLike[str], frame_id: str) -> Any:
     if not isinstance(frame_id, str):
         raise TypeError(f"frame_id must be a str, got {type(frame_id).__name__}")
     store = zarr_location(products_root(path, meta))
+    if meta.get("products"):  # "wrote no array products yet" of a moved products directory
+        check_products_reachable(path, products_root(path, meta), doing="no frame was read")
     if open_products_group(products_root(path, meta)) is None:
         raise RunDirError(f"{store} does not exist; the run wrote no array products yet")
     data = xr.open_zarr(store)

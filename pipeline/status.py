@@ -10,17 +10,15 @@ from pathlib import Path
 
 import pyarrow.parquet as pq
 
-from .errors import RunDirError, RunLockedError, StoreError
+from .errors import RunDirError, RunLockedError
 from .lock import RunLock
 from .state import STATE_NAME, RunState
 from .store import (
-    ZARR_NAME,
+    check_products_reachable,
     file_sha256,
     frame_checksum,
-    is_url,
     products_root,
     read_frame_array,
-    zarr_location,
 )
 
 __all__ = ["RunStatus", "status", "format_status"]
@@ -69,7 +67,13 @@ def status(rundir: str | os.PathLike[str], *, verify: bool = False) -> RunStatus
     if verify:
         root = products_root(rundir, meta)
         if meta.get("products"):
-            _check_products_reachable(rundir, root)
+            check_products_reachable(
+                rundir,
+                root,
+                doing="nothing was checked or reset",
+                hint=f"; if they are lost for good, create the empty directory {root} and "
+                "verify again to reset every frame for the next run",
+            )
         with _verify_lock(rundir):
             state = RunState(rundir)
             try:
@@ -143,34 +147,6 @@ def _verify_lock(rundir: Path) -> Iterator[None]:
         yield
     finally:
         lock.__exit__(None, None, None)
-
-
-def _check_products_reachable(rundir: Path, root: str) -> None:
-    """Raise, before anything is reset, when the recorded products root is not there."""
-    if not is_url(root):
-        if not Path(root).is_dir():
-            raise RunDirError(
-                f"the products of {rundir} are recorded at {root}, which does not exist "
-                "(moved or unmounted?); nothing was checked or reset. Mount or move them back "
-                f"there; if they are lost for good, create the empty directory {root} and "
-                "verify again to reset every frame for the next run"
-            )
-        return
-    import fsspec.core
-
-    try:
-        fs, path = fsspec.core.url_to_fs(zarr_location(root))
-        found = fs.exists(f"{path}/zarr.json")
-    except Exception as exc:  # noqa: BLE001 - credentials, network, missing bucket
-        raise StoreError(
-            f"cannot reach the products of {rundir} at {root}: {type(exc).__name__}: {exc}; "
-            "nothing was checked or reset. Check the URL, credentials and network"
-        ) from None
-    if not found:
-        raise RunDirError(
-            f"the products of {rundir} are recorded at {root}, but {ZARR_NAME} is not there; "
-            "nothing was checked or reset. Check the URL (a moved bucket or prefix?)"
-        )
 
 
 def _verify(

@@ -54,6 +54,7 @@ __all__ = [
     "products_root",
     "zarr_location",
     "open_products_group",
+    "check_products_reachable",
     "write_product_file",
     "remove_other_product_files",
     "read_product_file",
@@ -213,6 +214,51 @@ def _remote(url: str) -> tuple[Any, str]:
 
     fs, path = fsspec.core.url_to_fs(url)
     return fs, path
+
+
+def check_products_reachable(
+    rundir: str | os.PathLike[str], root: str, *, doing: str, hint: str = ""
+) -> None:
+    """Raise when a run's products root recorded outside its run directory is not there.
+
+    Parameters
+    ----------
+    rundir : path
+        The run directory, for the message.
+    root : str
+        The recorded products root (a directory or an fsspec URL).
+    doing : str
+        What the caller did not do, for the message ("nothing was checked or reset").
+    hint : str, optional
+        A last sentence for a missing local root.
+
+    Raises
+    ------
+    RunDirError
+        A local root that does not exist (moved, unmounted), a URL without the store.
+    StoreError
+        A URL that cannot be reached (credentials, network, bucket).
+    """
+    if not is_url(root):
+        if not Path(root).is_dir():
+            raise RunDirError(
+                f"the products of {rundir} are recorded at {root}, which does not exist "
+                f"(moved or unmounted?); {doing}. Mount or move them back there" + hint
+            )
+        return
+    try:
+        fs, path = _remote(zarr_location(root))
+        found = fs.exists(f"{path}/zarr.json")
+    except Exception as exc:  # noqa: BLE001 - credentials, network, missing bucket
+        raise StoreError(
+            f"cannot reach the products of {rundir} at {root}: {type(exc).__name__}: {exc}; "
+            f"{doing}. Check the URL, credentials and network"
+        ) from None
+    if not found:
+        raise RunDirError(
+            f"the products of {rundir} are recorded at {root}, but {ZARR_NAME} is not there; "
+            f"{doing}. Check the URL (a moved bucket or prefix?)"
+        )
 
 
 def open_products_group(root: str | os.PathLike[str]) -> zarr.Group | None:

@@ -421,3 +421,12 @@ def test_evaluate_refuses_a_left_referenced_run(rundir: Path):
     with pytest.raises(RunDirError, match="the ground truth is in the right image's geometry"):
         evaluate_run(rundir)
     assert not (rundir / "evaluation.parquet").exists()
+
+
+def test_evaluate_with_moved_products_root_says_so(rundir: Path, tmp_path: Path):
+    """Regression: a run whose --products directory was moved or unmounted printed
+    "nothing to score: no frame has both products and ground truth" and exited 0."""
+    meta = json.loads((rundir / "run.json").read_text())
+    (rundir / "run.json").write_text(json.dumps({**meta, "products": str(tmp_path / "gone")}))
+    with pytest.raises(RunDirError, match="which does not exist \\(moved or unmounted\\?\\)"):
+        evaluate_run(rundir)
