@@ -329,6 +329,11 @@ def evaluate_run(rundir: str | os.PathLike[str]) -> pa.Table:
     path = _coerce_rundir(rundir)
     run = _load_run_json(path)
     _check_not_running(path, run)
+    if not os.access(path, os.W_OK):  # scored, then an EROFS traceback when saving
+        raise RunDirError(
+            f"cannot write {path / 'evaluation.parquet'}: the run directory is read-only; "
+            "evaluate a writable copy of it (cp -r)"
+        )
     truth_dir = _truth_dir(run, path)
     reference = str((run.get("camera") or {}).get("reference", "right"))
     if reference != _TRUTH_REFERENCE:

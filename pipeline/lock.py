@@ -28,7 +28,9 @@ def lock_holder(rundir: Path) -> dict | None:
     path = Path(rundir) / LOCK_NAME
     if not path.exists():
         return None
-    with open(path, "a+") as fh:
+    # read-only: "a+" raised EROFS in `arroyo status` of an archived run directory on a
+    # read-only mount; flock needs no write access
+    with open(path) as fh:
         try:
             fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import os
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -36,6 +37,7 @@ class RunStatus:
     damaged: list[str] = field(default_factory=list)  # what --verify found (and reset)
     verified: bool = False
     products: str = ""  # products root when not the run directory
+    reset: bool = True  # whether --verify reset the damaged results (not on a read-only dir)
 
 
 def status(rundir: str | os.PathLike[str], *, verify: bool = False) -> RunStatus:
@@ -64,6 +66,7 @@ def status(rundir: str | os.PathLike[str], *, verify: bool = False) -> RunStatus
     index = dict(zip(frame_ids, frames_table["index"].to_pylist(), strict=True))
     stages = list(meta.get("stages", {}))
     damaged: list[str] = []
+    reset = True
     if verify:
         root = products_root(rundir, meta)
         if meta.get("products"):
@@ -74,13 +77,17 @@ def status(rundir: str | os.PathLike[str], *, verify: bool = False) -> RunStatus
                 hint=f"; if they are lost for good, create the empty directory {root} and "
                 "verify again to reset every frame for the next run",
             )
-        with _verify_lock(rundir):
-            state = RunState(rundir)
+        with _verify_lock(rundir) as locked:
+            # a read-only run directory (an archive) is checked, not reset: no run writes it
+            state = RunState(rundir, readonly=not locked)
             try:
-                damaged = _verify(rundir, root, state, index, stages)
+                damaged = _verify(rundir, root, state, index, stages, reset=locked)
             finally:
                 state.close()
-    state = RunState(rundir)
+        reset = locked
+    # read-only: `status` of an archived run directory on a read-only mount called its
+    # journal damaged ("move it away ... the run then starts over")
+    state = RunState(rundir, readonly=True)
     try:
         done = state.done()
         failed = state.failed()
@@ -121,13 +128,15 @@ def status(rundir: str | os.PathLike[str], *, verify: bool = False) -> RunStatus
         failures={f: e for f, (_s, e) in failed.items()},
         damaged=damaged,
         verified=verify,
+        reset=reset,
         products=str(meta.get("products") or ""),
     )
 
 
 @contextmanager
-def _verify_lock(rundir: Path) -> Iterator[None]:
-    """Hold the run lock while verifying, with a message of its own when a run holds it."""
+def _verify_lock(rundir: Path) -> Iterator[bool]:
+    """Hold the run lock while verifying, with a message of its own when a run holds it;
+    yield whether it is held (False: a read-only run directory, which no run can write)."""
     try:
         lock = RunLock(rundir).__enter__()
     except RunLockedError as exc:
@@ -139,20 +148,27 @@ def _verify_lock(rundir: Path) -> Iterator[None]:
             "writes it: wait for that run to finish (plain `arroyo status` works meanwhile)"
         ) from None
     except OSError as exc:
-        raise RunDirError(
-            f"cannot lock {rundir} for --verify: {exc.strerror or exc}; verify resets what "
-            "is damaged, so it needs write access to the run directory"
-        ) from None
+        if exc.errno not in (errno.EROFS, errno.EACCES, errno.EPERM):
+            raise RunDirError(f"cannot lock {rundir} for --verify: {exc.strerror or exc}") from None
+        yield False
+        return
     try:
-        yield
+        yield True
     finally:
         lock.__exit__(None, None, None)
 
 
 def _verify(
-    rundir: Path, root: str, state: RunState, index: dict[str, int], stages: list[str]
+    rundir: Path,
+    root: str,
+    state: RunState,
+    index: dict[str, int],
+    stages: list[str],
+    *,
+    reset: bool = True,
 ) -> list[str]:
-    """Recompute checksums of recorded arrays and Parquet parts; forget damaged results."""
+    """Recompute checksums of recorded arrays and Parquet parts; with ``reset``, forget the
+    damaged results."""
     damaged: list[str] = []
     forget: set[tuple[str, str]] = set()
     bad_parts = set()
@@ -178,8 +194,9 @@ def _verify(
     order = {s: i for i, s in enumerate(stages)}
     for fid, stage in list(forget):
         forget.update((fid, s) for s in stages if order[s] > order.get(stage, 0))
-    state.forget(forget)
-    state.drop_parts(bad_parts)
+    if reset:
+        state.forget(forget)
+        state.drop_parts(bad_parts)
     for published in rundir.glob("*.parquet"):
         if published.is_symlink() or published.is_dir():
             for file in published.rglob("*.parquet"):
@@ -201,7 +218,12 @@ def format_status(st: RunStatus) -> str:
     for fid, error in sorted(st.failures.items()):
         lines.append(f"failed {fid}: {error}")
     if st.verified:
-        if st.damaged:
+        if st.damaged and not st.reset:
+            lines.append(
+                f"verify: {len(st.damaged)} problem(s); the run directory is read-only, so "
+                "nothing was reset (verify a writable copy for the next run to redo them):"
+            )
+        elif st.damaged:
             lines.append(
                 f"verify: {len(st.damaged)} problem(s); the next `arroyo run` redoes them:"
             )

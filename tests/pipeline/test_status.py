@@ -9,7 +9,7 @@ import pytest
 from pipeline.errors import RunDirError, RunLockedError
 from pipeline.lock import RunLock
 from pipeline.runner import run
-from pipeline.status import status
+from pipeline.status import format_status, status
 
 FAKE = "arroyo_fake_stages"
 
@@ -73,3 +73,50 @@ def test_frame_failed_on_rerun_is_not_also_counted_done(archive, tmp_path):
     report = status(out)
     assert report.per_stage["ingest"] == {"done": 3, "failed": 1, "pending": 0}
     assert report.per_stage["tally"] == {"done": 3, "failed": 0, "pending": 1}
+
+
+@pytest.fixture
+def readonly_view(tmp_path):
+    """``view(path)``: a read-only bind mount of ``path`` (skips where mounting is not
+    allowed); as root, permissions alone do not stop writes, a read-only mount does."""
+    import subprocess
+
+    mounts = []
+
+    def view(path):
+        target = tmp_path / f"ro-{len(mounts)}"
+        target.mkdir()
+        done = subprocess.run(
+            ["mount", "--bind", "-o", "ro", str(path), str(target)], capture_output=True
+        )
+        if done.returncode != 0:
+            pytest.skip(f"cannot make a read-only bind mount: {done.stderr.decode().strip()}")
+        mounts.append(target)
+        return target
+
+    yield view
+    for target in mounts:
+        subprocess.run(["umount", "-l", str(target)], check=False)  # lazy: even if busy
+
+
+def test_status_and_verify_of_a_read_only_run_directory(archive, tmp_path, readonly_view):
+    """Regression: on a read-only mount (an archived survey), `arroyo status` called the
+    journal damaged and advised moving it away ("the run then starts over"), and
+    `status --verify` refused; verify now checks without resetting, and says so."""
+    import json
+
+    out = tmp_path / "run"
+    _run(archive, out)
+    meta = json.loads((out / "run.json").read_text())
+    (out / "run.json").write_text(json.dumps({**meta, "status": "running"}))  # then killed
+    view = readonly_view(out)
+    report = status(view)
+    assert report.run_state == "interrupted"
+    assert all(row["done"] == 4 for row in report.per_stage.values())
+    chunk = next(p for p in (out / "products.zarr" / "blend").rglob("*") if p.is_file()
+                 and p.name != "zarr.json")
+    chunk.write_bytes(b"damage")
+    report = status(view, verify=True)
+    assert report.damaged and not report.reset
+    assert "read-only, so nothing was reset" in format_status(report)
+    assert all(row["done"] == 4 for row in report.per_stage.values())
