@@ -631,9 +631,16 @@ def query_command(
             raise ParamError(f"--output {target} is a directory; pass a file name")
         if not target.parent.is_dir():
             raise ParamError(f"--output {target}: directory {target.parent} does not exist")
+        if not os.access(target.parent, os.W_OK):
+            raise ParamError(
+                f"--output {target}: directory {target.parent} is not writable (read-only?)"
+            )
     table = query_runs(rundirs, sql, allow_running=allow_running)
     if output is not None:
-        atomic_write_bytes(Path(output), _encode(table, fmt))
+        try:
+            atomic_write_bytes(Path(output), _encode(table, fmt))
+        except OSError as exc:  # was a traceback (exit 1)
+            raise ParamError(f"--output {output}: cannot write: {exc.strerror or exc}") from None
         return 0
     if fmt == "table" and tty:
         from rich.console import Console

@@ -113,8 +113,16 @@ def build_report(
     path = Path(rundir)
     run = load_runs([path], allow_running=allow_running)[0]
     target = _target(path, output)
+    if not os.access(target.parent, os.W_OK):  # checked before the minutes of rendering
+        raise ParamError(
+            f"cannot write {target}: {target.parent} is not writable (a read-only archive?); "
+            "pass --output FILE somewhere writable"
+        )
     text = render_report(run, max_frames=max_frames)
-    atomic_write_bytes(target, text.encode("utf-8"))
+    try:
+        atomic_write_bytes(target, text.encode("utf-8"))
+    except OSError as exc:  # was a traceback (exit 1)
+        raise ParamError(f"cannot write {target}: {exc.strerror or exc}") from None
     return target
 
 

@@ -602,3 +602,12 @@ def test_frame_dataset_with_moved_products_root_says_so(tmp_path):
     shared.rename(tmp_path / "moved")
     with pytest.raises(RunDirError, match="which does not exist \\(moved or unmounted\\?\\)"):
         frame_dataset(run, "lab_000")
+
+
+def test_query_output_into_a_read_only_directory(tmp_path, readonly_view):
+    """Regression: `arroyo query -o` into a read-only directory was an EROFS traceback."""
+    run = make_run(tmp_path / "lab", frames=1)
+    view = readonly_view(run)
+    with pytest.raises(ParamError, match="is not writable"):
+        query_command([view], "SELECT 1", fmt="csv", output=view / "x.csv")
+    assert query_runs([view], "SELECT count(*) AS n FROM frames").to_pylist() == [{"n": 1}]

@@ -237,3 +237,12 @@ def test_report_draws_over_the_reference_image(tmp_path):
     group = zarr.open_group(run / "products.zarr", mode="r")
     want = objects_image(np.asarray(group["left"][0]), np.asarray(group["labels"][0]))
     np.testing.assert_array_equal(_decode_png(first["src"])[..., :3], want[..., :3])
+
+
+def test_report_of_a_read_only_run_directory(tmp_path, readonly_view):
+    """Regression: `arroyo report` of an archived run on a read-only mount rendered the
+    whole page, then ended in an EROFS traceback; --output elsewhere works."""
+    view = readonly_view(make_run(tmp_path / "lab", frames=1, rocks=2))
+    with pytest.raises(ParamError, match="is not writable .*pass --output FILE"):
+        build_report(view)
+    assert build_report(view, tmp_path / "r.html").is_file()

@@ -393,3 +393,11 @@ def test_products_root_that_is_a_file_or_under_one_is_a_clear_error(archive, tmp
     assert not (tmp_path / "a").exists()
     with pytest.raises(RunDirError, match="cannot create the product store"):
         _run(archive, tmp_path / "b", products=afile / "below")
+
+
+def test_run_into_a_read_only_run_directory_is_a_clear_error(archive, tmp_path, readonly_view):
+    """Regression: `arroyo run` into a read-only run directory was an EROFS traceback."""
+    out = tmp_path / "run"
+    _run(archive, out)
+    with pytest.raises(RunDirError, match="cannot lock the run directory .*Read-only"):
+        _run(archive, readonly_view(out))

@@ -75,30 +75,6 @@ def test_frame_failed_on_rerun_is_not_also_counted_done(archive, tmp_path):
     assert report.per_stage["tally"] == {"done": 3, "failed": 0, "pending": 1}
 
 
-@pytest.fixture
-def readonly_view(tmp_path):
-    """``view(path)``: a read-only bind mount of ``path`` (skips where mounting is not
-    allowed); as root, permissions alone do not stop writes, a read-only mount does."""
-    import subprocess
-
-    mounts = []
-
-    def view(path):
-        target = tmp_path / f"ro-{len(mounts)}"
-        target.mkdir()
-        done = subprocess.run(
-            ["mount", "--bind", "-o", "ro", str(path), str(target)], capture_output=True
-        )
-        if done.returncode != 0:
-            pytest.skip(f"cannot make a read-only bind mount: {done.stderr.decode().strip()}")
-        mounts.append(target)
-        return target
-
-    yield view
-    for target in mounts:
-        subprocess.run(["umount", "-l", str(target)], check=False)  # lazy: even if busy
-
-
 def test_status_and_verify_of_a_read_only_run_directory(archive, tmp_path, readonly_view):
     """Regression: on a read-only mount (an archived survey), `arroyo status` called the
     journal damaged and advised moving it away ("the run then starts over"), and
