@@ -445,7 +445,8 @@ def frame_dataset(rundir: str | os.PathLike[str], frame_id: str) -> Any:
     xarray.Dataset
         Variables with dims (y, x) or (sector_y, sector_x)...; attrs ``archive``,
         ``run_id``, ``frame_id``, ``status`` ('done'|'failed'|'pending') and ``error``.
-        Maps of a frame that is not done hold fill values (NaN, 0).
+        Maps of a frame that is not done hold fill values (NaN, 0) or, for a frame that
+        failed or is pending on a rerun, an earlier run's results: check ``status``.
     """
     import xarray as xr
 
