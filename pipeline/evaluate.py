@@ -49,7 +49,7 @@ from . import metrics
 from ._baselines import otsu_labels, sgbm_disparity
 from ._evaluation_display import evaluation_tables, format_evaluation
 from .errors import RunDirError
-from .lock import lock_holder
+from .lock import RunLock, lock_holder
 from .store import (
     check_products_reachable,
     open_products_group,
@@ -325,6 +325,9 @@ def evaluate_run(rundir: str | os.PathLike[str]) -> pa.Table:
     RunDirError
         The directory is not a run, its records are missing, its catalog has no truth, or
         a live run is writing it.
+    RunLockedError
+        A run took the directory between that check and the scoring; a run started while
+        this scores is refused (it would remove evaluation.parquet, which this then wrote).
     """
     path = _coerce_rundir(rundir)
     run = _load_run_json(path)
@@ -345,6 +348,18 @@ def evaluate_run(rundir: str | os.PathLike[str]) -> pa.Table:
             f"cannot be scored against it; run the catalog with reference = "
             f'"{_TRUTH_REFERENCE}" (the default) into another --out to evaluate'
         )
+    # held while scoring: a run started meanwhile removed evaluation.parquet, which this
+    # then wrote back with the scores of the products that run replaced
+    with RunLock(path):
+        table = _score_run(path, run, truth_dir, reference)
+        _write_atomic(table, path / "evaluation.parquet")
+    return table
+
+
+def _score_run(
+    path: Path, run: Mapping[str, Any], truth_dir: Path, reference: str
+) -> pa.Table:
+    """Every scored frame's rows and the archive aggregates (see :func:`evaluate_run`)."""
     frames = _read_frames(path)
     products = _open_products(path, run)
     rocks_path = truth_dir / "rocks.parquet"
@@ -373,9 +388,7 @@ def evaluate_run(rundir: str | os.PathLike[str]) -> pa.Table:
 
     _add_aggregates(out)
     _score_size_frequency(ctx, out, [frames[f] for f in described])
-    table = pa.Table.from_pylist(out.rows, schema=EVALUATION_SCHEMA)
-    _write_atomic(table, path / "evaluation.parquet")
-    return table
+    return pa.Table.from_pylist(out.rows, schema=EVALUATION_SCHEMA)
 
 
 @dataclass

@@ -459,3 +459,29 @@ def test_depth_seconds_per_frame_is_robust_to_the_first_frames_compilation(rundi
         table, frame_id=AGGREGATE, product="depth", method="arroyo", metric="seconds_per_frame"
     )
     assert median == pytest.approx(0.3)
+
+
+def test_a_run_cannot_start_while_evaluate_scores(rundir: Path, monkeypatch):
+    """Regression: a run started while `arroyo evaluate` scored removed evaluation.parquet,
+    which evaluate then wrote back with the scores of the products the run replaced.
+    Evaluate now holds the run directory's lock while it scores and writes."""
+    import pipeline.evaluate
+    from pipeline.errors import RunLockedError
+    from pipeline.lock import RunLock
+
+    real = pipeline.evaluate._score_run
+    refused = []
+
+    def score_while_a_run_starts(*args):
+        try:
+            with RunLock(rundir):
+                pass
+        except RunLockedError as exc:
+            refused.append(str(exc))
+        return real(*args)
+
+    monkeypatch.setattr(pipeline.evaluate, "_score_run", score_while_a_run_starts)
+    assert evaluate_run(rundir).num_rows > 0
+    assert refused and "in use by arroyo pid" in refused[0]
+    with RunLock(rundir):  # released afterwards
+        pass
