@@ -33,7 +33,7 @@ class RunStatus:
     frames: int
     per_stage: dict[str, dict[str, int]]  # stage -> done/failed/pending
     failures: dict[str, str]
-    damaged: list[str] = field(default_factory=list)  # what --verify found (and reset)
+    damaged: list[str] = field(default_factory=list)  # what --verify found
     verified: bool = False
     products: str = ""  # products root when not the run directory
     reset: bool = True  # whether --verify reset the damaged results (not on a read-only dir)
@@ -47,7 +47,8 @@ def status(rundir: str | os.PathLike[str], *, verify: bool = False) -> RunStatus
     the directory (whose chunks can be newer than their records until its next journal
     flush), and RunDirError / StoreError, resetting nothing, when the products root that
     ``run.json`` records elsewhere cannot be reached (a moved or unmounted directory, an
-    object store without credentials).
+    object store without credentials). A read-only run directory (an archive) is checked
+    and nothing is reset (``RunStatus.reset`` False).
     """
     from .runner import load_run_json
 
