@@ -196,16 +196,21 @@ def _check_products_owner(rundir: Path, root: str, owner: str | None) -> None:
     Two run directories given the same ``--products`` wrote the same slabs: the second
     silently replaced the first's maps, whose journal and tables then described other data.
     A run directory's token (``owner``, in its journal) is recorded in the products it
-    writes, so a moved run directory still owns its products.
+    writes, so a moved run directory still owns its products. Products in the run directory
+    itself are its own, and so are those its ``run.json`` records when its journal has no
+    token (a damaged journal moved away, as its error message advises).
     """
-    writer = products_writer(root or rundir)
+    if not root:
+        return
+    writer = products_writer(root)
     if writer is None or writer == owner:
         return
+    if owner is None and (rundir / RUN_JSON).is_file():
+        return  # _resolve_products made root the one run.json records
     raise RunDirError(
-        f"{zarr_location(root or rundir)} holds the products of another run directory; two "
-        "run directories that share a products root overwrite each other's maps. Give this "
-        f"run directory its own --products, such as {str(root or rundir).rstrip('/')}/"
-        f"{rundir.resolve().name}"
+        f"{zarr_location(root)} holds the products of another run directory; two run "
+        "directories that share a products root overwrite each other's maps. Give this run "
+        f"directory its own --products, such as {root.rstrip('/')}/{rundir.resolve().name}"
     )
 
 

@@ -401,3 +401,15 @@ def test_run_into_a_read_only_run_directory_is_a_clear_error(archive, tmp_path, 
     _run(archive, out)
     with pytest.raises(RunDirError, match="cannot lock the run directory .*Read-only"):
         _run(archive, readonly_view(out))
+
+
+def test_run_directory_with_its_journal_moved_away_still_owns_its_products(archive, tmp_path):
+    """The damaged-journal recovery ("move it away and rerun") must not lock a run
+    directory out of the products its run.json records."""
+    out, shared = tmp_path / "run", tmp_path / "shared"
+    _run(archive, out, products=shared)
+    (out / "state.sqlite").rename(tmp_path / "damaged.sqlite")
+    assert _run(archive, out).done == 4
+    assert status(out, verify=True).damaged == []
+    with pytest.raises(RunDirError, match="holds the products of another run directory"):
+        _run(archive, tmp_path / "other", products=shared)
