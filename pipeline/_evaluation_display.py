@@ -19,7 +19,7 @@ _DISPLAY: tuple[tuple[str, str, str, str], ...] = (
     ("depth", "bad2", "bad-2 (% px off > 2 px)", "pct"),
     ("depth", "epe", "end-point error (px)", "f3"),
     ("depth", "density", "density (% valid)", "pct"),
-    ("depth", "seconds_per_frame", "seconds per frame", "f3"),
+    ("depth", "seconds_per_frame", "seconds per frame (median)", "f3"),
     ("segmentation", "precision", "precision (IoU >= 0.5)", "f3"),
     ("segmentation", "recall", "recall", "f3"),
     ("segmentation", "f1", "F1", "f3"),

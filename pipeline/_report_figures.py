@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import io
 import math
-from collections.abc import Mapping
+from collections.abc import Collection, Mapping
 from typing import Any
 
 import numpy as np
@@ -26,6 +26,15 @@ __all__ = [
     "compact_png",
     "frame_quicklooks",
 ]
+
+#: the stage that writes each product a quicklook is drawn from
+_PRODUCER = {
+    "left": "ingest",
+    "right": "ingest",
+    "labels": "segment",
+    "range": "depth",
+    "residual": "depth",
+}
 
 #: quicklook file name -> caption, in display order
 QUICKLOOKS = {
@@ -245,10 +254,16 @@ def frame_quicklooks(
     *,
     products: Any,
     range_step_m: float,
+    reference: str = "right",
+    done_stages: Collection[str] | None = None,
 ) -> dict[str, bytes]:
     """The frame's three quicklook PNGs: the stage's files under the products ``root`` (a
     directory or URL) when present, else drawn from the products (``products``: the run's
-    ``zarr.Group`` or None); missing inputs skip a figure.
+    ``zarr.Group`` or None) over the ``reference`` image; missing inputs skip a figure.
+
+    ``done_stages`` (the stages current for the frame, from ``frames.parquet``) limits both
+    to current results: a failed or pending frame's files and slabs may be an earlier
+    run's. Without the segment stage the objects figure is the bare reference image.
 
     Returns
     -------
@@ -265,18 +280,25 @@ def frame_quicklooks(
     out: dict[str, bytes] = {}
     cache: dict[str, np.ndarray | None] = {}
 
+    def current(name: str) -> bool:
+        return done_stages is None or _PRODUCER.get(name, "") in done_stages
+
     def array(name: str) -> np.ndarray | None:
         if name not in cache:
             cache[name] = None
-            if products is not None and name in products:
+            if products is not None and name in products and current(name):
                 cache[name] = np.asarray(products[name][index])
+            elif name == "labels" and products is not None and current(reference):
+                # no current labels: the bare reference image, not an earlier run's outlines
+                image = array(reference)
+                cache[name] = None if image is None else np.zeros(image.shape, np.int32)
         return cache[name]
 
     draw = {
-        "objects": (("right", "labels"), lambda a: objects_image(a["right"], a["labels"])),
+        "objects": ((reference, "labels"), lambda a: objects_image(a[reference], a["labels"])),
         "range_contours": (
-            ("right", "range"),
-            lambda a: range_contours_image(a["right"], a["range"], step_m=range_step_m),
+            (reference, "range"),
+            lambda a: range_contours_image(a[reference], a["range"], step_m=range_step_m),
         ),
         "residual": (
             ("left", "right", "residual"),
@@ -284,7 +306,9 @@ def frame_quicklooks(
         ),
     }
     for name, (inputs, render) in draw.items():
-        stored = read_product_file(root, f"quicklooks/{frame_id}/{name}.png")
+        stored = None
+        if done_stages is None or "quicklook" in done_stages:
+            stored = read_product_file(root, f"quicklooks/{frame_id}/{name}.png")
         if stored is not None:
             out[name] = compact_png(stored)
             continue

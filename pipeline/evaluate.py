@@ -49,7 +49,13 @@ from . import metrics
 from ._baselines import otsu_labels, sgbm_disparity
 from ._evaluation_display import evaluation_tables, format_evaluation
 from .errors import RunDirError
-from .store import open_products_group, products_root, zarr_location
+from .lock import RunLock, lock_holder
+from .store import (
+    check_products_reachable,
+    open_products_group,
+    products_root,
+    zarr_location,
+)
 
 __all__ = [
     "EVALUATION_SCHEMA",
@@ -75,6 +81,7 @@ EVALUATION_SCHEMA = pa.schema(
 )
 
 _DISPARITY_MARGIN_PX = 8
+_TRUTH_REFERENCE = "right"  # the geometry of truth/<frame_id>.npz (pipeline.synth)
 
 
 # ------------------------------------------------------------------------------ run reading
@@ -105,6 +112,21 @@ def _load_run_json(rundir: Path) -> dict[str, Any]:
             f"{rundir / 'run.json'} must hold a JSON object, got {type(run).__name__}"
         )
     return run
+
+
+def _check_not_running(rundir: Path, run: Mapping[str, Any]) -> None:
+    """Refuse a run directory a live run writes: its scores would cover whichever frames
+    were done, and its evaluation.parquet would outlive the run's later frames."""
+    if run.get("status") != "running":
+        return
+    holder = lock_holder(rundir)
+    if holder is None:
+        return  # a killed run: its recorded frames are complete
+    raise RunDirError(
+        f"run {rundir} is still in progress (arroyo pid {holder.get('pid', '?')} on host "
+        f"{holder.get('host', '?')} since {holder.get('since', '?')}); evaluate it when it "
+        "has finished"
+    )
 
 
 def _truth_dir(run: Mapping[str, Any], rundir: Path) -> Path:
@@ -150,6 +172,8 @@ def _open_products(rundir: Path, run: Mapping[str, Any]):
     import xarray as xr
 
     root = products_root(rundir, run)
+    if run.get("products"):  # a moved products directory printed "nothing to score", exit 0
+        check_products_reachable(rundir, root, doing="nothing was scored")
     group = open_products_group(root)
     if group is None:
         return None
@@ -299,17 +323,49 @@ def evaluate_run(rundir: str | os.PathLike[str]) -> pa.Table:
     Raises
     ------
     RunDirError
-        The directory is not a run, its records are missing, or its catalog has no truth.
+        The directory is not a run, its records are missing, its catalog has no truth, or
+        a live run is writing it.
+    RunLockedError
+        A run took the directory between that check and the scoring; a run started while
+        this scores is refused (it would remove evaluation.parquet, which this then wrote).
     """
     path = _coerce_rundir(rundir)
     run = _load_run_json(path)
+    _check_not_running(path, run)
+    if not os.access(path, os.W_OK):  # scored, then an EROFS traceback when saving
+        raise RunDirError(
+            f"cannot write {path / 'evaluation.parquet'}: the run directory is read-only; "
+            "evaluate a writable copy of it (cp -r)"
+        )
     truth_dir = _truth_dir(run, path)
+    reference = str((run.get("camera") or {}).get("reference", "right"))
+    if reference != _TRUTH_REFERENCE:
+        # every map was compared pixel by pixel with a view 'd' columns away: segmentation
+        # F1 0.000 and inflated depth errors, printed as if they were the run's scores
+        raise RunDirError(
+            f"run {str(path)!r} used the {reference} image as reference, but the ground truth "
+            f"is in the {_TRUTH_REFERENCE} image's geometry (docs/synth.md), so its maps "
+            f"cannot be scored against it; run the catalog with reference = "
+            f'"{_TRUTH_REFERENCE}" (the default) into another --out to evaluate'
+        )
+    # held while scoring: a run started meanwhile removed evaluation.parquet, which this
+    # then wrote back with the scores of the products that run replaced
+    with RunLock(path):
+        table = _score_run(path, run, truth_dir, reference)
+        _write_atomic(table, path / "evaluation.parquet")
+    return table
+
+
+def _score_run(
+    path: Path, run: Mapping[str, Any], truth_dir: Path, reference: str
+) -> pa.Table:
+    """Every scored frame's rows and the archive aggregates (see :func:`evaluate_run`)."""
     frames = _read_frames(path)
     products = _open_products(path, run)
     rocks_path = truth_dir / "rocks.parquet"
     ctx = _RunData(
         run=run,
-        reference=str((run.get("camera") or {}).get("reference", "right")),
+        reference=reference,
         variables=set(products.data_vars) if products is not None else set(),
         truth_rocks=_rows_by_frame(pq.read_table(rocks_path) if rocks_path.exists() else None),
         descriptors=_rows_by_frame(_read_table(path / "descriptors.parquet")),
@@ -332,9 +388,7 @@ def evaluate_run(rundir: str | os.PathLike[str]) -> pa.Table:
 
     _add_aggregates(out)
     _score_size_frequency(ctx, out, [frames[f] for f in described])
-    table = pa.Table.from_pylist(out.rows, schema=EVALUATION_SCHEMA)
-    _write_atomic(table, path / "evaluation.parquet")
-    return table
+    return pa.Table.from_pylist(out.rows, schema=EVALUATION_SCHEMA)
 
 
 @dataclass
@@ -450,7 +504,10 @@ def _add_aggregates(out: _Collector) -> None:
         values["n_frames"] = float(len(per_frame))
         seconds = out.seconds.get((product, method))
         if seconds:
-            values["seconds_per_frame"] = float(np.mean(seconds))
+            # the median: a fresh machine's first frame carries numba's compilation (lab:
+            # 20.2 s, the others 0.08 s), and the mean of 4 frames printed 5.1 s against
+            # SGBM's 0.1 s
+            values["seconds_per_frame"] = float(np.median(seconds))
         out.extend(AGGREGATE, product, method, values)
     pooled_pairs, pooled_edges = out.pooled_pairs, out.pooled_edges
     if pooled_pairs[0] or pooled_pairs[1]:

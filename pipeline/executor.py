@@ -7,6 +7,7 @@ import os
 import signal
 import threading
 from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
 from typing import Any
 
 from ._forkserver import forkserver_supported, start_forkserver, stop_forkserver
@@ -20,6 +21,8 @@ __all__ = [
     "prestart_local_workers",
     "describe_scheduler",
     "check_scheduler",
+    "check_workers",
+    "terminate_as_interrupt",
 ]
 
 _SCHEDULER_EXPECTED = (
@@ -151,8 +154,7 @@ def open_executor(
         The stage package local worker processes import before their first task (see
         :mod:`pipeline._forkserver`); default: :func:`pipeline.graph.stage_package_name`.
     """
-    if workers is not None and workers < 1:
-        raise ValueError(f"--workers must be >= 1, got {workers}")
+    check_workers(workers)
     if scheduler == "synchronous":
         return Executor()
     from distributed import Client, LocalCluster
@@ -205,29 +207,84 @@ def open_executor(
             "`dask scheduler` runs there and its port is open, or leave --scheduler out for "
             "local worker processes"
         ) from None
+    try:
+        # a scheduler without workers took the frames and the run waited without a word
+        client.wait_for_workers(1, timeout=WORKER_WAIT_SECONDS)
+    except (TimeoutError, OSError) as exc:
+        client.close()
+        raise ParamError(
+            f"--scheduler {scheduler}: the dask scheduler has no worker (none joined within "
+            f"{WORKER_WAIT_SECONDS:g} s: {type(exc).__name__}); start workers with `dask worker "
+            f"{scheduler}`, or leave --scheduler out for local worker processes"
+        ) from None
     return _DistributedExecutor(client, None, f"dask.distributed at {scheduler}")
 
 
+WORKER_WAIT_SECONDS = 60.0
+"""How long a run waits for a remote scheduler's first worker before it stops (exit 2)."""
+
+
 class _DeferredInterrupt:
-    """Hold a ^C (SIGINT in the main thread) until the block ends; ``caught`` says whether
-    one came. A ^C while a local cluster started stopped the fork server under nannies still
-    forking their workers, and dask logged a traceback for each."""
+    """Hold a ^C (SIGINT in the main thread) or a SIGTERM until the block ends; ``caught``
+    says whether one came. A ^C while a local cluster started stopped the fork server under
+    nannies still forking their workers, and dask logged a traceback for each."""
 
     def __init__(self) -> None:
         self.caught = False
-        self._saved: Any = None
+        self._saved: dict[int, Any] = {}
 
     def _hold(self, signum: int, frame: Any) -> None:
         self.caught = True
 
     def __enter__(self) -> _DeferredInterrupt:
         if threading.current_thread() is threading.main_thread():
-            self._saved = signal.signal(signal.SIGINT, self._hold)
+            for signum in (signal.SIGINT, signal.SIGTERM):
+                self._saved[signum] = signal.signal(signum, self._hold)
         return self
 
     def __exit__(self, *exc: object) -> None:
-        if self._saved is not None:
-            signal.signal(signal.SIGINT, self._saved)
+        for signum, handler in self._saved.items():
+            signal.signal(signum, handler)
+        self._saved.clear()
+
+
+@contextmanager
+def terminate_as_interrupt() -> Iterator[None]:
+    """Within the block, a SIGTERM stops the main thread as a ^C does (KeyboardInterrupt).
+
+    A batch system's time limit (SLURM, PBS), ``timeout`` and ``docker stop`` send SIGTERM:
+    it killed the driver outright, so the frames of the journal's last batch were lost and
+    the finished frames' rows stayed unpublished until a rerun. Further SIGTERMs are ignored
+    while the run stops, so the publication finishes; the previous handler comes back after.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def _stop(signum: int, frame: Any) -> None:
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        raise KeyboardInterrupt
+
+    saved = signal.signal(signal.SIGTERM, _stop)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, saved)
+
+
+def check_workers(workers: int | None) -> None:
+    """Raise ParamError unless ``workers`` is None (the machine's cores) or an int >= 1."""
+    if workers is None:
+        return
+    if isinstance(workers, bool) or not isinstance(workers, int):
+        raise ParamError(
+            f"--workers expects a whole number of local workers, got {workers!r} "
+            f"({type(workers).__name__}); leave it out for one per core"
+        )
+    if workers < 1:
+        raise ParamError(
+            f"--workers must be >= 1, got {workers}; leave it out for one per core"
+        )
 
 
 def check_scheduler(scheduler: str | None) -> None:

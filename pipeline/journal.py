@@ -151,8 +151,12 @@ def write_frames_table(plan: RunPlan, state: RunState) -> None:
         if i is None or k is None:
             continue
         keys = plan.keys.get(record.frame_id)
-        if keys is None or keys.get(record.stage) == record.key:
-            matching[i] += 1
+        if keys is not None and keys.get(record.stage) != record.key:
+            # a record of other inputs or params (kept: it may match again) is not this
+            # frame's: its seconds and figures made a frame failed at ingest look described
+            # to `arroyo evaluate`, which then scored the earlier run's labels
+            continue
+        matching[i] += 1
         columns = stage_columns[k]
         columns[f"{record.stage}_seconds"][i] = record.seconds
         for name, value in record.figures.items():

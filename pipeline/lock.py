@@ -16,7 +16,7 @@ import time
 from pathlib import Path
 from types import TracebackType
 
-from .errors import RunLockedError
+from .errors import RunDirError, RunLockedError
 
 __all__ = ["RunLock", "LOCK_NAME", "lock_holder"]
 
@@ -28,7 +28,9 @@ def lock_holder(rundir: Path) -> dict | None:
     path = Path(rundir) / LOCK_NAME
     if not path.exists():
         return None
-    with open(path, "a+") as fh:
+    # read-only: "a+" raised EROFS in `arroyo status` of an archived run directory on a
+    # read-only mount; flock needs no write access
+    with open(path) as fh:
         try:
             fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
@@ -50,8 +52,15 @@ class RunLock:
         self.took_over: dict | None = None
 
     def __enter__(self) -> RunLock:
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        fh = open(self.path, "a+")
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            fh = open(self.path, "a+")
+        except OSError as exc:  # a read-only run directory gave an EROFS traceback (exit 1)
+            raise RunDirError(
+                f"cannot lock the run directory {self.path.parent}: {exc.strerror or exc}; "
+                "a run writes its directory: give --out a directory you can write (a "
+                "read-only archive can still be read: status, query, report --output)"
+            ) from None
         try:
             fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:

@@ -59,7 +59,13 @@ import pyarrow.parquet as pq
 
 from .errors import ParamError, RunDirError
 from .lock import lock_holder
-from .store import atomic_write_bytes, open_products_group, products_root, zarr_location
+from .store import (
+    atomic_write_bytes,
+    check_products_reachable,
+    open_products_group,
+    products_root,
+    zarr_location,
+)
 from .tables import FRAMES_NAME, published_path
 
 __all__ = [
@@ -439,7 +445,8 @@ def frame_dataset(rundir: str | os.PathLike[str], frame_id: str) -> Any:
     xarray.Dataset
         Variables with dims (y, x) or (sector_y, sector_x)...; attrs ``archive``,
         ``run_id``, ``frame_id``, ``status`` ('done'|'failed'|'pending') and ``error``.
-        Maps of a frame that is not done hold fill values (NaN, 0).
+        Maps of a frame that is not done hold fill values (NaN, 0) or, for a frame that
+        failed or is pending on a rerun, an earlier run's results: check ``status``.
     """
     import xarray as xr
 
@@ -448,6 +455,8 @@ def frame_dataset(rundir: str | os.PathLike[str], frame_id: str) -> Any:
     if not isinstance(frame_id, str):
         raise TypeError(f"frame_id must be a str, got {type(frame_id).__name__}")
     store = zarr_location(products_root(path, meta))
+    if meta.get("products"):  # "wrote no array products yet" of a moved products directory
+        check_products_reachable(path, products_root(path, meta), doing="no frame was read")
     if open_products_group(products_root(path, meta)) is None:
         raise RunDirError(f"{store} does not exist; the run wrote no array products yet")
     data = xr.open_zarr(store)
@@ -623,9 +632,16 @@ def query_command(
             raise ParamError(f"--output {target} is a directory; pass a file name")
         if not target.parent.is_dir():
             raise ParamError(f"--output {target}: directory {target.parent} does not exist")
+        if not os.access(target.parent, os.W_OK):
+            raise ParamError(
+                f"--output {target}: directory {target.parent} is not writable (read-only?)"
+            )
     table = query_runs(rundirs, sql, allow_running=allow_running)
     if output is not None:
-        atomic_write_bytes(Path(output), _encode(table, fmt))
+        try:
+            atomic_write_bytes(Path(output), _encode(table, fmt))
+        except OSError as exc:  # was a traceback (exit 1)
+            raise ParamError(f"--output {output}: cannot write: {exc.strerror or exc}") from None
         return 0
     if fmt == "table" and tty:
         from rich.console import Console

@@ -113,8 +113,16 @@ def build_report(
     path = Path(rundir)
     run = load_runs([path], allow_running=allow_running)[0]
     target = _target(path, output)
+    if not os.access(target.parent, os.W_OK):  # checked before the minutes of rendering
+        raise ParamError(
+            f"cannot write {target}: {target.parent} is not writable (a read-only archive?); "
+            "pass --output FILE somewhere writable"
+        )
     text = render_report(run, max_frames=max_frames)
-    atomic_write_bytes(target, text.encode("utf-8"))
+    try:
+        atomic_write_bytes(target, text.encode("utf-8"))
+    except OSError as exc:  # was a traceback (exit 1)
+        raise ParamError(f"cannot write {target}: {exc.strerror or exc}") from None
     return target
 
 
@@ -364,6 +372,8 @@ def _frames(run: RunInfo, frames: pa.Table, desc: pa.Table, max_frames: int) -> 
     if products is not None and "frame" in products:
         frame_index = {str(f): i for i, f in enumerate(products["frame"][:])}
     step = float(_stage_params(run.meta, "quicklook").get("range_step_m", 0.25))
+    reference = str((run.meta.get("camera") or {}).get("reference", "right"))
+    stages = list(run.meta.get("stages") or {})
     shown = rows[:max_frames]
     parts = ['<section id="frames"><h2>Frames</h2>']
     if len(rows) > len(shown):
@@ -408,6 +418,9 @@ def _frames(run: RunInfo, frames: pa.Table, desc: pa.Table, max_frames: int) -> 
             frame_index.get(fid, -1),
             products=products if fid in frame_index else None,
             range_step_m=step,
+            reference=reference,
+            # a failed or pending frame's quicklook files and slabs may be an earlier run's
+            done_stages={s for s in stages if row.get(f"{s}_seconds") is not None},
         )
         if images:
             body.append('<div class="quicklooks">')

@@ -13,7 +13,13 @@ from typing import Any
 
 from ._forkserver import stop_forkserver
 from .errors import ParamError, RunDirError, StoreError
-from .executor import check_scheduler, open_executor, prestart_local_workers
+from .executor import (
+    check_scheduler,
+    check_workers,
+    open_executor,
+    prestart_local_workers,
+    terminate_as_interrupt,
+)
 from .journal import Journal, publish, stage_attrs, write_frames_table
 from .lock import RunLock
 from .plan import RunPlan, default_rundir, plan_run, validate_request
@@ -22,10 +28,15 @@ from .stage import FrameContext
 from .state import STATE_NAME, RunState
 from .store import (
     atomic_write_bytes,
+    check_frame_list,
+    claim_products,
     coerce_products_root,
     ensure_zarr,
+    is_disk_full,
     is_url,
+    products_writer,
     remove_orphan_temp_files,
+    zarr_location,
 )
 from .worker import FrameJob, FrameOutcome, process_frame
 
@@ -47,6 +58,10 @@ class RunSummary:
     @property
     def exit_code(self) -> int:
         return 1 if self.failed else 0
+
+
+_EVALUATION_NAME = "evaluation.parquet"  # written by `arroyo evaluate` (pipeline.evaluate)
+_OWNER_KEY = "products_owner"  # journal meta: the token the run directory's products carry
 
 
 # -- running ------------------------------------------------------------------------------
@@ -72,9 +87,34 @@ def run(
     RunSummary whose ``exit_code`` is 1 when some frames failed. Raises CatalogError /
     ParamError before any work, RunDirError when ``products`` differs from the root the run
     directory already uses, RunLockedError when another run holds the directory, StoreError
-    when products cannot be written.
+    when products cannot be written. A SIGTERM to the main thread stops the run as a ^C
+    does: the finished frames are committed and published, then KeyboardInterrupt.
     """
     check_scheduler(scheduler)  # a typo stops the run before the run directory exists
+    # checked here, not when the executor opens: `--workers 0` passed a dry run and a run
+    # with nothing pending, and a run with work stopped only after writing run.json
+    check_workers(workers)
+    with terminate_as_interrupt():  # batch time limits, `timeout`, `docker stop`: as ^C
+        return _run(
+            catalog_path, out, overrides=overrides, workers=workers, scheduler=scheduler,
+            frames=frames, dry_run=dry_run, progress=progress, stage_package=stage_package,
+            products=products,
+        )
+
+
+def _run(
+    catalog_path: str | os.PathLike[str],
+    out: str | os.PathLike[str] | None,
+    *,
+    overrides: Iterable[str],
+    workers: int | None,
+    scheduler: str | None,
+    frames: str | None,
+    dry_run: bool,
+    progress: Callable[[int, int, str], None] | None,
+    stage_package: str | None,
+    products: str | os.PathLike[str] | None,
+) -> RunSummary | RunPlan:
     # local workers' imports run beside the planning (pipeline._forkserver)
     forked = not dry_run and prestart_local_workers(scheduler, workers, stage_package)
     try:
@@ -82,6 +122,9 @@ def run(
         rundir = Path(out) if out is not None else default_rundir(request.catalog)
         _check_rundir(rundir)
         root = _resolve_products(rundir, products)
+        if not is_url(root):  # a dry run said what would run where the run then refused
+            _check_products_owner(rundir, root, _journal_owner(rundir))
+            check_frame_list(root or rundir, [f.frame_id for f in request.catalog.frames])
         if dry_run:
             return plan_run(request, rundir, products=root)
         try:
@@ -132,6 +175,12 @@ def _resolve_products(rundir: Path, requested: str | os.PathLike[str] | None) ->
         raise ParamError(f"--products: {exc}") from None
     if not is_url(wanted) and Path(wanted) == rundir.resolve():
         wanted = ""
+    if wanted and not is_url(wanted) and Path(wanted).exists() and not Path(wanted).is_dir():
+        # zarr's NotADirectoryError came out as a traceback (exit 1) after the journal
+        raise ParamError(
+            f"--products {requested}: {wanted} is a file, not a directory; give a new or "
+            "existing directory (or a URL such as s3://bucket/prefix)"
+        )
     if (rundir / RUN_JSON).is_file() and wanted != recorded:
         raise RunDirError(
             f"{rundir} keeps its products in {recorded or 'the run directory'}, not "
@@ -139,6 +188,41 @@ def _resolve_products(rundir: Path, requested: str | os.PathLike[str] | None) ->
             "give a new --out for products elsewhere"
         )
     return wanted
+
+
+def _check_products_owner(rundir: Path, root: str, owner: str | None) -> None:
+    """Refuse products claimed by another run directory.
+
+    Two run directories given the same ``--products`` wrote the same slabs: the second
+    silently replaced the first's maps, whose journal and tables then described other data.
+    A run directory's token (``owner``, in its journal) is recorded in the products it
+    writes, so a moved run directory still owns its products. Products in the run directory
+    itself are its own, and so are those its ``run.json`` records when its journal has no
+    token (a damaged journal moved away, as its error message advises).
+    """
+    if not root:
+        return
+    writer = products_writer(root)
+    if writer is None or writer == owner:
+        return
+    if owner is None and (rundir / RUN_JSON).is_file():
+        return  # _resolve_products made root the one run.json records
+    raise RunDirError(
+        f"{zarr_location(root)} holds the products of another run directory; two run "
+        "directories that share a products root overwrite each other's maps. Give this run "
+        f"directory its own --products, such as {root.rstrip('/')}/{rundir.resolve().name}"
+    )
+
+
+def _journal_owner(rundir: Path) -> str | None:
+    """The run directory's products token, read without creating a journal."""
+    if not (rundir / STATE_NAME).is_file():
+        return None
+    state = RunState(rundir, readonly=True)
+    try:
+        return state.get_meta(_OWNER_KEY)
+    finally:
+        state.close()
 
 
 def _prepare_store(plan: RunPlan, state: RunState) -> dict[str, tuple[tuple[int, ...], str]]:
@@ -156,10 +240,23 @@ def _prepare_store(plan: RunPlan, state: RunState) -> dict[str, tuple[tuple[int,
                 )
     frame_ids = [f.frame_id for f in plan.catalog.frames]
     try:
+        _check_products_owner(plan.rundir, plan.products, state.get_meta(_OWNER_KEY))
         recreated = ensure_zarr(plan.products_root, frame_ids, arrays)
     except Exception as exc:
-        if not is_url(plan.products_root) or isinstance(exc, RunDirError):
+        if isinstance(exc, RunDirError):
             raise
+        if not is_url(plan.products_root):
+            if not isinstance(exc, OSError):
+                raise
+            if is_disk_full(exc):  # exit 4 as for the frames' writes, not a traceback
+                raise StoreError(
+                    f"cannot write the product store {zarr_location(plan.products_root)}: "
+                    f"{exc.strerror} (errno {exc.errno}); free space and rerun"
+                ) from None
+            raise RunDirError(  # a parent that is a file, no permission...
+                f"cannot create the product store {zarr_location(plan.products_root)}: "
+                f"{exc.strerror or exc}; give --out (or --products) a directory you can write"
+            ) from None
         raise StoreError(
             f"cannot open the product store at {plan.products_root}: {type(exc).__name__}: "
             f"{exc}; check the URL, credentials and network, then rerun"
@@ -266,11 +363,26 @@ def _execute(
     # frame finished read a run.json without the frames table and printed only its path
     write_frames_table(plan, state)
     _write_json(plan.rundir / RUN_JSON, meta)
+    if expected:  # the journal holds the token first: a kill in between leaves no claim
+        owner = state.get_meta(_OWNER_KEY) or run_id
+        state.set_meta(_OWNER_KEY, owner)
+        try:
+            claim_products(plan.products_root, owner)
+        except Exception as exc:
+            if not is_url(plan.products_root):
+                raise
+            raise StoreError(
+                f"cannot write to the product store at {plan.products_root}: "
+                f"{type(exc).__name__}: {exc}; check the URL, credentials and network"
+            ) from exc
     fatal: str | None = None
     interrupted = False
     total = len(pending)
     try:
         if pending:
+            # its scores are of the products this run is about to change: `arroyo query`
+            # and `arroyo report` showed the old run's figures as if they were this one's
+            (plan.rundir / _EVALUATION_NAME).unlink(missing_ok=True)
             try:
                 executor = open_executor(
                     scheduler=scheduler, workers=workers, stage_package=plan.stage_package

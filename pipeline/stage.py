@@ -117,7 +117,9 @@ class Product:
     kind : {'array', 'table', 'files'}
         ``array``: one zarr array in ``products.zarr`` with a leading ``frame`` dimension.
         ``table``: rows appended to ``<name>.parquet`` (the engine adds archive, run_id,
-        frame_id columns). ``files``: loose files under the run directory (quicklooks).
+        frame_id columns). ``files``: loose files under the products root (quicklooks), a
+        frame's under ``<name>/<frame_id>/``: when the stage completes for a frame, that
+        folder keeps only the files it returned.
     dtype : str, optional
         NumPy dtype of an array product (``'uint8'``, ``'float32'``, ``'int32'``...).
     dims : tuple of str

@@ -10,6 +10,7 @@ rewrites the same bytes.
 from __future__ import annotations
 
 import json
+import os
 import sqlite3
 import time
 from collections.abc import Iterable, Iterator, Mapping
@@ -94,8 +95,7 @@ class RunState:
         path = Path(rundir) / STATE_NAME
         try:
             if readonly:
-                self._db = sqlite3.connect(f"file:{path}?mode=ro", uri=True, timeout=30)
-                self._db.execute("SELECT count(*) FROM sqlite_master").fetchone()
+                self._db = _connect_readonly(path)
             else:
                 self._db = sqlite3.connect(path, timeout=30)
                 self._db.execute("PRAGMA journal_mode=WAL")
@@ -110,6 +110,7 @@ class RunState:
 
     def close(self) -> None:
         self._db.close()
+
 
     @contextmanager
     def transaction(self) -> Iterator[sqlite3.Connection]:
@@ -252,6 +253,27 @@ class RunState:
     def drop_parts(self, part_ids: Iterable[str]) -> None:
         with self._db:
             self._db.executemany("DELETE FROM parts WHERE part_id = ?", [(p,) for p in part_ids])
+
+
+def _connect_readonly(path: Path) -> sqlite3.Connection:
+    """Open the journal for reading only, also on a read-only filesystem.
+
+    A journal in WAL mode cannot be opened read-only where its ``-shm`` file cannot be
+    created (an archived run directory on a read-only mount): sqlite says "unable to open
+    database file", which read as a damaged journal. Where the directory cannot be
+    written, nothing can write the journal either, so it is opened as immutable.
+    """
+    db = sqlite3.connect(f"file:{path}?mode=ro", uri=True, timeout=30)
+    try:
+        db.execute("SELECT count(*) FROM sqlite_master").fetchone()
+        return db
+    except sqlite3.OperationalError:
+        db.close()
+        if os.access(path.parent, os.W_OK):
+            raise
+    db = sqlite3.connect(f"file:{path}?mode=ro&immutable=1", uri=True, timeout=30)
+    db.execute("SELECT count(*) FROM sqlite_master").fetchone()
+    return db
 
 
 def _json_scalar(value: Any) -> Any:

@@ -3,14 +3,23 @@
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import pyarrow.parquet as pq
 
-from .errors import RunDirError
+from .errors import RunDirError, RunLockedError
+from .lock import RunLock
 from .state import STATE_NAME, RunState
-from .store import file_sha256, frame_checksum, products_root, read_frame_array
+from .store import (
+    check_products_reachable,
+    file_sha256,
+    frame_checksum,
+    products_root,
+    read_frame_array,
+)
 
 __all__ = ["RunStatus", "status", "format_status"]
 
@@ -24,14 +33,23 @@ class RunStatus:
     frames: int
     per_stage: dict[str, dict[str, int]]  # stage -> done/failed/pending
     failures: dict[str, str]
-    damaged: list[str] = field(default_factory=list)  # what --verify found (and reset)
+    damaged: list[str] = field(default_factory=list)  # what --verify found
     verified: bool = False
     products: str = ""  # products root when not the run directory
+    reset: bool = True  # whether --verify reset the damaged results (not on a read-only dir)
 
 
 def status(rundir: str | os.PathLike[str], *, verify: bool = False) -> RunStatus:
     """Per-stage counts of a run directory; with ``verify``, also check every recorded
-    checksum and reset what is damaged so the next ``arroyo run`` redoes it."""
+    checksum and reset what is damaged so the next ``arroyo run`` redoes it.
+
+    ``verify`` takes the run directory's lock: it raises RunLockedError while a run writes
+    the directory (whose chunks can be newer than their records until its next journal
+    flush), and RunDirError / StoreError, resetting nothing, when the products root that
+    ``run.json`` records elsewhere cannot be reached (a moved or unmounted directory, an
+    object store without credentials). A read-only run directory (an archive) is checked
+    and nothing is reset (``RunStatus.reset`` False).
+    """
     from .runner import load_run_json
 
     rundir = Path(rundir)
@@ -47,18 +65,44 @@ def status(rundir: str | os.PathLike[str], *, verify: bool = False) -> RunStatus
     frame_ids = frames_table["frame_id"].to_pylist()
     index = dict(zip(frame_ids, frames_table["index"].to_pylist(), strict=True))
     stages = list(meta.get("stages", {}))
-    state = RunState(rundir)
+    damaged: list[str] = []
+    reset = True
+    if verify:
+        root = products_root(rundir, meta)
+        if meta.get("products"):
+            check_products_reachable(
+                rundir,
+                root,
+                doing="nothing was checked or reset",
+                hint=f"; if they are lost for good, create the empty directory {root} and "
+                "verify again to reset every frame for the next run",
+            )
+        with _verify_lock(rundir) as locked:
+            # a read-only run directory (an archive) is checked, not reset: no run writes it
+            state = RunState(rundir, readonly=not locked)
+            try:
+                damaged = _verify(rundir, root, state, index, stages, reset=locked)
+            finally:
+                state.close()
+        reset = locked
+    # read-only: `status` of an archived run directory on a read-only mount called its
+    # journal damaged ("move it away ... the run then starts over")
+    state = RunState(rundir, readonly=True)
     try:
-        damaged: list[str] = []
-        if verify:
-            damaged = _verify(rundir, products_root(rundir, meta), state, index, stages)
         done = state.done()
         failed = state.failed()
     finally:
         state.close()
     per_stage = {}
+    order = {s: i for i, s in enumerate(stages)}
+    # a frame failed at stage S keeps the records of S and later stages of earlier inputs
+    # (they may match again): counted as done, ingest read "done 2, failed 1, pending -1"
+    stale = {
+        (f, s) for f, (failed_stage, _e) in failed.items() for s in stages
+        if order[s] >= order.get(failed_stage, 0)
+    }
     for stage in stages:
-        n_done = sum(1 for f in frame_ids if (f, stage) in done)
+        n_done = sum(1 for f in frame_ids if (f, stage) in done and (f, stage) not in stale)
         n_failed = sum(1 for f in frame_ids if f in failed and failed[f][0] == stage)
         per_stage[stage] = {
             "done": n_done,
@@ -84,14 +128,45 @@ def status(rundir: str | os.PathLike[str], *, verify: bool = False) -> RunStatus
         failures={f: e for f, (_s, e) in failed.items()},
         damaged=damaged,
         verified=verify,
+        reset=reset,
         products=str(meta.get("products") or ""),
     )
 
 
+@contextmanager
+def _verify_lock(rundir: Path) -> Iterator[bool]:
+    """Hold the run lock while verifying, with a message of its own when a run holds it;
+    yield whether it is held (False: a read-only run directory, which no run can write)."""
+    if not os.access(rundir, os.W_OK):  # no run can write it either: check, not reset
+        yield False
+        return
+    try:
+        lock = RunLock(rundir).__enter__()
+    except RunLockedError as exc:
+        # a live run's chunks are ahead of their records until its next journal flush:
+        # verify read them as damage (exit 1) and reset results the run then recorded
+        holder = str(exc).split("; wait")[0]
+        raise RunLockedError(
+            f"{holder}; `arroyo status --verify` checks a run directory only while no run "
+            "writes it: wait for that run to finish (plain `arroyo status` works meanwhile)"
+        ) from None
+    try:
+        yield True
+    finally:
+        lock.__exit__(None, None, None)
+
+
 def _verify(
-    rundir: Path, root: str, state: RunState, index: dict[str, int], stages: list[str]
+    rundir: Path,
+    root: str,
+    state: RunState,
+    index: dict[str, int],
+    stages: list[str],
+    *,
+    reset: bool = True,
 ) -> list[str]:
-    """Recompute checksums of recorded arrays and Parquet parts; forget damaged results."""
+    """Recompute checksums of recorded arrays and Parquet parts; with ``reset``, forget the
+    damaged results."""
     damaged: list[str] = []
     forget: set[tuple[str, str]] = set()
     bad_parts = set()
@@ -117,8 +192,9 @@ def _verify(
     order = {s: i for i, s in enumerate(stages)}
     for fid, stage in list(forget):
         forget.update((fid, s) for s in stages if order[s] > order.get(stage, 0))
-    state.forget(forget)
-    state.drop_parts(bad_parts)
+    if reset:
+        state.forget(forget)
+        state.drop_parts(bad_parts)
     for published in rundir.glob("*.parquet"):
         if published.is_symlink() or published.is_dir():
             for file in published.rglob("*.parquet"):
@@ -140,7 +216,12 @@ def format_status(st: RunStatus) -> str:
     for fid, error in sorted(st.failures.items()):
         lines.append(f"failed {fid}: {error}")
     if st.verified:
-        if st.damaged:
+        if st.damaged and not st.reset:
+            lines.append(
+                f"verify: {len(st.damaged)} problem(s); the run directory is read-only, so "
+                "nothing was reset (verify a writable copy for the next run to redo them):"
+            )
+        elif st.damaged:
             lines.append(
                 f"verify: {len(st.damaged)} problem(s); the next `arroyo run` redoes them:"
             )

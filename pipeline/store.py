@@ -33,7 +33,7 @@ import math
 import os
 import uuid
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -54,12 +54,18 @@ __all__ = [
     "products_root",
     "zarr_location",
     "open_products_group",
+    "check_products_reachable",
     "write_product_file",
+    "remove_other_product_files",
     "read_product_file",
     "tile_chunks",
     "compressor_for",
     "atomic_write_bytes",
     "ensure_zarr",
+    "check_frame_list",
+    "claim_products",
+    "products_writer",
+    "WRITER_ATTR",
     "write_frame_array",
     "read_frame_array",
     "frame_checksum",
@@ -210,6 +216,51 @@ def _remote(url: str) -> tuple[Any, str]:
     return fs, path
 
 
+def check_products_reachable(
+    rundir: str | os.PathLike[str], root: str, *, doing: str, hint: str = ""
+) -> None:
+    """Raise when a run's products root recorded outside its run directory is not there.
+
+    Parameters
+    ----------
+    rundir : path
+        The run directory, for the message.
+    root : str
+        The recorded products root (a directory or an fsspec URL).
+    doing : str
+        What the caller did not do, for the message ("nothing was checked or reset").
+    hint : str, optional
+        A last sentence for a missing local root.
+
+    Raises
+    ------
+    RunDirError
+        A local root that does not exist (moved, unmounted), a URL without the store.
+    StoreError
+        A URL that cannot be reached (credentials, network, bucket).
+    """
+    if not is_url(root):
+        if not Path(root).is_dir():
+            raise RunDirError(
+                f"the products of {rundir} are recorded at {root}, which does not exist "
+                f"(moved or unmounted?); {doing}. Mount or move them back there" + hint
+            )
+        return
+    try:
+        fs, path = _remote(zarr_location(root))
+        found = fs.exists(f"{path}/zarr.json")
+    except Exception as exc:  # noqa: BLE001 - credentials, network, missing bucket
+        raise StoreError(
+            f"cannot reach the products of {rundir} at {root}: {type(exc).__name__}: {exc}; "
+            f"{doing}. Check the URL, credentials and network"
+        ) from None
+    if not found:
+        raise RunDirError(
+            f"the products of {rundir} are recorded at {root}, but {ZARR_NAME} is not there; "
+            f"{doing}. Check the URL (a moved bucket or prefix?)"
+        )
+
+
 def open_products_group(root: str | os.PathLike[str]) -> zarr.Group | None:
     """The run's product group, read-only; None when the run wrote no array yet."""
     location = zarr_location(root)
@@ -243,6 +294,36 @@ def write_product_file(root: str | os.PathLike[str], rel: str, content: bytes) -
         atomic_write_bytes(Path(root) / rel, content, durable=False)
 
 
+def remove_other_product_files(
+    root: str | os.PathLike[str], folder: str, keep: Iterable[str]
+) -> None:
+    """Remove the files under ``folder`` (relative to a products root) not in ``keep``.
+
+    A files product's frame folder holds what its stage wrote for the frame's current
+    result only: the quicklooks of a frame that ``quicklook.every`` now skips were an
+    earlier run's drawing of earlier labels, and the report showed them as current.
+    """
+    kept = {str(k) for k in keep}
+    if is_url(root):
+        fs, base = _remote(f"{str(root).rstrip('/')}/{folder}")
+        if not fs.exists(base):
+            return
+        prefix = base.rstrip("/") + "/"
+        for path in fs.find(base):
+            if f"{folder}/{path[len(prefix):]}" not in kept:
+                fs.rm_file(path)
+        return
+    directory = Path(root) / folder
+    if not directory.is_dir():
+        return
+    for path in directory.rglob("*"):
+        if path.is_file() and path.relative_to(root).as_posix() not in kept:
+            path.unlink()
+    for path in sorted(directory.rglob("*"), reverse=True) + [directory]:
+        if path.is_dir() and not any(path.iterdir()):
+            path.rmdir()  # deepest first: an emptied folder goes too
+
+
 def read_product_file(root: str | os.PathLike[str], rel: str) -> bytes | None:
     """A loose product file's bytes, or None when it does not exist."""
     if is_url(root):
@@ -258,6 +339,54 @@ def read_product_file(root: str | os.PathLike[str], rel: str) -> bytes | None:
 # -- zarr ---------------------------------------------------------------------------------
 def _zarr_path(rundir: str | os.PathLike[str]) -> Path:
     return Path(rundir) / ZARR_NAME
+
+
+WRITER_ATTR = "arroyo_owner"
+"""Attribute of ``products.zarr``: the token of the run directory whose runs write it."""
+
+
+def products_writer(root: str | os.PathLike[str]) -> str | None:
+    """The token of the run directory that claimed the products at ``root`` (None: none)."""
+    group = open_products_group(root)
+    if group is None:
+        return None
+    writer = group.attrs.get(WRITER_ATTR)
+    return str(writer) if writer else None
+
+
+def claim_products(root: str | os.PathLike[str], owner: str) -> None:
+    """Record ``owner``, a run directory's token, in the products at ``root``."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", zarr.errors.ZarrUserWarning)
+        zarr.open_group(zarr_location(root), mode="a").attrs[WRITER_ATTR] = owner
+
+
+def check_frame_list(root: str | os.PathLike[str], frame_ids: Sequence[str]) -> None:
+    """Raise RunDirError when the products at ``root`` hold another frame list than the
+    catalog's ``frame_ids`` (which may only extend it at the end); reads, never writes."""
+    group = open_products_group(root)
+    if group is None or "frame" not in group:
+        return
+    old = [str(v) for v in np.asarray(_array(group, "frame")[:]).ravel()]
+    _check_frame_list(zarr_location(root), old, list(frame_ids))
+
+
+def _check_frame_list(path: str, old: list[str], new: list[str]) -> None:
+    if len(old) <= len(new) and old == new[: len(old)]:
+        return
+    if len(old) > len(new) and old[: len(new)] == new:
+        what = f"{len(old)} frames, the catalog's {len(new)} and then {old[len(new)]!r}..."
+    else:
+        k = next(i for i, (a, b) in enumerate(zip(old, new, strict=False)) if a != b)
+        what = (
+            f"{len(old)} frames whose frame {k} is {old[k]!r} where the catalog has "
+            f"{new[k]!r}"
+        )
+    raise RunDirError(
+        f"{path} holds {what}: not the catalog's frame list (a different archive, or frames "
+        "removed, renamed or reordered?). A run directory's frames may only be extended at "
+        "the end of the index; use a new --out directory for this catalog"
+    )
 
 
 def ensure_zarr(
@@ -295,13 +424,8 @@ def ensure_zarr(
     ids = np.array(list(frame_ids), dtype=str)
     if "frame" in group:
         coord = _array(group, "frame")
-        old = np.array([str(v) for v in np.asarray(coord[:]).ravel()], dtype=str)
-        if len(old) > n or not np.array_equal(old, ids[: len(old)]):
-            raise RunDirError(
-                f"{path} holds frames {list(old[:3])}... that do not match the catalog's "
-                f"frame list; the catalog's frames may only be extended at the end. Use a "
-                "new --out directory for a different frame list"
-            )
+        old = [str(v) for v in np.asarray(coord[:]).ravel()]
+        _check_frame_list(path, old, list(frame_ids))
         if len(old) < n:
             coord.resize((n,))
             coord[:] = ids

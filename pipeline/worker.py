@@ -24,6 +24,7 @@ from .store import (
     is_disk_full,
     is_url,
     read_frame_array,
+    remove_other_product_files,
     write_frame_array,
     write_product_file,
 )
@@ -163,6 +164,10 @@ def process_frame(job: FrameJob) -> FrameOutcome:
                         produced[product.name] = data
                 for rel, content in result.files.items():
                     write_product_file(root, rel, content)
+                for product in stage.outputs:
+                    if product.kind == "files":  # the frame's folder: this result's only
+                        folder = f"{product.name}/{ctx.frame_id}"
+                        remove_other_product_files(root, folder, result.files)
         except Exception as exc:
             if isinstance(exc, _StoreUnreachable):
                 outcome.fatal = (

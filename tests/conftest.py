@@ -107,3 +107,27 @@ def s3_products(monkeypatch: pytest.MonkeyPatch) -> Iterator[str]:
     finally:
         _forget_s3_clients()
         server.stop()
+
+
+@pytest.fixture
+def readonly_view(tmp_path):
+    """``view(path)``: a read-only bind mount of ``path`` (skips where mounting is not
+    allowed); as root, permissions alone do not stop writes, a read-only mount does."""
+    import subprocess
+
+    mounts = []
+
+    def view(path):
+        target = tmp_path / f"ro-{len(mounts)}"
+        target.mkdir()
+        done = subprocess.run(
+            ["mount", "--bind", "-o", "ro", str(path), str(target)], capture_output=True
+        )
+        if done.returncode != 0:
+            pytest.skip(f"cannot make a read-only bind mount: {done.stderr.decode().strip()}")
+        mounts.append(target)
+        return target
+
+    yield view
+    for target in mounts:
+        subprocess.run(["umount", "-l", str(target)], check=False)  # lazy: even if busy

@@ -212,7 +212,13 @@ def synthesize_archive(
             f"{target} exists and is not an empty directory or an arroyo archive; "
             "choose a new --out directory"
         )
-    target.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:  # a parent that is a file came out as a FileExistsError traceback
+        raise ValueError(
+            f"cannot create {target.parent}: {exc.strerror or exc}; choose an --out "
+            "directory whose parents are directories you can write"
+        ) from None
     tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.tmp-", dir=target.parent))
     try:
         _render_into(tmp, archetype, frames, seed, variant, size)
@@ -272,13 +278,16 @@ def ensure_archive(
         try:
             _render_into(tmp, archetype, frames, seed, variant, size)
             os.chmod(tmp, 0o755)
-            if target.exists():  # a stale, incomplete render: set it aside
-                shutil.rmtree(target, ignore_errors=True)
-            try:
-                os.rename(tmp, target)
-            except OSError:
-                if not (target / COMPLETE_MARKER).is_file():
-                    raise
+            # another caller may have finished first, and its run may be reading the frames:
+            # removing its complete archive failed that run's frames as missing files
+            if not (target / COMPLETE_MARKER).is_file():
+                if target.exists():  # a stale, incomplete render: set it aside
+                    shutil.rmtree(target, ignore_errors=True)
+                try:
+                    os.rename(tmp, target)
+                except OSError:
+                    if not (target / COMPLETE_MARKER).is_file():
+                        raise
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
     return target / "catalog.toml"

@@ -395,3 +395,93 @@ def test_end_to_end_render_run_evaluate(tmp_path: Path):
         assert aggregate[("depth", method, "n_px")] > 0.5 * 2 * 160 * 160
     assert 0.0 <= aggregate[("segmentation", "arroyo", "f1")] <= 1.0
     assert "lab" in format_evaluation(table)
+
+
+def test_evaluate_refuses_a_run_in_progress(rundir: Path):
+    """Regression: `arroyo evaluate` on a live run scored whichever frames were done and
+    wrote evaluation.parquet into the run directory (`arroyo query` and `arroyo report`
+    refuse a live run), scores the run's later frames never entered."""
+    from pipeline.lock import RunLock
+
+    meta = json.loads((rundir / "run.json").read_text())
+    (rundir / "run.json").write_text(json.dumps({**meta, "status": "running"}))
+    with RunLock(rundir), pytest.raises(RunDirError, match="still in progress"):
+        evaluate_run(rundir)
+    assert not (rundir / "evaluation.parquet").exists()
+    assert evaluate_run(rundir).num_rows > 0  # a killed run (no lock holder) is scored
+
+
+def test_evaluate_refuses_a_left_referenced_run(rundir: Path):
+    """Regression: a run with `reference = "left"` was scored against the truth, which is
+    in the right image's geometry: mojave's segmentation F1 printed 0.000 (Otsu's too) and
+    its depth bad-2 5.6 % instead of 0.9 %, as if those were the run's scores."""
+    meta = json.loads((rundir / "run.json").read_text())
+    meta["camera"]["reference"] = "left"
+    (rundir / "run.json").write_text(json.dumps(meta))
+    with pytest.raises(RunDirError, match="the ground truth is in the right image's geometry"):
+        evaluate_run(rundir)
+    assert not (rundir / "evaluation.parquet").exists()
+
+
+def test_evaluate_with_moved_products_root_says_so(rundir: Path, tmp_path: Path):
+    """Regression: a run whose --products directory was moved or unmounted printed
+    "nothing to score: no frame has both products and ground truth" and exited 0."""
+    meta = json.loads((rundir / "run.json").read_text())
+    (rundir / "run.json").write_text(json.dumps({**meta, "products": str(tmp_path / "gone")}))
+    with pytest.raises(RunDirError, match="which does not exist \\(moved or unmounted\\?\\)"):
+        evaluate_run(rundir)
+
+
+def test_evaluate_of_a_read_only_run_directory_says_so_before_scoring(rundir, readonly_view):
+    """Regression: on a read-only mount `arroyo evaluate` scored every frame, then ended in
+    an EROFS traceback writing evaluation.parquet."""
+    with pytest.raises(RunDirError, match="the run directory is read-only"):
+        evaluate_run(readonly_view(rundir))
+
+
+def test_depth_seconds_per_frame_is_robust_to_the_first_frames_compilation(rundir: Path):
+    """Regression: the mean of the run's depth seconds carried numba's one-off compilation
+    of a fresh machine's first frame (lab: 20.2 s, the others 0.08 s): 4 frames printed
+    arroyo 5.1 s per frame against SGBM's 0.1 s. It is now the median."""
+    import shutil
+
+    truth = Path(json.loads((rundir / "run.json").read_text())["catalog"]["truth_dir"])
+    shutil.copy(truth / "f0.npz", truth / "f3.npz")  # a third scored frame
+    frames = pq.read_table(rundir / "frames.parquet").to_pylist()
+    seconds = {"f0": 20.2, "f1": 0.3, "f3": 0.1}
+    for row in frames:
+        row["depth_seconds"] = seconds.get(row["frame_id"], row["depth_seconds"])
+    pq.write_table(pa.Table.from_pylist(frames), rundir / "frames.parquet")
+    table = evaluate_run(rundir)
+    scored = _value(table, frame_id=AGGREGATE, product="depth", method="arroyo", metric="n_frames")
+    assert scored == 3
+    median = _value(
+        table, frame_id=AGGREGATE, product="depth", method="arroyo", metric="seconds_per_frame"
+    )
+    assert median == pytest.approx(0.3)
+
+
+def test_a_run_cannot_start_while_evaluate_scores(rundir: Path, monkeypatch):
+    """Regression: a run started while `arroyo evaluate` scored removed evaluation.parquet,
+    which evaluate then wrote back with the scores of the products the run replaced.
+    Evaluate now holds the run directory's lock while it scores and writes."""
+    import pipeline.evaluate
+    from pipeline.errors import RunLockedError
+    from pipeline.lock import RunLock
+
+    real = pipeline.evaluate._score_run
+    refused = []
+
+    def score_while_a_run_starts(*args):
+        try:
+            with RunLock(rundir):
+                pass
+        except RunLockedError as exc:
+            refused.append(str(exc))
+        return real(*args)
+
+    monkeypatch.setattr(pipeline.evaluate, "_score_run", score_while_a_run_starts)
+    assert evaluate_run(rundir).num_rows > 0
+    assert refused and "in use by arroyo pid" in refused[0]
+    with RunLock(rundir):  # released afterwards
+        pass

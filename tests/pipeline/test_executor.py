@@ -149,3 +149,43 @@ def test_ctrl_c_while_a_local_cluster_starts_waits_for_it_then_closes_it(monkeyp
         open_executor(scheduler="threads", workers=1)
     assert made and made[0].status.name == "closed"
     assert signal.getsignal(signal.SIGINT) is handler
+
+
+def test_sigterm_while_a_local_cluster_starts_is_held_like_ctrl_c(monkeypatch):
+    """A SIGTERM (now a stop like ^C, see test_runner) during the cluster's start waits for
+    it, closes it, then stops: not a dask traceback per nanny."""
+    import signal
+
+    import distributed
+
+    from pipeline.executor import terminate_as_interrupt
+
+    real = distributed.LocalCluster
+    made = []
+
+    def terminated_start(*args, **kwargs):
+        os.kill(os.getpid(), signal.SIGTERM)
+        made.append(real(*args, **kwargs))
+        return made[-1]
+
+    monkeypatch.setattr(distributed, "LocalCluster", terminated_start)
+    handler = signal.getsignal(signal.SIGTERM)
+    with pytest.raises(KeyboardInterrupt), terminate_as_interrupt():
+        open_executor(scheduler="threads", workers=1)
+    assert made and made[0].status.name == "closed"
+    assert signal.getsignal(signal.SIGTERM) is handler
+
+
+def test_scheduler_without_workers_is_a_param_error(monkeypatch):
+    """Regression: a reachable `dask scheduler` with no worker took the frames and the run
+    waited forever without a word; it now stops (exit 2) once no worker joined in time."""
+    import distributed
+
+    import pipeline.executor
+
+    monkeypatch.setattr(pipeline.executor, "WORKER_WAIT_SECONDS", 0.5)
+    with distributed.LocalCluster(
+        n_workers=0, processes=False, dashboard_address=":0"
+    ) as cluster:
+        with pytest.raises(ParamError, match="has no worker .*start workers with `dask worker"):
+            open_executor(scheduler=cluster.scheduler_address, workers=None)

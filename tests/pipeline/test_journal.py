@@ -31,3 +31,20 @@ def test_a_short_run_writes_frames_table_at_start_and_end_only(archive, tmp_path
     assert [f["status"] for f in frames] == ["done"] * 4
     assert all(f["blend_seconds"] is not None for f in frames)
 
+
+
+def test_frame_failed_on_rerun_has_no_stale_stage_figures(archive, tmp_path):
+    """Regression: a frame that failed at ingest on a rerun (its file cut short) kept the
+    earlier run's `<stage>_seconds`, figures and notes in frames.parquet, so `arroyo
+    evaluate` took its stages for done and scored the earlier run's products."""
+    out = tmp_path / "run"
+    assert run(archive, out, scheduler="synchronous", stage_package=FAKE).done == 4
+    image = archive.parent / "images" / "f001_left.png"
+    image.write_bytes(image.read_bytes()[:60])
+    summary = run(archive, out, scheduler="synchronous", stage_package=FAKE)
+    assert (summary.done, summary.failed) == (3, 1)
+    rows = {r["frame_id"]: r for r in pq.read_table(out / "frames.parquet").to_pylist()}
+    assert rows["f001"]["status"] == "failed" and rows["f001"]["failed_stage"] == "ingest"
+    stale = ("ingest_seconds", "ingest_mean", "blend_seconds", "tally_seconds", "tally_rows")
+    assert [rows["f001"][c] for c in stale] == [None] * len(stale)
+    assert all(rows["f000"][c] is not None for c in stale)

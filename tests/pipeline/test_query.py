@@ -587,3 +587,27 @@ def test_run_in_progress_is_refused_unless_allowed(tmp_path, capsys):
         assert rows.to_pylist() == [{"n": _expected(run, "descriptors").num_rows}]
     # the lock's holder is gone (finished or killed): its published rows are readable
     assert query_runs(run, "SELECT count(*) AS n FROM frames").to_pylist() == [{"n": 2}]
+
+
+def test_frame_dataset_with_moved_products_root_says_so(tmp_path):
+    """Regression: with the run's --products directory moved or unmounted, frame_dataset
+    said the run "wrote no array products yet"."""
+    run = make_run(tmp_path / "lab", frames=1)
+    shared = tmp_path / "shared"
+    shared.mkdir()
+    (run / "products.zarr").rename(shared / "products.zarr")
+    meta = json.loads((run / "run.json").read_text())
+    (run / "run.json").write_text(json.dumps({**meta, "products": str(shared)}))
+    assert int(frame_dataset(run, "lab_000").labels.max()) > 0
+    shared.rename(tmp_path / "moved")
+    with pytest.raises(RunDirError, match="which does not exist \\(moved or unmounted\\?\\)"):
+        frame_dataset(run, "lab_000")
+
+
+def test_query_output_into_a_read_only_directory(tmp_path, readonly_view):
+    """Regression: `arroyo query -o` into a read-only directory was an EROFS traceback."""
+    run = make_run(tmp_path / "lab", frames=1)
+    view = readonly_view(run)
+    with pytest.raises(ParamError, match="is not writable"):
+        query_command([view], "SELECT 1", fmt="csv", output=view / "x.csv")
+    assert query_runs([view], "SELECT count(*) AS n FROM frames").to_pylist() == [{"n": 1}]

@@ -4,6 +4,7 @@ rocks, with many frames, and while a run is writing."""
 from __future__ import annotations
 
 import base64
+import json
 import re
 import statistics
 from html.parser import HTMLParser
@@ -11,14 +12,17 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
+import zarr
 from test_query import make_run
 
 from pipeline.cli import main
 from pipeline.errors import ParamError, RunDirError
 from pipeline.lock import RunLock
 from pipeline.report import build_report
+from stages.quicklook import objects_image
 
 
 class _Page(HTMLParser):
@@ -188,3 +192,57 @@ def test_large_quicklooks_are_embedded_with_a_palette():
     assert decoded.shape == image.shape
     assert np.abs(decoded.astype(int) - image.astype(int)).mean() < 8
     assert compact_png(data, max_bytes=len(data)) is data
+
+
+def _rewrite_frames(run: Path, frame_id: str, **changes) -> None:
+    rows = pq.read_table(run / "frames.parquet").to_pylist()
+    for row in rows:
+        if row["frame_id"] == frame_id:
+            row.update(changes)
+    pq.write_table(pa.Table.from_pylist(rows), run / "frames.parquet")
+
+
+def test_frame_failed_on_rerun_shows_no_earlier_run_images(tmp_path):
+    """Regression: a frame done once, then failed at ingest on a rerun (its file cut
+    short), showed the earlier run's quicklook files and slabs in the report: outlined
+    objects under a 'failed' badge with '0 rocks'."""
+    run = make_run(tmp_path / "lab", frames=2)
+    assert (run / "quicklooks" / "lab_000" / "objects.png").is_file()
+    stages = ("ingest", "depth", "segment", "describe", "quicklook")
+    _rewrite_frames(
+        run, "lab_000", status="failed", failed_stage="ingest", error="ingest: cut short",
+        **{f"{s}_seconds": None for s in stages},
+    )
+    _rewrite_frames(run, "lab_001", depth_seconds=None, segment_seconds=None,
+                    describe_seconds=None, quicklook_seconds=None)
+    text, page = _parse(build_report(run))
+    per_frame = {f: [i for i in page.images if i["frame"] == f] for f in ("lab_000", "lab_001")}
+    assert per_frame["lab_000"] == [] and "No images for this frame." in text
+    # ingest current, the rest not: the bare reference image, no outlines of old labels
+    (only,) = per_frame["lab_001"]
+    right = np.asarray(zarr.open_group(run / "products.zarr", mode="r")["right"][1])
+    bare = objects_image(right, np.zeros(right.shape, np.int32))
+    np.testing.assert_array_equal(_decode_png(only["src"])[..., :3], bare[..., :3])
+
+
+def test_report_draws_over_the_reference_image(tmp_path):
+    """Regression: the report drew a frame's outlines and range contours over the right
+    image even when the run's reference was the left one (the labels' geometry)."""
+    run = make_run(tmp_path / "lab", frames=2, quicklooks=False)
+    meta = json.loads((run / "run.json").read_text())
+    meta["camera"]["reference"] = "left"
+    (run / "run.json").write_text(json.dumps(meta))
+    _, page = _parse(build_report(run))
+    first = next(i for i in page.images if i["frame"] == "lab_000")
+    group = zarr.open_group(run / "products.zarr", mode="r")
+    want = objects_image(np.asarray(group["left"][0]), np.asarray(group["labels"][0]))
+    np.testing.assert_array_equal(_decode_png(first["src"])[..., :3], want[..., :3])
+
+
+def test_report_of_a_read_only_run_directory(tmp_path, readonly_view):
+    """Regression: `arroyo report` of an archived run on a read-only mount rendered the
+    whole page, then ended in an EROFS traceback; --output elsewhere works."""
+    view = readonly_view(make_run(tmp_path / "lab", frames=1, rocks=2))
+    with pytest.raises(ParamError, match="is not writable .*pass --output FILE"):
+        build_report(view)
+    assert build_report(view, tmp_path / "r.html").is_file()

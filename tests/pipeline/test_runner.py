@@ -253,3 +253,163 @@ def test_a_failed_frame_whose_file_is_restored_is_done_again(archive, tmp_path):
     assert pq.read_table(out / "tallies.parquet").num_rows == 12
     frames = pq.read_table(out / "frames.parquet").to_pylist()
     assert [f["status"] for f in frames] == ["done"] * 4 and frames[1]["error"] is None
+
+
+def test_rerun_that_changes_products_removes_stale_evaluation(archive, tmp_path):
+    """Regression: `evaluation.parquet` outlived a rerun that changed the products, so
+    `arroyo query ... FROM evaluation` and `arroyo report` showed the old run's scores as
+    the run directory's. A run that recomputes frames removes it; one with nothing to do
+    keeps it."""
+    import pyarrow as pa
+
+    from pipeline.evaluate import EVALUATION_SCHEMA
+    from pipeline.query import query_runs
+
+    out = tmp_path / "run"
+    first = _run(archive, out)
+    row = {"run_id": first.run_id, "archive": "testarch", "frame_id": "*"}
+    row |= {"product": "depth", "method": "arroyo", "metric": "epe", "value": 0.5}
+    scores = pa.Table.from_pylist([row], schema=EVALUATION_SCHEMA)
+    pq.write_table(scores, out / "evaluation.parquet")
+    assert _run(archive, out).done == 4  # nothing recomputed: the scores still hold
+    assert query_runs([out], "SELECT * FROM evaluation").num_rows == 1
+    assert _run(archive, out, overrides=["blend.weight=0.3"]).done == 4
+    assert not (out / "evaluation.parquet").exists()
+    assert query_runs([out], "SELECT * FROM evaluation").num_rows == 0
+
+
+@pytest.mark.parametrize("workers", [0, -2, 1.5, True])
+def test_bad_workers_stop_before_any_work(archive, tmp_path, workers):
+    """Regression: `--workers 0` passed a dry run and a run with nothing pending (exit 0);
+    with frames pending it failed only after writing run.json as a new 'stopped' run."""
+    out = tmp_path / "run"
+    with pytest.raises(ParamError, match="--workers"):
+        run(archive, out, stage_package=FAKE, workers=workers, dry_run=True)
+    assert not out.exists()
+    assert _run(archive, out).done == 4
+    meta = json.loads((out / "run.json").read_text())
+    with pytest.raises(ParamError, match="--workers"):
+        run(archive, out, stage_package=FAKE, workers=workers)
+    assert json.loads((out / "run.json").read_text()) == meta
+
+
+def test_other_frame_list_is_refused_by_the_dry_run_too(archive, tmp_path):
+    """Regression: a catalog whose frames differ from the run directory's (another archive,
+    a reordered index) planned fine with --dry-run ('4 frame(s) would run') while the run
+    refused it (exit 2), with a message of numpy reprs (`np.str_('f000')`)."""
+    out = tmp_path / "run"
+    _run(archive, out)
+    index = archive.parent / "frames.csv"
+    header, *rows = index.read_text().splitlines()
+    index.write_text("\n".join([header, rows[1], rows[0], *rows[2:]]) + "\n")
+    for dry_run in (True, False):
+        with pytest.raises(RunDirError, match="frame 0 is 'f000' where the catalog has 'f001'"):
+            _run(archive, out, dry_run=dry_run)
+    index.write_text("\n".join([header, *rows, rows[0].replace("f000,", "f004,")]) + "\n")
+    assert _run(archive, out, dry_run=True).todo["f004"]  # extended at the end: fine
+    assert _run(archive, out).done == 5
+
+
+def test_two_run_directories_cannot_share_a_products_root(archive, tmp_path):
+    """Regression: a second run directory given the same --products rewrote the first's
+    maps without a word; the first's descriptors then described other labels and its
+    `status --verify` found every rewritten slab damaged."""
+    shared = tmp_path / "shared"
+    first, second = tmp_path / "a", tmp_path / "b"
+    assert _run(archive, first, products=shared).done == 4
+    for dry_run in (True, False):
+        with pytest.raises(RunDirError, match="holds the products of another run directory"):
+            _run(archive, second, products=shared, overrides=["blend.weight=0.3"],
+                 dry_run=dry_run)
+    assert status(first, verify=True).damaged == []
+    moved = tmp_path / "moved"
+    first.rename(moved)  # a moved run directory still owns its products
+    assert _run(archive, moved, overrides=["blend.weight=0.3"]).done == 4
+    assert status(moved, verify=True).damaged == []
+    assert _run(archive, second, products=shared / "b").done == 4
+
+
+def test_sigterm_stops_the_run_as_ctrl_c_does(archive, tmp_path):
+    """Regression: SIGTERM (a batch system's time limit, `timeout`, `docker stop`) killed the
+    driver outright: the frames finished since the journal's last commit were redone and
+    no finished frame's rows were published until a rerun. It now stops the run as ^C."""
+    import os
+    import signal
+
+    out = tmp_path / "run"
+    handler = signal.getsignal(signal.SIGTERM)
+
+    def terminated_after_two(done, total, frame_id):
+        if done == 2:
+            os.kill(os.getpid(), signal.SIGTERM)
+
+    with pytest.raises(KeyboardInterrupt):
+        _run(archive, out, progress=terminated_after_two)
+    assert signal.getsignal(signal.SIGTERM) is handler
+    assert json.loads((out / "run.json").read_text())["status"] == "interrupted"
+    frames = pq.read_table(out / "frames.parquet").to_pylist()
+    done = sorted(f["frame_id"] for f in frames if f["status"] == "done")
+    assert len(done) == 2
+    rows = pq.read_table(out / "tallies.parquet").to_pylist()
+    assert sorted({r["frame_id"] for r in rows}) == done
+    assert _run(archive, out).done == 4
+
+
+def test_frame_files_a_rerun_does_not_write_are_removed(archive, tmp_path):
+    """Regression: with `--set quicklook.every=4` a rerun drew 3 of lab's 12 frames and
+    left the other 9 frames' quicklooks of the earlier run, outlines of earlier labels
+    that the report showed as current. A files product's frame folder now holds only what
+    the stage returned for the frame's current result."""
+    out = tmp_path / "run"
+    _run(archive, out)
+    notes = sorted(p.relative_to(out).as_posix() for p in (out / "quicklooks").rglob("*.txt"))
+    assert notes == [f"quicklooks/f00{k}/note.txt" for k in range(4)]
+    (out / "quicklooks" / "f001" / "old.png").write_bytes(b"an earlier stage version's file")
+    assert _run(archive, out, overrides=["tally.note=false"]).done == 4
+    assert list((out / "quicklooks").iterdir()) == []  # no files, no empty frame folders
+
+
+def test_frame_files_a_rerun_does_not_write_are_removed_from_an_object_store(
+    archive, tmp_path, s3_products
+):
+    import fsspec
+
+    out = tmp_path / "run"
+    _run(archive, out, products=s3_products)
+    s3 = fsspec.filesystem("s3")
+    assert s3.exists(f"{s3_products}/quicklooks/f002/note.txt")
+    _run(archive, out, overrides=["tally.note=false"])
+    s3.invalidate_cache()
+    assert not s3.exists(f"{s3_products}/quicklooks/f002/note.txt")
+
+
+def test_products_root_that_is_a_file_or_under_one_is_a_clear_error(archive, tmp_path):
+    """Regression: `--products FILE` (and a root under a file) ended in zarr's
+    NotADirectoryError traceback, exit 1, after the journal was created."""
+    afile = tmp_path / "afile"
+    afile.write_text("")
+    with pytest.raises(ParamError, match="is a file, not a directory"):
+        _run(archive, tmp_path / "a", products=afile)
+    assert not (tmp_path / "a").exists()
+    with pytest.raises(RunDirError, match="cannot create the product store"):
+        _run(archive, tmp_path / "b", products=afile / "below")
+
+
+def test_run_into_a_read_only_run_directory_is_a_clear_error(archive, tmp_path, readonly_view):
+    """Regression: `arroyo run` into a read-only run directory was an EROFS traceback."""
+    out = tmp_path / "run"
+    _run(archive, out)
+    with pytest.raises(RunDirError, match="cannot lock the run directory .*Read-only"):
+        _run(archive, readonly_view(out))
+
+
+def test_run_directory_with_its_journal_moved_away_still_owns_its_products(archive, tmp_path):
+    """The damaged-journal recovery ("move it away and rerun") must not lock a run
+    directory out of the products its run.json records."""
+    out, shared = tmp_path / "run", tmp_path / "shared"
+    _run(archive, out, products=shared)
+    (out / "state.sqlite").rename(tmp_path / "damaged.sqlite")
+    assert _run(archive, out).done == 4
+    assert status(out, verify=True).damaged == []
+    with pytest.raises(RunDirError, match="holds the products of another run directory"):
+        _run(archive, tmp_path / "other", products=shared)

@@ -20,7 +20,11 @@ def run(inputs, *, frame, params):
         arrays={"grid": grid},
         tables={"tallies": {"object_id": np.arange(1, n + 1, dtype=np.int32), "value": values}},
         figures={"rows": n},
-        files={f"quicklooks/{frame.frame_id}/note.txt": f"{values[0]:.3f}".encode()},
+        files=(
+            {f"quicklooks/{frame.frame_id}/note.txt": f"{values[0]:.3f}".encode()}
+            if params["note"]
+            else {}
+        ),
     )
 
 
@@ -30,6 +34,7 @@ STAGE = Stage(
     inputs=("blend",),
     outputs=(
         Product("tallies", kind="table", schema=SCHEMA),
+        Product("quicklooks", kind="files"),
         Product(
             "grid",
             dtype="float32",
@@ -40,6 +45,7 @@ STAGE = Stage(
     params=(
         Param("rows", int, 3, "rows per frame", minimum=0),
         Param("grid", int, 4, "grid side", minimum=1),
+        Param("note", bool, True, "write quicklooks/<frame_id>/note.txt"),
     ),
     run=run,
 )

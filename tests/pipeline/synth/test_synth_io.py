@@ -84,6 +84,14 @@ def test_refuses_foreign_directory(tmp_path):
     assert (tmp_path / "notes.txt").read_text() == "mine"
 
 
+def test_out_below_a_file_is_a_clear_error(tmp_path):
+    """Regression: `arroyo synth --out FILE/x` ended in a FileExistsError traceback."""
+    (tmp_path / "afile").write_text("mine")
+    with pytest.raises(ValueError, match="cannot create .*afile"):
+        synthesize_archive("lab", tmp_path / "afile" / "x", frames=1, size=SIZE)
+    assert (tmp_path / "afile").read_text() == "mine"
+
+
 def test_bad_frames_rejected(tmp_path):
     with pytest.raises(ValueError):
         synthesize_archive("lab", tmp_path / "x", frames=0, size=SIZE)
@@ -121,3 +129,29 @@ def test_shipped_catalogs_name_valid_archetypes():
         synth = data["synth"]
         get_spec(synth["archetype"], synth.get("variant"))
         assert synth["frames"] >= 1 and synth["seed"] >= 0
+
+
+def test_ensure_archive_keeps_the_archive_a_concurrent_caller_completed(tmp_path, monkeypatch):
+    """Regression: two `arroyo run catalogs/lab.toml` started together on an empty cache
+    both rendered; the later one removed the earlier one's complete archive to put its own
+    in place, while the earlier run was reading its frames (they failed as missing)."""
+    import pipeline.synth.io as synth_io
+
+    render = synth_io._render_into
+    in_use: list[Path] = []
+    calls: list[Path] = []
+
+    def render_while_another_finishes(directory, *args):
+        calls.append(directory)
+        if len(calls) == 1:  # the other caller renders and completes during our rendering
+            other = ensure_archive("dunes", frames=1, seed=0, cache_dir=tmp_path, size=SIZE)
+            (other.parent / "being-read").write_text("a run reads these frames")
+            in_use.append(other)
+        render(directory, *args)
+
+    monkeypatch.setattr(synth_io, "_render_into", render_while_another_finishes)
+    catalog = ensure_archive("dunes", frames=1, seed=0, cache_dir=tmp_path, size=SIZE)
+    assert catalog == in_use[0]
+    assert (catalog.parent / "being-read").is_file()  # the same directory, untouched
+    leftovers = [p for p in catalog.parent.parent.iterdir() if p.name.startswith(".")]
+    assert leftovers == []

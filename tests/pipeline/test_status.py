@@ -1,0 +1,98 @@
+"""`arroyo status`: counts, and `--verify`'s checks that must never reset sound results."""
+
+from __future__ import annotations
+
+import shutil
+
+import pytest
+
+from pipeline.errors import RunDirError, RunLockedError
+from pipeline.lock import RunLock
+from pipeline.runner import run
+from pipeline.status import format_status, status
+
+FAKE = "arroyo_fake_stages"
+
+
+def _run(catalog, out, **kw):
+    return run(catalog, out, stage_package=FAKE, scheduler="synchronous", **kw)
+
+
+def test_verify_during_live_run_refuses_instead_of_reporting_false_damage(archive, tmp_path):
+    """Regression: `status --verify` while a run rewrote frames read chunks newer than
+    their records (committed at the run's next journal flush) as damage, exited 1 and reset
+    the results under the live run. It now waits for no run to hold the directory."""
+    out = tmp_path / "run"
+    assert _run(archive, out).done == 4
+    with RunLock(out), pytest.raises(RunLockedError, match="only while no run writes it"):
+        status(out, verify=True)
+    report = status(out)  # counts alone still work during a run
+    assert all(row["done"] == 4 for row in report.per_stage.values())
+    assert status(out, verify=True).damaged == []  # the lock is free again
+
+
+def test_verify_with_moved_products_root_resets_nothing(archive, tmp_path):
+    """Regression: with `--products DIR` moved or unmounted, `status --verify` called every
+    array damaged and reset every frame's records (a later rerun redid the whole archive).
+    It now refuses, names the recorded root, and resets nothing."""
+    out, shared = tmp_path / "run", tmp_path / "shared"
+    assert _run(archive, out, products=shared).done == 4
+    moved = tmp_path / "moved"
+    shutil.move(shared, moved)
+    with pytest.raises(RunDirError, match="does not exist \\(moved or unmounted\\?\\)"):
+        status(out, verify=True)
+    shutil.move(moved, shared)
+    report = status(out, verify=True)
+    assert report.damaged == []
+    assert all(row["done"] == 4 for row in report.per_stage.values())
+
+
+def test_verify_after_products_deleted_for_good_resets_for_rerun(archive, tmp_path):
+    """The way out the message gives: an empty directory at the recorded root, then verify
+    resets every frame and the next run redoes them."""
+    out, shared = tmp_path / "run", tmp_path / "shared"
+    _run(archive, out, products=shared)
+    shutil.rmtree(shared)
+    shared.mkdir()
+    report = status(out, verify=True)
+    assert report.damaged
+    assert all(row["done"] == 0 for row in report.per_stage.values())
+    assert _run(archive, out).done == 4
+    assert status(out, verify=True).damaged == []
+
+
+def test_frame_failed_on_rerun_is_not_also_counted_done(archive, tmp_path):
+    """Regression: a frame that failed at ingest on a rerun (its file cut short) still had
+    its earlier run's records, so `arroyo status` printed ingest "done 4, failed 1,
+    pending -1" for 4 frames."""
+    out = tmp_path / "run"
+    _run(archive, out)
+    image = archive.parent / "images" / "f001_left.png"
+    image.write_bytes(image.read_bytes()[:60])
+    _run(archive, out)
+    report = status(out)
+    assert report.per_stage["ingest"] == {"done": 3, "failed": 1, "pending": 0}
+    assert report.per_stage["tally"] == {"done": 3, "failed": 0, "pending": 1}
+
+
+def test_status_and_verify_of_a_read_only_run_directory(archive, tmp_path, readonly_view):
+    """Regression: on a read-only mount (an archived survey), `arroyo status` called the
+    journal damaged and advised moving it away ("the run then starts over"), and
+    `status --verify` refused; verify now checks without resetting, and says so."""
+    import json
+
+    out = tmp_path / "run"
+    _run(archive, out)
+    meta = json.loads((out / "run.json").read_text())
+    (out / "run.json").write_text(json.dumps({**meta, "status": "running"}))  # then killed
+    view = readonly_view(out)
+    report = status(view)
+    assert report.run_state == "interrupted"
+    assert all(row["done"] == 4 for row in report.per_stage.values())
+    chunk = next(p for p in (out / "products.zarr" / "blend").rglob("*") if p.is_file()
+                 and p.name != "zarr.json")
+    chunk.write_bytes(b"damage")
+    report = status(view, verify=True)
+    assert report.damaged and not report.reset
+    assert "read-only, so nothing was reset" in format_status(report)
+    assert all(row["done"] == 4 for row in report.per_stage.values())
