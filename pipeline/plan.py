@@ -3,6 +3,10 @@
 A (frame, stage) result has a cache key: the stage's name, version and effective params, the
 frame's camera, the keys of the stages it reads from, and (for ``ingest``) the sha256 of the
 two input files. A run redoes exactly the results whose key has no completion record.
+
+A parameter declared with ``omit_default_from_key`` (added to a stage later, its default
+reproducing the stage's earlier output) is left out of the key while at its default, so
+adding it does not make every existing run recompute everything (:meth:`Stage.key_params`).
 """
 
 from __future__ import annotations
@@ -105,7 +109,7 @@ def frame_keys(
         payload: dict[str, Any] = {
             "stage": stage.name,
             "version": stage.version,
-            "params": dict(params[stage.name]),
+            "params": stage.key_params(params[stage.name]),
             "upstream": {u: keys[u] for u in graph.upstream(stage)},
         }
         if not stage.inputs and not stage.optional_inputs:

@@ -587,6 +587,18 @@ def _coerce_format(fmt: Any) -> str:
     return str(fmt)
 
 
+def _missing_directory(directory: Path) -> str:
+    """Why ``directory`` cannot hold a file: its nearest existing ancestor is a file, or it
+    does not exist (``--output /etc/passwd/x`` said /etc/passwd "does not exist")."""
+    for ancestor in (directory, *directory.parents):
+        if ancestor.is_dir():
+            break
+        if ancestor.exists() or ancestor.is_symlink():
+            what = "a file, not a directory" if ancestor.is_file() else "not a directory"
+            return f"{ancestor} is {what}; pass a file name inside a directory"
+    return f"directory {directory} does not exist"
+
+
 def query_command(
     rundirs: Sequence[str | os.PathLike[str]],
     sql: str,
@@ -631,7 +643,7 @@ def query_command(
         if target.is_dir():
             raise ParamError(f"--output {target} is a directory; pass a file name")
         if not target.parent.is_dir():
-            raise ParamError(f"--output {target}: directory {target.parent} does not exist")
+            raise ParamError(f"--output {target}: {_missing_directory(target.parent)}")
         if not os.access(target.parent, os.W_OK):
             raise ParamError(
                 f"--output {target}: directory {target.parent} is not writable (read-only?)"

@@ -49,6 +49,11 @@ class Param:
         Allowed values.
     minimum, maximum : float, optional
         Inclusive bounds for numbers.
+    omit_default_from_key : bool
+        Leave the parameter out of the cache key while it has its default value. For a
+        parameter added to an existing stage whose default reproduces the stage's output
+        before the parameter existed: run directories made then keep their results, instead
+        of every frame recomputing every stage. A non-default value is in the key as usual.
     """
 
     name: str
@@ -58,6 +63,7 @@ class Param:
     choices: tuple[Any, ...] | None = None
     minimum: float | None = None
     maximum: float | None = None
+    omit_default_from_key: bool = False
 
     def __post_init__(self) -> None:
         if self.type not in _PARAM_TYPES:
@@ -260,6 +266,20 @@ class Stage:
 
     def defaults(self) -> dict[str, Any]:
         return {p.name: p.default for p in self.params}
+
+    def key_params(self, params: Mapping[str, Any]) -> dict[str, Any]:
+        """The effective ``params`` that enter the cache key: all but those declared
+        ``omit_default_from_key`` while at their default."""
+        omitted = {p.name: p.default for p in self.params if p.omit_default_from_key}
+        return {
+            name: value
+            for name, value in params.items()
+            if not (
+                name in omitted
+                and value == omitted[name]
+                and type(value) is type(omitted[name])
+            )
+        }
 
     def resolve_params(self, overrides: Mapping[str, Any]) -> dict[str, Any]:
         """Defaults updated with validated overrides."""

@@ -25,10 +25,19 @@ Conversion to 8-bit gray (each step adds a note to the frame's record):
 * colour (BGR/BGRA) -> gray with OpenCV's ``COLOR_BGR2GRAY`` weights
   (0.299 R + 0.587 G + 0.114 B); an alpha channel is ignored; three identical channels
   are reduced to one without a weighted sum.
-* 16-bit -> 8-bit by ``>> 8`` (``v // 256``): a fixed scale, so the left and right images
+* 16-bit -> 8-bit by ``>> (sample_bits - 8)``: a fixed scale, so the left and right images
   of a pair and all frames of an archive keep the same gray scale (a per-image min-max
-  stretch would give the two views different gains and hurt stereo matching). Data with
-  fewer significant bits (12-bit cameras) therefore comes out dark; the note says so.
+  stretch would give the two views different gains and hurt stereo matching).
+  ``sample_bits`` (``ingest.sample_bits``, 8 to 16, default 16: ``>> 8``) is how many bits
+  of each 16-bit sample the camera really uses: scientific cameras write 10-, 12- or 14-bit
+  data in 16-bit PNG/TIFF files, and with the default such data comes out dark (12-bit data
+  as gray levels 0-15); the note then says how many bits the data uses and names the
+  setting. With ``sample_bits`` below 16 a sample above ``2**sample_bits - 1`` cannot come
+  from such a camera: it is clipped to 255 and the note counts the clipped samples, names
+  the file and says the setting looks wrong (the frame does not fail: its other pixels are
+  good, and the note is in the frame's record).
+  8-bit and float samples are not affected by ``sample_bits`` (a note says so when it is
+  not 16).
 * float (TIFF) -> 8-bit: samples in [0, 1] are scaled by 255, samples in [0, 255] are
   used as gray levels; both rounded to nearest. NaN or infinite samples fail the frame
   (arroyo does not invent pixel values), as do negative values or values above 255.
@@ -56,8 +65,10 @@ from ._imageheaders import ImageHeader, read_header
 
 __all__ = [
     "DEFAULT_MAX_PIXELS",
+    "DEFAULT_SAMPLE_BITS",
     "DecodedImage",
     "ImageHeader",
+    "coerce_sample_bits",
     "read_gray",
     "decode_gray",
     "read_header",
@@ -66,6 +77,9 @@ __all__ = [
 
 DEFAULT_MAX_PIXELS = 8192 * 8192
 """Largest image (width x height) decoded by default."""
+
+DEFAULT_SAMPLE_BITS = 16
+"""Significant bits of a 16-bit sample by default: all 16, scaled by ``>> 8``."""
 
 _EXTENSIONS = {
     ".png": "PNG",
@@ -108,7 +122,10 @@ class DecodedImage:
 
 
 def read_gray(
-    path: str | os.PathLike[str], *, max_pixels: int = DEFAULT_MAX_PIXELS
+    path: str | os.PathLike[str],
+    *,
+    max_pixels: int = DEFAULT_MAX_PIXELS,
+    sample_bits: int = DEFAULT_SAMPLE_BITS,
 ) -> DecodedImage:
     """Read an image file as 8-bit gray, or raise FrameError naming the file and the cause.
 
@@ -118,24 +135,40 @@ def read_gray(
         Image file (PNG, JPEG, TIFF, PGM/PPM, BMP; recognised by content).
     max_pixels : int
         Largest accepted width x height, >= 1; checked from the header before decoding.
+    sample_bits : int, 8 to 16
+        Significant bits of 16-bit samples, scaled to 8 bits by ``>> (sample_bits - 8)``;
+        see the module docstring. 8-bit and float samples are not affected.
 
     Returns
     -------
     decoded : DecodedImage
+
+    Raises
+    ------
+    TypeError, ValueError
+        ``max_pixels`` or ``sample_bits`` of the wrong type or out of range.
+    FrameError
+        Any problem with the file.
     """
     max_pixels = _coerce_max_pixels(max_pixels)
+    sample_bits = coerce_sample_bits(sample_bits)
     if not isinstance(path, str | os.PathLike):
         raise TypeError(f"path must be a str or os.PathLike, got {type(path).__name__}")
     name = os.fspath(path)
     data = _read_file(Path(name), max_bytes=32 * max_pixels + (64 << 20))
-    return decode_gray(data, name=str(name), max_pixels=max_pixels)
+    return decode_gray(data, name=str(name), max_pixels=max_pixels, sample_bits=sample_bits)
 
 
 def decode_gray(
-    data: bytes, *, name: str = "<bytes>", max_pixels: int = DEFAULT_MAX_PIXELS
+    data: bytes,
+    *,
+    name: str = "<bytes>",
+    max_pixels: int = DEFAULT_MAX_PIXELS,
+    sample_bits: int = DEFAULT_SAMPLE_BITS,
 ) -> DecodedImage:
     """Decode image bytes as 8-bit gray; see :func:`read_gray` (``name`` labels messages)."""
     max_pixels = _coerce_max_pixels(max_pixels)
+    sample_bits = coerce_sample_bits(sample_bits)
     try:
         header = read_header(data)
         if header.width * header.height > max_pixels:
@@ -163,7 +196,7 @@ def decode_gray(
             raise ValueError(
                 f"{header.format} data is corrupt or an unsupported variant of the format"
             )
-        image, notes = to_gray_uint8(decoded)
+        image, notes = to_gray_uint8(decoded, sample_bits=sample_bits, name=name)
     except ValueError as exc:
         raise FrameError(f"{name}: {exc}") from None
     extension = os.path.splitext(name)[1].lower()
@@ -246,6 +279,23 @@ def _coerce_max_pixels(max_pixels: Any) -> int:
     return int(max_pixels)
 
 
+def coerce_sample_bits(sample_bits: Any) -> int:
+    """``sample_bits`` as an int from 8 to 16, or TypeError/ValueError saying how to fix it."""
+    if not isinstance(sample_bits, int | np.integer) or isinstance(sample_bits, bool):
+        raise TypeError(
+            "sample_bits (the significant bits of 16-bit samples) must be an int from 8 to "
+            f"16, got {type(sample_bits).__name__} {sample_bits!r}; write it without quotes "
+            "or decimals, for example ingest.sample_bits = 12"
+        )
+    if not 8 <= sample_bits <= 16:
+        raise ValueError(
+            "sample_bits (the significant bits of 16-bit samples) must be from 8 to 16, got "
+            f"{sample_bits}; set it to the camera's bit depth (12 for a 12-bit sensor), or "
+            "leave it at 16 (the default) for data that uses the full 16-bit range"
+        )
+    return int(sample_bits)
+
+
 def _first_line(exc: BaseException) -> str:
     lines = [line.strip() for line in str(exc).splitlines() if line.strip()]
     return lines[-1] if lines else type(exc).__name__
@@ -280,13 +330,21 @@ def _read_file(path: Path, *, max_bytes: int) -> bytes:
     return data
 
 
-def to_gray_uint8(image: np.ndarray) -> tuple[np.ndarray, list[str]]:
+def to_gray_uint8(
+    image: np.ndarray, *, sample_bits: int = DEFAULT_SAMPLE_BITS, name: str = "the image"
+) -> tuple[np.ndarray, list[str]]:
     """Convert a decoded image to 8-bit gray (see the module docstring for the rules).
 
     Parameters
     ----------
     image : (H, W) or (H, W, C) ndarray of {uint8, uint16, float32, float64}
         As decoded by OpenCV: channels in BGR(A) order, C in {1, 2, 3, 4}.
+    sample_bits : int, 8 to 16
+        Significant bits of uint16 samples, scaled by ``>> (sample_bits - 8)``; samples
+        above ``2**sample_bits - 1`` are clipped to 255 (and noted). Ignored for uint8 and
+        float samples.
+    name : str
+        Names the file in the note on clipped samples.
 
     Returns
     -------
@@ -299,8 +357,11 @@ def to_gray_uint8(image: np.ndarray) -> tuple[np.ndarray, list[str]]:
     ------
     ValueError
         NaN/infinite or out-of-range float samples, signed or 32-bit integer samples,
-        an unexpected number of channels or dimensions.
+        an unexpected number of channels or dimensions, ``sample_bits`` out of range.
+    TypeError
+        ``sample_bits`` not an int.
     """
+    sample_bits = coerce_sample_bits(sample_bits)
     image = np.asarray(image)
     if image.dtype not in (np.uint8, np.uint16, np.float32, np.float64):
         raise ValueError(
@@ -315,19 +376,58 @@ def to_gray_uint8(image: np.ndarray) -> tuple[np.ndarray, list[str]]:
     if image.ndim != 2:
         raise ValueError(f"expected a 2-D image or (H, W, C) with C <= 4, got shape {image.shape}")
     if image.dtype == np.uint16:
-        peak = int(image.max())
-        image = (image >> 8).astype(np.uint8)
-        note = f"16-bit samples scaled to 8 bits by >> 8 (max {peak} -> {peak >> 8})"
-        if peak < 4096:
-            note += f"; the data uses only {max(peak.bit_length(), 1)} bits, so it comes out dark"
-        notes.append(note)
-    elif image.dtype.kind == "f":
+        image, scaling = _uint16_to_uint8(image, sample_bits=sample_bits, name=name)
+        notes.extend(scaling)
+    elif sample_bits != DEFAULT_SAMPLE_BITS:
+        # a setting that changes nothing is worth a word: the files may not be what the
+        # user thinks they are
+        kind = "8-bit" if image.dtype == np.uint8 else f"{image.dtype}"
+        notes.append(f"{kind} samples: ingest.sample_bits = {sample_bits} does not apply")
+    if image.dtype.kind == "f":
         image, note = _float_to_uint8(image)
         notes.append(note)
     low, high = int(image.min()), int(image.max())
     if low == high:
         notes.append(f"constant frame: every pixel is {low}")
     return np.ascontiguousarray(image), notes
+
+
+def _uint16_to_uint8(
+    image: np.ndarray, *, sample_bits: int, name: str
+) -> tuple[np.ndarray, list[str]]:
+    """``image >> (sample_bits - 8)`` clipped to 255, with the notes that explain it."""
+    shift = sample_bits - 8
+    top = (1 << sample_bits) - 1
+    peak = int(image.max())
+    used = max(peak.bit_length(), 1)
+    if sample_bits == 16:  # the default, and the rule before sample_bits existed
+        scaled = (image >> 8).astype(np.uint8)
+        note = f"16-bit samples scaled to 8 bits by >> 8 (max {peak} -> {peak >> 8})"
+    else:
+        scaled = np.minimum(image >> shift, 255).astype(np.uint8)
+        note = (
+            f"16-bit samples with {sample_bits} significant bits (ingest.sample_bits) scaled "
+            f"to 8 bits by >> {shift} (max {peak} -> {min(peak >> shift, 255)})"
+        )
+    if peak >> shift < 16:  # at most 15 of 255 gray levels: segmentation finds nothing
+        note += f"; the data uses only {used} bits, so it comes out dark"
+        if max(used, 8) < sample_bits:
+            note += (
+                f": if the camera writes {max(used, 8)}-bit samples, set "
+                f"ingest.sample_bits = {max(used, 8)} (catalog [params] or --set)"
+            )
+    notes = [note]
+    if peak > top:
+        clipped = int(np.count_nonzero(image > top))
+        fix = (
+            f"set ingest.sample_bits = {used}" if used < 16 else "leave ingest.sample_bits at 16"
+        )
+        notes.append(
+            f"{clipped} samples of {name} are above {top}, the largest {sample_bits}-bit "
+            f"value (max {peak}, {used} bits), and were clipped to 255: ingest.sample_bits = "
+            f"{sample_bits} looks wrong for this file; {fix}"
+        )
+    return scaled, notes
 
 
 def _drop_colour(image: np.ndarray) -> tuple[np.ndarray, list[str]]:

@@ -5,6 +5,17 @@ are those of :mod:`stages._imageio`. Ingest adds the pair checks: left and right
 the same size, and that size must be the archive's (``FrameContext.image_shape``) when the
 engine knows it. Each conversion becomes a note in the frame's record, and the sha256 of
 both files becomes a per-frame figure.
+
+Parameters (catalog ``[params] ingest = {...}`` or ``--set ingest.NAME=VALUE``):
+
+* ``max_pixels``: largest width x height decoded (read from the header, before decoding).
+* ``sample_bits``: significant bits of 16-bit samples, 8 to 16 (default 16). A camera that
+  writes 12-bit data in 16-bit PNG/TIFF files needs ``sample_bits = 12``: its samples are
+  then scaled by ``>> 4`` to the full 0-255 range instead of ``>> 8`` to 0-15 (a dark frame
+  in which segmentation finds nothing). Samples above ``2**sample_bits - 1`` are clipped
+  to 255 and noted, naming the file. 8-bit and float images are not affected. At its
+  default the parameter is left out of the cache key (``Param.omit_default_from_key``), so
+  run directories made before it existed keep their results.
 """
 
 from __future__ import annotations
@@ -18,7 +29,13 @@ import numpy as np
 from pipeline.errors import FrameError
 from pipeline.stage import FrameContext, Param, Product, Stage, StageResult
 
-from ._imageio import DEFAULT_MAX_PIXELS, DecodedImage, read_gray
+from ._imageio import (
+    DEFAULT_MAX_PIXELS,
+    DEFAULT_SAMPLE_BITS,
+    DecodedImage,
+    coerce_sample_bits,
+    read_gray,
+)
 
 __all__ = ["STAGE", "run_ingest", "check_pair_shapes", "MIN_SIDE_PX"]
 
@@ -39,7 +56,8 @@ def run_ingest(
     frame : FrameContext
         Needs ``left_path`` and ``right_path``; ``image_shape`` (H, W) when known.
     params : dict
-        ``max_pixels`` : int, largest accepted width x height.
+        ``max_pixels`` : int, largest accepted width x height; ``sample_bits`` : int, 8 to
+        16, significant bits of 16-bit samples.
 
     Returns
     -------
@@ -58,8 +76,9 @@ def run_ingest(
             f"left={frame.left_path!r}, right={frame.right_path!r}"
         )
     max_pixels = params.get("max_pixels", DEFAULT_MAX_PIXELS)
-    left = read_gray(frame.left_path, max_pixels=max_pixels)
-    right = read_gray(frame.right_path, max_pixels=max_pixels)
+    sample_bits = params.get("sample_bits", DEFAULT_SAMPLE_BITS)
+    left = read_gray(frame.left_path, max_pixels=max_pixels, sample_bits=sample_bits)
+    right = read_gray(frame.right_path, max_pixels=max_pixels, sample_bits=sample_bits)
     check_pair_shapes(
         left.image.shape,
         right.image.shape,
@@ -115,6 +134,12 @@ def check_pair_shapes(
         )
 
 
+def _check_params(params: Mapping[str, Any]) -> None:
+    # the range is checked here rather than by Param bounds, so that the message can say
+    # what sample_bits means and how to choose it
+    coerce_sample_bits(params["sample_bits"])
+
+
 def _hxw(shape: tuple[int, ...]) -> str:
     return "x".join(str(n) for n in shape)
 
@@ -149,7 +174,17 @@ STAGE = Stage(
             "largest image (width x height) decoded; larger frames fail, read from the header",
             minimum=1,
         ),
+        Param(
+            "sample_bits",
+            int,
+            DEFAULT_SAMPLE_BITS,
+            "significant bits of 16-bit samples, 8-16 (12 for a 12-bit camera): scaled by "
+            ">> (sample_bits - 8); 8-bit and float images are not affected",
+            # 16 reproduces ingest before the parameter existed: old runs keep their keys
+            omit_default_from_key=True,
+        ),
     ),
     run=run_ingest,
+    check_params=_check_params,
     doc="read left/right images (PNG, JPEG, TIFF, PGM/PPM, BMP) as 8-bit gray",
 )

@@ -573,6 +573,24 @@ def test_missing_run_directory_exits_2(two_runs, tmp_path, capsys):
         query_runs([two_runs[0], two_runs[0]], "SELECT 1")
 
 
+def test_regression_output_under_a_file_said_the_directory_does_not_exist(
+    two_runs, tmp_path, capsys
+):
+    """Bug: `query --output /etc/passwd/x` said "directory /etc/passwd does not exist";
+    the parent is a file, and the message says so (also for a file further up)."""
+    lab, _ = two_runs
+    plain = tmp_path / "plain.txt"
+    plain.write_text("not a directory\n")
+    for target in (plain / "x.csv", plain / "deeper" / "x.csv"):
+        code = main(["query", str(lab), "SELECT 1", "--format", "csv", "--output", str(target)])
+        err = capsys.readouterr().err
+        assert code == 2 and f"{plain} is a file, not a directory" in err, err
+        assert "does not exist" not in err
+    assert plain.read_text() == "not a directory\n"
+    with pytest.raises(ParamError, match=f"directory {tmp_path / 'nope'} does not exist"):
+        query_command([lab], "SELECT 1", fmt="csv", output=tmp_path / "nope" / "x.csv")
+
+
 def test_run_in_progress_is_refused_unless_allowed(tmp_path, capsys):
     run = make_run(tmp_path / "live", frames=2, status="running")
     target = tmp_path / "out.json"

@@ -118,6 +118,91 @@ def test_12bit_data_in_16bit_file_gets_dark_note(tmp_path: Path, gray: np.ndarra
     assert any("only 12 bits" in note and "dark" in note for note in decoded.notes)
 
 
+def camera_samples(image: np.ndarray, bits: int) -> np.ndarray:
+    """8-bit gray levels as the ``bits``-bit samples of a camera (0 -> 0, 255 -> top)."""
+    wide = image.astype(np.uint32)
+    return ((wide << (bits - 8)) | (wide >> (16 - bits))).astype(np.uint16)
+
+
+@pytest.mark.parametrize("extension", [".png", ".tif"])
+def test_regression_12bit_data_in_16bit_files_came_out_as_gray_levels_0_15(
+    tmp_path: Path, gray: np.ndarray, extension: str
+) -> None:
+    """Bug (user audit): a scientific camera's 12-bit samples in 16-bit PNG/TIFF files were
+    scaled by >> 8 to gray levels 0-15, so segmentation found 0 objects; only a note said
+    so. ingest.sample_bits = 12 scales them by >> 4 to the full 0-255 range, and the note
+    of the default names the setting."""
+    twelve = camera_samples(gray, 12)
+    assert twelve.max() == 4095 and twelve.min() == 0
+    path = write(tmp_path / f"t{extension}", twelve)
+    dark = read_gray(path)
+    assert int(dark.image.max()) == 15
+    assert any(
+        "only 12 bits" in note and "set ingest.sample_bits = 12" in note for note in dark.notes
+    ), dark.notes
+    decoded = read_gray(path, sample_bits=12)
+    np.testing.assert_array_equal(decoded.image, gray)
+    assert decoded.image.min() == 0 and decoded.image.max() == 255
+    assert decoded.notes == [
+        "16-bit samples with 12 significant bits (ingest.sample_bits) scaled to 8 bits by >> 4 "
+        "(max 4095 -> 255)"
+    ]
+
+
+@pytest.mark.parametrize("bits", [8, 10, 14, 16])
+def test_sample_bits_scale_other_bit_depths_to_full_range(gray: np.ndarray, bits: int) -> None:
+    samples = camera_samples(gray, bits)
+    image, notes = to_gray_uint8(samples, sample_bits=bits)
+    np.testing.assert_array_equal(image, gray)
+    assert not any("dark" in note or "clipped" in note for note in notes), notes
+
+
+def test_sample_bits_16_is_the_old_rule_bit_for_bit() -> None:
+    samples = np.random.default_rng(3).integers(0, 65536, size=(40, 50), dtype=np.uint16)
+    for image in (samples, samples >> 4, samples >> 9):  # full, 12-bit, 7-bit data
+        default, notes = to_gray_uint8(image)
+        explicit, explicit_notes = to_gray_uint8(image, sample_bits=16)
+        np.testing.assert_array_equal(default, (image >> 8).astype(np.uint8))
+        np.testing.assert_array_equal(explicit, default)
+        assert explicit_notes == notes
+        assert notes[0].startswith(f"16-bit samples scaled to 8 bits by >> 8 (max {image.max()}")
+
+
+def test_dark_note_suggests_no_sample_bits_below_8(gray: np.ndarray) -> None:
+    image, notes = to_gray_uint8(gray.astype(np.uint16) // 32)  # 3-bit data
+    assert "the data uses only 3 bits" in notes[0] and "set ingest.sample_bits = 8" in notes[0]
+    image, notes = to_gray_uint8(gray.astype(np.uint16) // 32, sample_bits=8)
+    np.testing.assert_array_equal(image, gray // 32)
+    assert "only 3 bits" in notes[0] and "sample_bits =" not in notes[0]  # nothing to set
+
+
+def test_samples_above_sample_bits_are_clipped_and_noted(tmp_path: Path, gray: np.ndarray) -> None:
+    samples = camera_samples(gray, 12)
+    samples[0, :5] = [4096, 5000, 9000, 20000, 65535]
+    path = write(tmp_path / "hot.tif", samples)
+    decoded = read_gray(path, sample_bits=12)
+    assert (decoded.image[0, :5] == 255).all()
+    np.testing.assert_array_equal(decoded.image[1:], gray[1:])
+    clipped = [note for note in decoded.notes if "clipped" in note]
+    assert clipped == [
+        f"5 samples of {path} are above 4095, the largest 12-bit value (max 65535, 16 bits), "
+        "and were clipped to 255: ingest.sample_bits = 12 looks wrong for this file; leave "
+        "ingest.sample_bits at 16"
+    ]
+    _image, notes = to_gray_uint8(samples[:4] // 8, sample_bits=10)  # max 8191: 13 bits
+    assert "ingest.sample_bits = 10 looks wrong" in notes[1] and "sample_bits = 13" in notes[1]
+
+
+def test_sample_bits_do_not_affect_8bit_and_float_images(tmp_path: Path, gray: np.ndarray) -> None:
+    for path in (write(tmp_path / "g.png", gray), write(tmp_path / "f.tif", gray / 255.0)):
+        plain = read_gray(path)
+        decoded = read_gray(path, sample_bits=12)
+        np.testing.assert_array_equal(decoded.image, plain.image)
+        np.testing.assert_array_equal(decoded.image, gray)
+        assert decoded.notes[0].endswith("samples: ingest.sample_bits = 12 does not apply")
+        assert decoded.notes[1:] == plain.notes
+
+
 def test_float_tiff_unit_and_255_ranges(tmp_path: Path, gray: np.ndarray) -> None:
     unit = gray.astype(np.float32) / 255.0
     decoded = read_gray(write(tmp_path / "u.tif", unit))
@@ -294,6 +379,16 @@ def test_settings_are_validated(tmp_path: Path) -> None:
         read_gray(tmp_path / "x.png", max_pixels=0)
     with pytest.raises(TypeError, match="path must be a str"):
         read_gray(3)  # type: ignore[arg-type]
+    for bad in (12.0, "12", True, None):
+        with pytest.raises(TypeError, match=r"must be an int from 8 to 16, got .*without quotes"):
+            read_gray(tmp_path / "x.png", sample_bits=bad)  # type: ignore[arg-type]
+    for bad in (0, 7, 17, 32):
+        with pytest.raises(ValueError, match=f"must be from 8 to 16, got {bad}; set it to"):
+            read_gray(tmp_path / "x.png", sample_bits=bad)
+        with pytest.raises(ValueError, match="leave it at 16"):
+            to_gray_uint8(np.zeros((4, 4), np.uint16), sample_bits=bad)
+    ok = write(tmp_path / "ok.png", np.zeros((8, 8), np.uint8))
+    assert read_gray(ok, sample_bits=np.int64(8)).image.shape == (8, 8)
     assert_frame_error(Path("nul\x00byte.png"), "cannot be read")
 
 

@@ -12,7 +12,7 @@ import pytest
 from pipeline.camera import Camera
 from pipeline.errors import FrameError, ParamError
 from pipeline.stage import FrameContext
-from stages._imageio import DEFAULT_MAX_PIXELS
+from stages._imageio import DEFAULT_MAX_PIXELS, DEFAULT_SAMPLE_BITS
 from stages.ingest import STAGE, check_pair_shapes, run_ingest
 
 CAMERA = Camera(focal_px=400.0, baseline_m=0.1)
@@ -114,7 +114,7 @@ def test_bad_file_fails_the_frame_naming_it(
 
 
 def test_max_pixels_param(tmp_path: Path, pair: tuple[np.ndarray, np.ndarray]) -> None:
-    assert STAGE.defaults() == {"max_pixels": DEFAULT_MAX_PIXELS}
+    assert STAGE.defaults() == {"max_pixels": DEFAULT_MAX_PIXELS, "sample_bits": 16}
     left = write(tmp_path / "l.png", pair[0])
     right = write(tmp_path / "r.png", pair[1])
     with pytest.raises(
@@ -124,6 +124,68 @@ def test_max_pixels_param(tmp_path: Path, pair: tuple[np.ndarray, np.ndarray]) -
     assert ingest(context(left, right), max_pixels=4800).arrays["left"].shape == (60, 80)
     with pytest.raises(ParamError):
         STAGE.resolve_params({"max_pixels": 0})
+
+
+def twelve_bit(image: np.ndarray) -> np.ndarray:
+    """8-bit gray levels as the 12-bit samples of a camera (0 -> 0, 255 -> 4095)."""
+    return image.astype(np.uint16) * 16 + image.astype(np.uint16) // 16
+
+
+@pytest.mark.parametrize("extension", [".png", ".tif"])
+def test_sample_bits_param_reads_12bit_pairs_at_full_range(
+    tmp_path: Path, pair: tuple[np.ndarray, np.ndarray], extension: str
+) -> None:
+    left = write(tmp_path / f"l{extension}", twelve_bit(pair[0]))
+    right = write(tmp_path / f"r{extension}", twelve_bit(pair[1]))
+    result = ingest(context(left, right), sample_bits=12)
+    np.testing.assert_array_equal(result.arrays["left"], pair[0])
+    np.testing.assert_array_equal(result.arrays["right"], pair[1])
+    assert len(result.notes) == 1
+    assert result.notes[0].startswith("left and right: 16-bit samples with 12 significant bits")
+    dark = ingest(context(left, right))  # the default reads them as 16-bit data: dark
+    assert int(dark.arrays["left"].max()) <= 15
+    assert "set ingest.sample_bits = 12" in dark.notes[0]
+
+
+def test_sample_bits_out_of_range_samples_are_clipped_and_noted_per_file(
+    tmp_path: Path, pair: tuple[np.ndarray, np.ndarray]
+) -> None:
+    hot = twelve_bit(pair[0])
+    hot[:2, :3] = 5000  # a 13-bit value: the setting is wrong for this file
+    left = write(tmp_path / "l.png", hot)
+    right = write(tmp_path / "r.png", twelve_bit(pair[1]))
+    result = ingest(context(left, right), sample_bits=12)
+    assert (result.arrays["left"][:2, :3] == 255).all()
+    np.testing.assert_array_equal(result.arrays["left"][2:], pair[0][2:])
+    clipped = [note for note in result.notes if "clipped" in note]
+    assert len(clipped) == 1 and clipped[0].startswith(f"left: 6 samples of {left} ")
+    assert "set ingest.sample_bits = 13" in clipped[0]
+
+
+@pytest.mark.parametrize(
+    ("value", "error", "fragment"),
+    [
+        (7, ParamError, "must be from 8 to 16, got 7"),
+        (17, ParamError, "leave it at 16"),
+        ("12", ParamError, "expects int, got str '12'"),
+        (12.0, ParamError, "expects int, got float 12.0"),
+        (True, ParamError, "expects int, got bool True"),
+    ],
+)
+def test_sample_bits_param_is_validated(value: object, error: type, fragment: str) -> None:
+    with pytest.raises(error, match=fragment):
+        STAGE.resolve_params({"sample_bits": value})
+    assert STAGE.resolve_params({"sample_bits": 8})["sample_bits"] == 8
+    assert STAGE.resolve_params({})["sample_bits"] == DEFAULT_SAMPLE_BITS == 16
+
+
+def test_sample_bits_at_its_default_is_left_out_of_the_cache_key() -> None:
+    default = STAGE.resolve_params({})
+    assert STAGE.key_params(default) == {"max_pixels": DEFAULT_MAX_PIXELS}
+    assert STAGE.key_params(STAGE.resolve_params({"sample_bits": 16})) == STAGE.key_params(
+        default
+    )
+    assert STAGE.key_params(STAGE.resolve_params({"sample_bits": 12}))["sample_bits"] == 12
 
 
 def test_stage_declaration() -> None:

@@ -1,0 +1,5 @@
+"""Fake blend stage."""
+
+from arroyo_fake_stages.blend import STAGE
+
+__all__ = ["STAGE"]
