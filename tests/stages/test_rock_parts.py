@@ -394,3 +394,39 @@ def test_join_grown_pieces_leaves_two_rocks_side_by_side_apart():
     assert count == 0
     joined, count = join_grown_pieces(labels, np.abs(contrast), gap_px=0)
     assert count == 0
+
+
+def _lit_half_with_a_shaded_face(face):
+    """A disk's lit left half (object 1, contrast 2) and its shaded right half plus a strip
+    of cast shadow below it (contrast ``face``): the object and the face it would grow."""
+    shape = (40, 50)
+    rock = disk(shape, 20, 20, 10)
+    yy, xx = np.mgrid[: shape[0], : shape[1]]
+    lit = rock & (xx < 20)
+    shadow = (xx >= 23) & (xx < 27) & (yy >= 28) & (yy < 36) & ~rock
+    contrast = np.zeros(shape, np.float32)
+    contrast[lit] = 2.0
+    contrast[(rock & ~lit) | shadow] = face
+    return lit.astype(np.int32), contrast, rock | shadow
+
+
+def test_grow_weak_halves_lets_a_face_past_the_threshold_lose_more_solidity():
+    # lava_0000 object 40 (rock 20, IoU 0.40): the lit face's shaded face lies past the low
+    # threshold, but with the cast shadow beside it the union is 0.06-0.09 less solid and
+    # R7c's 0.02 kept the lit face alone
+    labels, contrast, whole = _lit_half_with_a_shaded_face(-1.5)
+    settings = dict(between=labels == 0, min_contrast=0.5, opposite=True, min_gain=0.2)
+    grown, count = grow_weak_halves(labels, contrast, **settings)
+    assert count == 0
+    grown, count = grow_weak_halves(labels, contrast, past_share=0.3, past_slack=0.15, **settings)
+    assert count > 0 and np.array_equal(grown > 0, whole)
+    # the same shape half a band out (ground texture, not a face) stays held to 0.02
+    labels, contrast, _ = _lit_half_with_a_shaded_face(-0.7)
+    grown, count = grow_weak_halves(labels, contrast, past_share=0.3, past_slack=0.15, **settings)
+    assert count == 0
+    # grow_other_faces uses the looser test
+    labels, contrast, whole = _lit_half_with_a_shaded_face(-1.5)
+    grown, count = grow_other_faces(labels, contrast)
+    assert count > 0 and np.array_equal(grown > 0, whole)
+    with pytest.raises(ValueError, match="past_share"):
+        grow_weak_halves(labels, contrast, between=labels == 0, past_share=1.5)
