@@ -1,10 +1,10 @@
-"""Rules R6-R7c, R7i and R7h: objects made whole rocks -- attached shadows off, halves,
-faces and pieces on.
+"""Rules R6-R7c and R7h: objects made whole rocks -- attached shadows off, halves, faces
+and pieces on.
 
 They act on labelled objects (:func:`stages._regions.label_objects`) after R5-R5c (streaks,
 ripple fields, :mod:`stages._texture_rules`); the outline rules R4b (necks, right after R4)
 and R7d (faint rims, after R7c) are in :mod:`stages._outlines`; R7h acts last, after R7f
-(:mod:`stages._height_grow`), R7i and R7h in that order:
+(:mod:`stages._height_grow`):
 
 * **R6 attached shadows** -- a cast shadow touching a dark rock is dark too, so intensity
   keeps it as rock; where depth cannot tell (a shadow lies on the ground, but noisy heights
@@ -151,41 +151,6 @@ and R7d (faint rims, after R7c) are in :mod:`stages._outlines`; R7h acts last, a
   solidity instead gained nothing (segment v38: lava's catalog 0.839-0.840). Letting the
   growth cross one pixel of the terminator first (a front through pixels within half a
   band) gained 2 rocks on lava's catalog (segment v38), two pixels lost 16.
-* **R7i sunward faces** -- under lava's low sun (elevation 20-35 degrees) a dark rock is
-  often found as its shaded face with its cast shadow beside it, both well past the low
-  threshold, while its lit face, toward the sun, is only 0.4-0.9 bands darker than the
-  ground: R7 (0.7 bands) takes part of it and the solidity test then drops the ragged
-  growth. Of the 59 false objects on missed lava rocks (``benchmarks/bench_misses.py
-  runs/eval/lava``, segment v38) about 13 were dark objects covering part of their rock
-  with the missed part darker than the ground (``benchmarks/bench_false_outlines.py``:
-  missed parts' median contrast -0.4 to -0.9 bands; lava_0004 object 36 on rock 27, lava_0003
-  objects 17 and 19 on rock 66). Lowering R7's band everywhere does not help (``--set
-  weak_bands=0.5``: lava's catalog 0.840 -> 0.838): ground texture lies on every side.
-  A rock's lit face lies on one side: toward the sun from its shaded face. So after R7f,
-  where the frame's sun direction is known (:func:`stages._sun_shadows.
-  anti_sun_direction`), each dark object grows -- up to ``weak_growth_px`` (12) steps, as
-  R7 -- into pixels past neither threshold at least ``sunward_bands`` (0.4) bands darker
-  than the ground; the pieces of the growth whose centroid lies more than 60 degrees from
-  the direction toward the sun (seen from the object's centroid) are dropped, and the rest
-  is kept when the solidity drops by no more than R7's 0.02 (:func:`grow_sunward_faces`).
-  With ``bench_segment.py --rundir`` (after R7h and R7c's share test; ``--set
-  sunward_bands=0`` for the old rules) object F1: lava's catalog 0.848 -> 0.852 (4 rocks
-  found, lava_0003 rock 66, lava_0004 rock 27, lava_0006 rock 8, lava_0011 rock 11; 2 lost,
-  48 and 43 px), seeds 2-5 0.852 -> 0.853, 0.846 -> 0.849, 0.834 -> 0.839, 0.854 -> 0.853;
-  mojave's catalog 0.920, seeds 3 and 4 0.908 and 0.902 unchanged, seed 2 0.918 -> 0.921,
-  seed 5 0.899 -> 0.905 (two far rocks found); lab (catalog, seeds 2, 3) and dunes
-  (catalog, seeds 2, 3, 4, 5, 7, 11; no sun direction) unchanged. 0.3 bands gained less
-  (catalog 0.849, seed 2 0.850), 0.5 less (0.851, 0.852); 90 degrees the catalog 0.849,
-  seed 2 0.855; a solidity slack of 0.05 (at 0.5 bands) or 0.1 gained less (catalog 0.851
-  and 0.849). The cost is in the near rocks' size class: rocks within 2 m
-  (``bench_describe.py --rundir DIR --labels segment``, ``--set segment.sunward_bands=0``
-  for the old rules), class and median width error: lava's catalog 0.958 -> 0.950 (119 ->
-  121 near rocks matched, one more right and one more wrong), 9.4 % unchanged; seeds 2-5
-  0.901 -> 0.910, 0.955 -> 0.947, 0.905 -> 0.907, 0.927 -> 0.917 (lava_0010 rock 6, its
-  width unchanged, sample -> obstacle) and 9.4 -> 9.7, 13.8 -> 13.9, 10.7 -> 10.1, 11.2 %
-  unchanged; mojave's catalog 0.956, 7.6 -> 8.3 %, seeds unchanged in class, seed 5 9.5 ->
-  9.1 %; lab unchanged. Growth of at most 6 steps instead of 12: lava's catalog 0.854, seed
-  2 0.855, near class 0.951 and seed 5 0.908.
 * **R7h grown pieces** -- a large near rock whose gray levels wander across the ground's
   (lit facets, shaded ones, blotches of its own texture) is often found as two or three
   objects of one side, each grown by R7, R7c and R7f until they touch along a seam; each
@@ -261,11 +226,6 @@ _JOIN_GAP_PX = 5
 # ... facing each other over at least sqrt(area of the smaller) pixels, joined when the
 # union (gap closed) is at most this much less solid than the more solid half.
 _JOIN_SOLIDITY_SLACK = 0.05
-# R7i: after R7f, dark objects grow toward the sun into pixels this many bands darker than
-# the ground ...
-_SUNWARD_CONTRAST = 0.4
-# ... keeping the pieces of the growth at most this far (degrees) from the sun's direction
-_SUNWARD_SIDE_DEG = 60.0
 # R7h: after R7f, objects of either side this close (pixels) are candidate pieces of one
 # rock ...
 _PIECE_GAP_PX = 2
@@ -278,7 +238,6 @@ __all__ = [
     "grow_weak_halves",
     "join_opposite_halves",
     "grow_other_faces",
-    "grow_sunward_faces",
     "join_grown_pieces",
 ]
 
@@ -375,7 +334,6 @@ def grow_weak_halves(
     max_side_deg: float = 180.0,
     past_share: float = 1.0,
     past_slack: float = 0.0,
-    toward_sun: bool = False,
 ) -> tuple[np.ndarray, int]:
     """Rule R7: grow objects into the weak pixels of their own side, if they grow compact.
 
@@ -416,10 +374,6 @@ def grow_weak_halves(
         a threshold (contrast at least 1 band out) may lower the solidity by up to
         ``past_slack`` instead of ``solidity_slack`` (R7c: 0.3 and 0.15); a ``past_slack``
         not above ``solidity_slack`` leaves the test as it is.
-    toward_sun : bool
-        Rule R7i (:func:`grow_sunward_faces`): only dark objects grow (into pixels of their
-        own side), and with ``anti_sun`` the pieces of a growth more than ``max_side_deg``
-        from the direction toward the sun are dropped (a dark rock's lit face).
 
     Returns
     -------
@@ -449,7 +403,7 @@ def grow_weak_halves(
         anti_sun = np.asarray(anti_sun, dtype=np.float64)
         if anti_sun.shape != (2,):
             raise ValueError(f"anti_sun must be a (2,) vector, got shape {anti_sun.shape}")
-    side_test = (opposite or toward_sun) and anti_sun is not None and max_side_deg < 180
+    side_test = opposite and anti_sun is not None and max_side_deg < 180
     count = int(labels.max())
     if count == 0 or max_steps == 0:
         return labels, 0
@@ -462,8 +416,6 @@ def grow_weak_halves(
     dark_ids = _lookup(np.where(dark_object, np.arange(count + 1), 0).astype(ids_dtype), labels)
     fronts = {True: dark_ids, False: labels.astype(ids_dtype) - dark_ids}
     for dark, front in fronts.items():
-        if toward_sun and not dark:
-            continue
         weak = (contrast < -min_contrast) if dark != opposite else (contrast > min_contrast)
         weak &= between & background
         # where two objects of one side reach a pixel at once, the higher id takes it
@@ -478,8 +430,7 @@ def grow_weak_halves(
         after = out[window] == k
         if side_test:
             assert anti_sun is not None  # for mypy: side_test says so
-            # a lit face lies toward the sun from its shaded face, a shaded face away (R7i:
-            # a dark object's own-side growth, its lit face, toward the sun too)
+            # a lit face lies toward the sun from its shaded face, a shaded face away
             side = -anti_sun if dark_object[k] else anti_sun
             wrong = _off_side_pieces(before, after & ~before, side, max_side_deg)
             if wrong.any():
@@ -718,66 +669,6 @@ def join_opposite_halves(
         return labels, 0
     roots = np.array([root(k) for k in range(count + 1)])
     return _renumber(_lookup(roots, out), 1), joined
-
-
-def grow_sunward_faces(
-    labels: np.ndarray,
-    contrast: np.ndarray,
-    *,
-    between: np.ndarray,
-    min_contrast: float = _SUNWARD_CONTRAST,
-    max_steps: int = _WEAK_STEPS,
-    max_side_deg: float = _SUNWARD_SIDE_DEG,
-) -> tuple[np.ndarray, int]:
-    """Rule R7i: grow dark objects over their rock's faint lit face, toward the sun.
-
-    :func:`grow_weak_halves` of the dark objects alone into pixels past neither threshold
-    at least ``min_contrast`` bands darker than the ground, each 8-connected piece of the
-    growth kept only when its centroid, seen from the object's, lies at most
-    ``max_side_deg`` from the direction toward the sun
-    (:func:`stages._sun_shadows.anti_sun_direction` of ``labels``), then R7's tests (the
-    solidity drops by no more than ``_WEAK_SOLIDITY_SLACK``). Nothing changes where the
-    frame does not say where its sun is.
-
-    Parameters
-    ----------
-    labels : (M, N) ndarray of int32
-        0 background, 1..n objects.
-    contrast : (M, N) ndarray of float
-        Gray-level distance from the ground level in threshold bands.
-    between : (M, N) ndarray of bool
-        Pixels past neither threshold: the only ones an object may take.
-    min_contrast : float
-        ``> 0`` bands.
-    max_steps : int
-        ``>= 0`` 8-connected steps; 0 disables.
-    max_side_deg : float
-        In ``(0, 180)`` degrees.
-
-    Returns
-    -------
-    labels : (M, N) ndarray of int32
-        Same ids.
-    grown : int
-        Pixels added.
-    """
-    if not 0 < max_side_deg < 180:
-        raise ValueError(f"max_side_deg must be in (0, 180) degrees, got {max_side_deg}")
-    if max_steps == 0 or labels.max() == 0:
-        return labels, 0
-    anti_sun = anti_sun_direction(labels, contrast)
-    if anti_sun is None:
-        return labels, 0
-    return grow_weak_halves(
-        labels,
-        contrast,
-        between=between,
-        min_contrast=min_contrast,
-        max_steps=max_steps,
-        anti_sun=anti_sun,
-        max_side_deg=max_side_deg,
-        toward_sun=True,
-    )
 
 
 def join_grown_pieces(

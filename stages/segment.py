@@ -19,7 +19,7 @@ above the fitted ground plane) and ``disparity`` (rules R0-R3 in :mod:`stages._d
 and :mod:`stages._height_vote`, R4 in :mod:`stages._regions`, R5-R5d in
 :mod:`stages._texture_rules`, R6-R7c in :mod:`stages._rock_parts`, R6b and R7g in
 :mod:`stages._sun_shadows`, R4b and R7d in :mod:`stages._outlines`, R7e in
-:mod:`stages._shadow_sides`, R7f in :mod:`stages._height_grow`, R7i and R7h in
+:mod:`stages._shadow_sides`, R7f in :mod:`stages._height_grow`, R7h in
 :mod:`stages._rock_parts`, R8 in :mod:`stages._blobs`,
 R8b in :mod:`stages._height_blobs`, R8c in :mod:`stages._two_face_blobs`):
 raised pixels are object even when their gray equals the ground's, flat intensity objects
@@ -79,7 +79,6 @@ from ._outlines import split_at_necks, trim_faint_rims
 from ._regions import depth_edges, label_objects, threshold_mask
 from ._rock_parts import (
     grow_other_faces,
-    grow_sunward_faces,
     grow_weak_halves,
     join_grown_pieces,
     join_opposite_halves,
@@ -180,7 +179,6 @@ def segment_image(
     weak_growth_px: int = 12,
     join_gap_px: int = 5,
     piece_gap_px: int = 2,
-    sunward_bands: float = 0.4,
     face_bands: float = 0.5,
     face_side_deg: float = 105.0,
     join_side_deg: float = 60.0,
@@ -260,11 +258,6 @@ def segment_image(
         Depth method only, ``>= 0``: after R7f, two objects of either side this close,
         facing each other, are joined when their union is at most 0.02 less solid than the
         more solid (rule R7h of :mod:`stages._rock_parts`); 0 disables.
-    sunward_bands : float
-        Depth method only, ``>= 0``: after R7f, where the frame's sun direction is known,
-        dark objects grow up to ``weak_growth_px`` pixels toward the sun into pixels past
-        neither threshold but this many bands darker than the ground, when they stay as
-        solid (rule R7i of :mod:`stages._rock_parts`); 0 disables.
     off_side_deg : float
         Depth method only, in ``[0, 180]`` degrees: after R7d, where the frame's sun
         direction is known, an object's pieces past the other side's threshold lying more
@@ -374,11 +367,8 @@ def segment_image(
             "weak_bands, weak_growth_px, join_gap_px and face_bands must be >= 0 (0 disables), "
             f"got {weak_bands}, {weak_growth_px}, {join_gap_px} and {face_bands}"
         )
-    if piece_gap_px < 0 or not sunward_bands >= 0:
-        raise ValueError(
-            "piece_gap_px and sunward_bands must be >= 0 (0 disables), got "
-            f"{piece_gap_px} and {sunward_bands}"
-        )
+    if piece_gap_px < 0:
+        raise ValueError(f"piece_gap_px must be >= 0 (0 disables), got {piece_gap_px}")
     shape = image.shape
     if histograms is None:
         histograms = sector_histograms(image, sectors=sectors)
@@ -589,14 +579,6 @@ def segment_image(
         )
         if raised:
             notes.append(f"{raised} px of raised rock joined to partial objects")
-    if contrast is not None and sunward_bands > 0 and weak_growth_px > 0:
-        # R7i, after R7f: a dark rock's faint lit face, on the sun's side of its shaded face
-        # and cast shadow
-        labels, sunward = grow_sunward_faces(
-            labels, contrast, between=~strong, min_contrast=sunward_bands, max_steps=weak_growth_px
-        )
-        if sunward:
-            notes.append(f"{sunward} px of faint lit faces joined to dark objects")
     if contrast is not None and piece_gap_px > 0:
         # R7h, after R7f (whose growth brings the pieces of a large rock together) and before
         # R8-R8c (which add only blobs no object touches)
@@ -942,15 +924,6 @@ STAGE = Stage(
             None,
             0,
             50,
-        ),
-        Param(
-            "sunward_bands",
-            float,
-            0.4,
-            "depth: after R7f, dark objects grow toward the sun into pixels this many bands "
-            "dark; 0 = off",
-            None,
-            0,
         ),
         Param(
             "face_bands",

@@ -1,5 +1,5 @@
 """Tests of stages/_rock_parts.py: attached shadows (R6), weak halves (R7), opposite halves
-(R7b), other faces (R7c), sunward faces (R7i), grown pieces (R7h)."""
+(R7b), other faces (R7c), grown pieces (R7h)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,6 @@ from stages._regions import _label_sums
 from stages._rock_parts import (
     _coordinate_sums,
     grow_other_faces,
-    grow_sunward_faces,
     grow_weak_halves,
     join_grown_pieces,
     join_opposite_halves,
@@ -431,41 +430,3 @@ def test_grow_weak_halves_lets_a_face_past_the_threshold_lose_more_solidity():
     assert count > 0 and np.array_equal(grown > 0, whole)
     with pytest.raises(ValueError, match="past_share"):
         grow_weak_halves(labels, contrast, between=labels == 0, past_share=1.5)
-
-
-def _dark_rock_under_a_sun(faint_side: int, core: float = -2.0):
-    """:func:`_sunlit_frame`'s three lit rocks (a sun from the left) and a disk whose half
-    (object 4, contrast ``core``) was found and whose other half, contrast -0.6 (past
-    neither threshold), lies on its ``faint_side`` (-1: left, toward the sun)."""
-    labels, contrast, rock, _ = _sunlit_frame(+1)
-    labels[labels == 4] = 0
-    on_left = np.arange(labels.shape[1])[None, :] < 60
-    faint = rock & (on_left if faint_side < 0 else ~on_left)
-    labels[rock & ~faint] = 4
-    contrast[rock & ~faint] = core
-    contrast[faint] = -0.6 if core < 0 else 0.6
-    return labels, contrast, rock, faint
-
-
-def test_grow_sunward_faces_takes_a_dark_rocks_faint_lit_face_toward_the_sun_only():
-    # lava_0004 object 36 (rock 27, IoU 0.28): a dark rock's shaded face and cast shadow
-    # were the object, its lit face, 0.6-0.9 bands darker than the ground, toward the sun
-    labels, contrast, rock, faint = _dark_rock_under_a_sun(-1)
-    between = np.abs(contrast) < 1
-    grown, count = grow_sunward_faces(labels, contrast, between=between)
-    assert np.array_equal(grown == 4, rock) and count == np.count_nonzero(faint)
-    # the faint half away from the sun (a cast shadow's fringe): left alone
-    labels, contrast, rock, faint = _dark_rock_under_a_sun(+1)
-    grown, count = grow_sunward_faces(labels, contrast, between=np.abs(contrast) < 1)
-    assert count == 0 and np.array_equal(grown, labels)
-    # a light object's faint half: R7's, not this rule's
-    labels, contrast, rock, faint = _dark_rock_under_a_sun(-1, core=2.0)
-    grown, count = grow_sunward_faces(labels, contrast, between=np.abs(contrast) < 1)
-    assert count == 0
-    # no sun direction (the lit pairs gone): nothing
-    labels, contrast, rock, faint = _dark_rock_under_a_sun(-1)
-    labels[labels < 4] = 0
-    grown, count = grow_sunward_faces(labels, contrast, between=np.abs(contrast) < 1)
-    assert count == 0 and np.array_equal(grown, labels)
-    with pytest.raises(ValueError, match="max_side_deg"):
-        grow_sunward_faces(labels, contrast, between=between, max_side_deg=180)
