@@ -19,7 +19,8 @@ above the fitted ground plane) and ``disparity`` (rules R0-R3 in :mod:`stages._d
 and :mod:`stages._height_vote`, R4 in :mod:`stages._regions`, R5-R5d in
 :mod:`stages._texture_rules`, R6-R7c in :mod:`stages._rock_parts`, R6b and R7g in
 :mod:`stages._sun_shadows`, R4b and R7d in :mod:`stages._outlines`, R7e in
-:mod:`stages._shadow_sides`, R7f in :mod:`stages._height_grow`, R8 in :mod:`stages._blobs`,
+:mod:`stages._shadow_sides`, R7f in :mod:`stages._height_grow`, R7h in
+:mod:`stages._rock_parts`, R8 in :mod:`stages._blobs`,
 R8b in :mod:`stages._height_blobs`, R8c in :mod:`stages._two_face_blobs`):
 raised pixels are object even when their gray equals the ground's, flat intensity objects
 (shadows, stains, texture blotches) are background, touching objects split at disparity
@@ -79,6 +80,7 @@ from ._regions import depth_edges, label_objects, threshold_mask
 from ._rock_parts import (
     grow_other_faces,
     grow_weak_halves,
+    join_grown_pieces,
     join_opposite_halves,
     trim_attached_shadows,
 )
@@ -176,6 +178,7 @@ def segment_image(
     weak_bands: float = 0.7,
     weak_growth_px: int = 12,
     join_gap_px: int = 5,
+    piece_gap_px: int = 2,
     face_bands: float = 0.5,
     face_side_deg: float = 105.0,
     join_side_deg: float = 60.0,
@@ -249,7 +252,12 @@ def segment_image(
         Depth method only, in ``[0, 180]`` degrees: where the frame's sun direction is known
         (rule R6b), R7b joins a lighter and a darker object only when the darker one lies
         at most this far from the direction away from the sun, seen from the lighter one
-        (rule R7b of :mod:`stages._rock_parts`); 0 or 180 disables the test.
+        (rule R7b of :mod:`stages._rock_parts`; R7h's pairs of opposite sides too); 0 or
+        180 disables the test.
+    piece_gap_px : int
+        Depth method only, ``>= 0``: after R7f, two objects of either side this close,
+        facing each other, are joined when their union is at most 0.02 less solid than the
+        more solid (rule R7h of :mod:`stages._rock_parts`); 0 disables.
     off_side_deg : float
         Depth method only, in ``[0, 180]`` degrees: after R7d, where the frame's sun
         direction is known, an object's pieces past the other side's threshold lying more
@@ -359,6 +367,8 @@ def segment_image(
             "weak_bands, weak_growth_px, join_gap_px and face_bands must be >= 0 (0 disables), "
             f"got {weak_bands}, {weak_growth_px}, {join_gap_px} and {face_bands}"
         )
+    if piece_gap_px < 0:
+        raise ValueError(f"piece_gap_px must be >= 0 (0 disables), got {piece_gap_px}")
     shape = image.shape
     if histograms is None:
         histograms = sector_histograms(image, sectors=sectors)
@@ -569,6 +579,17 @@ def segment_image(
         )
         if raised:
             notes.append(f"{raised} px of raised rock joined to partial objects")
+    if contrast is not None and piece_gap_px > 0:
+        # R7h, after R7f (whose growth brings the pieces of a large rock together) and before
+        # R8-R8c (which add only blobs no object touches)
+        labels, pieces = join_grown_pieces(
+            labels,
+            contrast,
+            gap_px=piece_gap_px,
+            max_side_deg=join_side_deg if 0 < join_side_deg < 180 else 180.0,
+        )
+        if pieces:
+            notes.append(f"{pieces} pair(s) of touching pieces of one rock joined")
     run_r8 = method == "sector-histogram+depth" and blob_sigmas > 0
     run_r8b = relative is not None and heights_usable and height_blob_sigmas > 0
     run_r8c = method == "sector-histogram+depth" and two_face_sigmas > 0
@@ -793,7 +814,7 @@ def _sector_product(name: str, dtype: str, long_name: str, units: str = "") -> P
 
 STAGE = Stage(
     name="segment",
-    version="38",
+    version="39",
     inputs=("left", "right", "disparity", "height"),
     outputs=(
         Product(
@@ -891,6 +912,15 @@ STAGE = Stage(
             int,
             5,
             "depth: lighter and darker halves this close may join; 0 = off",
+            None,
+            0,
+            50,
+        ),
+        Param(
+            "piece_gap_px",
+            int,
+            2,
+            "depth: after R7f, pieces this close join when their union is as solid; 0 = off",
             None,
             0,
             50,

@@ -1,5 +1,5 @@
 """Tests of stages/_rock_parts.py: attached shadows (R6), weak halves (R7), opposite halves
-(R7b), other faces (R7c)."""
+(R7b), other faces (R7c), grown pieces (R7h)."""
 
 from __future__ import annotations
 
@@ -12,6 +12,7 @@ from stages._rock_parts import (
     _coordinate_sums,
     grow_other_faces,
     grow_weak_halves,
+    join_grown_pieces,
     join_opposite_halves,
     trim_attached_shadows,
 )
@@ -351,3 +352,81 @@ def test_coordinate_sums_equal_label_sums_of_the_index_maps():
         for axis, at in enumerate((rows_at, cols_at)):
             twin = _label_sums(labels, at.astype(np.float64), count)[1]
             np.testing.assert_array_equal(sums[axis], twin)
+
+
+def test_join_grown_pieces_makes_one_rock_of_two_touching_pieces_of_one_side():
+    # lava_0005 rock 2 (1444 px): two dark objects that R7 and R7f grew until they touched,
+    # IoU 0.26 and 0.36 apart, 0.58 as one
+    rock, labels, contrast = two_halves(gap=0)
+    dark = -np.abs(contrast) - (labels > 0)
+    joined, count = join_grown_pieces(labels, dark)
+    assert count == 1 and set(np.unique(joined)) == {0, 1}
+    np.testing.assert_array_equal(joined > 0, rock)
+    # R7b alone leaves pieces of one side apart
+    joined, count = join_opposite_halves(labels, dark, gap_px=2)
+    assert count == 0 and np.array_equal(joined, labels)
+
+
+def test_join_grown_pieces_leaves_two_rocks_side_by_side_apart():
+    # two rocks touching at a point: no seam to face each other over
+    shape = (40, 70)
+    labels = disk(shape, 20, 20, 10).astype(np.int32) + 2 * disk(shape, 20, 40, 10)
+    labels[labels == 3] = 2
+    contrast = np.where(labels > 0, np.float32(-2.0), np.float32(0.0))
+    joined, count = join_grown_pieces(labels, contrast)
+    assert count == 0 and np.array_equal(joined, labels)
+    # two rocks meeting over a long seam in an L: the union is far less solid than either
+    labels = np.zeros((50, 50), np.int32)
+    labels[10:20, 10:41] = 1
+    labels[20:41, 10:20] = 2
+    contrast = np.where(labels > 0, np.float32(2.0), np.float32(0.0))
+    joined, count = join_grown_pieces(labels, contrast)
+    assert count == 0 and np.array_equal(joined, labels)
+    # the second one moved to the end of the first: one straight bar, pieces of one rock
+    labels[20:41, 10:20] = 0
+    labels[10:20, 41:50] = 2
+    contrast = np.where(labels > 0, np.float32(2.0), np.float32(0.0))
+    joined, count = join_grown_pieces(labels, contrast)
+    assert count == 1 and np.array_equal(joined > 0, labels > 0)
+    # two pieces farther apart than the gap
+    rock, labels, contrast = two_halves(gap=4)
+    joined, count = join_grown_pieces(labels, np.abs(contrast), gap_px=2)
+    assert count == 0
+    joined, count = join_grown_pieces(labels, np.abs(contrast), gap_px=0)
+    assert count == 0
+
+
+def _lit_half_with_a_shaded_face(face):
+    """A disk's lit left half (object 1, contrast 2) and its shaded right half plus a strip
+    of cast shadow below it (contrast ``face``): the object and the face it would grow."""
+    shape = (40, 50)
+    rock = disk(shape, 20, 20, 10)
+    yy, xx = np.mgrid[: shape[0], : shape[1]]
+    lit = rock & (xx < 20)
+    shadow = (xx >= 23) & (xx < 27) & (yy >= 28) & (yy < 36) & ~rock
+    contrast = np.zeros(shape, np.float32)
+    contrast[lit] = 2.0
+    contrast[(rock & ~lit) | shadow] = face
+    return lit.astype(np.int32), contrast, rock | shadow
+
+
+def test_grow_weak_halves_lets_a_face_past_the_threshold_lose_more_solidity():
+    # lava_0000 object 40 (rock 20, IoU 0.40): the lit face's shaded face lies past the low
+    # threshold, but with the cast shadow beside it the union is 0.06-0.09 less solid and
+    # R7c's 0.02 kept the lit face alone
+    labels, contrast, whole = _lit_half_with_a_shaded_face(-1.5)
+    settings = dict(between=labels == 0, min_contrast=0.5, opposite=True, min_gain=0.2)
+    grown, count = grow_weak_halves(labels, contrast, **settings)
+    assert count == 0
+    grown, count = grow_weak_halves(labels, contrast, past_share=0.3, past_slack=0.15, **settings)
+    assert count > 0 and np.array_equal(grown > 0, whole)
+    # the same shape half a band out (ground texture, not a face) stays held to 0.02
+    labels, contrast, _ = _lit_half_with_a_shaded_face(-0.7)
+    grown, count = grow_weak_halves(labels, contrast, past_share=0.3, past_slack=0.15, **settings)
+    assert count == 0
+    # grow_other_faces uses the looser test
+    labels, contrast, whole = _lit_half_with_a_shaded_face(-1.5)
+    grown, count = grow_other_faces(labels, contrast)
+    assert count > 0 and np.array_equal(grown > 0, whole)
+    with pytest.raises(ValueError, match="past_share"):
+        grow_weak_halves(labels, contrast, between=labels == 0, past_share=1.5)
