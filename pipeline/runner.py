@@ -236,7 +236,8 @@ def _prepare_store(plan: RunPlan, state: RunState) -> dict[str, tuple[tuple[int,
                 arrays[product.name] = (
                     product,
                     shape,
-                    stage_attrs(plan, stage.name, product.attrs),
+                    # written on every run: the residual's attrs follow its reference camera
+                    stage_attrs(plan, stage.name, product.resolved_attrs(plan.catalog.camera)),
                 )
     frame_ids = [f.frame_id for f in plan.catalog.frames]
     try:
