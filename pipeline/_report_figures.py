@@ -20,6 +20,7 @@ from .store import read_product_file
 
 __all__ = [
     "QUICKLOOKS",
+    "quicklook_caption",
     "size_frequency_png",
     "histograms_png",
     "top_view_png",
@@ -42,6 +43,16 @@ QUICKLOOKS = {
     "range_contours": "contours of equal range",
     "residual": "left − right | left − pseudo-left",
 }
+
+
+def quicklook_caption(name: str, reference: str) -> str:
+    """The caption of quicklook ``name``; the residual's names the ``reference`` camera's
+    roles (right minus pseudo-right when it is ``'left'``)."""
+    if name == "residual":
+        from stages.quicklook import residual_labels
+
+        return " | ".join(residual_labels(reference)).replace(" - ", " − ")
+    return QUICKLOOKS[name]
 _CLASS_COLORS = {"sample": "#1f77b4", "obstacle": "#d62728"}
 _OTHER_COLOR = "#7f7f7f"
 _REFERENCE_K = (0.05, 0.1, 0.2)
@@ -302,7 +313,7 @@ def frame_quicklooks(
         ),
         "residual": (
             ("left", "right", "residual"),
-            lambda a: residual_image(a["left"], a["right"], a["residual"]),
+            lambda a: residual_image(a["left"], a["right"], a["residual"], reference=reference),
         ),
     }
     for name, (inputs, render) in draw.items():

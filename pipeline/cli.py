@@ -48,6 +48,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
     )
     for frame_id, error in sorted(result.failures.items()):
         print(f"  failed {frame_id}: {error}")
+    if result.notes is not None:
+        from .notes import format_notes
+
+        print(format_notes(result.notes, result.rundir), end="")
     return result.exit_code
 
 

@@ -424,7 +424,8 @@ def _frames(run: RunInfo, frames: pa.Table, desc: pa.Table, max_frames: int) -> 
         )
         if images:
             body.append('<div class="quicklooks">')
-            for name, caption in figs.QUICKLOOKS.items():
+            for name in figs.QUICKLOOKS:
+                caption = figs.quicklook_caption(name, reference)
                 if name in images:
                     wide = ' class="wide"' if name == "residual" else ""
                     body.append(

@@ -22,6 +22,7 @@ from .executor import (
 )
 from .journal import Journal, publish, stage_attrs, write_frames_table
 from .lock import RunLock
+from .notes import NotesSummary, run_notes
 from .plan import RunPlan, default_rundir, plan_run, validate_request
 from .provenance import environment, new_run_id, now_iso
 from .stage import FrameContext
@@ -54,6 +55,7 @@ class RunSummary:
     pending: int
     failures: dict[str, str] = field(default_factory=dict)
     seconds: float = 0.0
+    notes: NotesSummary | None = None  # the selected frames' notes (pipeline.notes)
 
     @property
     def exit_code(self) -> int:
@@ -236,7 +238,8 @@ def _prepare_store(plan: RunPlan, state: RunState) -> dict[str, tuple[tuple[int,
                 arrays[product.name] = (
                     product,
                     shape,
-                    stage_attrs(plan, stage.name, product.attrs),
+                    # written on every run: the residual's attrs follow its reference camera
+                    stage_attrs(plan, stage.name, product.resolved_attrs(plan.catalog.camera)),
                 )
     frame_ids = [f.frame_id for f in plan.catalog.frames]
     try:
@@ -442,6 +445,9 @@ def _execute(
         pending=len(selected) - n_done - sum(1 for fid in selected if fid in failures),
         failures={fid: failures[fid][1] for fid in selected if fid in failures},
         seconds=time.monotonic() - t0,
+        # in frames.parquet only, the notes went unseen: 12-bit images that came out dark
+        # made a run that "succeeded" with no rocks
+        notes=run_notes(plan, state),
     )
     meta.update(
         status="stopped" if fatal else ("interrupted" if interrupted else "finished"),

@@ -137,6 +137,10 @@ class Product:
         Value of never-written cells (NaN for floats, 0 otherwise).
     attrs : dict
         ``units``, ``long_name`` and any other attributes recorded in zarr.
+    camera_attrs : callable, optional
+        ``camera_attrs(camera) -> dict`` of attributes that depend on the run's camera
+        (the depth residual's ``long_name`` names the reference camera), applied over
+        ``attrs``; see :meth:`resolved_attrs`.
     schema : pyarrow.Schema, optional
         Column types of a table product (without archive/run_id/frame_id), so that frames
         with zero rows still write typed columns.
@@ -150,6 +154,7 @@ class Product:
     fill_value: Any = None
     attrs: Mapping[str, Any] = field(default_factory=dict)
     schema: Any = None
+    camera_attrs: Callable[[Camera], Mapping[str, Any]] | None = None
 
     def __post_init__(self) -> None:
         if self.kind not in ("array", "table", "files"):
@@ -160,6 +165,13 @@ class Product:
     def frame_shape(self, image_shape: tuple[int, int], params: Mapping[str, Any]) -> tuple:
         """Per-frame shape of an array product."""
         return tuple(self.shape(image_shape, params)) if self.shape else tuple(image_shape)
+
+    def resolved_attrs(self, camera: Camera) -> dict[str, Any]:
+        """``attrs`` with ``camera_attrs(camera)`` applied over them, for this run's camera."""
+        attrs = dict(self.attrs)
+        if self.camera_attrs is not None:
+            attrs.update(self.camera_attrs(camera))
+        return attrs
 
     def resolved_fill(self) -> Any:
         if self.fill_value is not None:

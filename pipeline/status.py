@@ -12,6 +12,7 @@ import pyarrow.parquet as pq
 
 from .errors import RunDirError, RunLockedError
 from .lock import RunLock
+from .notes import NotesSummary, format_notes, summarize_notes
 from .state import STATE_NAME, RunState
 from .store import (
     check_products_reachable,
@@ -37,6 +38,7 @@ class RunStatus:
     verified: bool = False
     products: str = ""  # products root when not the run directory
     reset: bool = True  # whether --verify reset the damaged results (not on a read-only dir)
+    notes: NotesSummary | None = None  # the frames' notes (pipeline.notes)
 
 
 def status(rundir: str | os.PathLike[str], *, verify: bool = False) -> RunStatus:
@@ -61,7 +63,14 @@ def status(rundir: str | os.PathLike[str], *, verify: bool = False) -> RunStatus
             f"{rundir} has no frames.parquet: its run stopped before recording its frames; "
             "rerun `arroyo run CATALOG --out DIR` to resume it"
         )
-    frames_table = pq.read_table(rundir / "frames.parquet", columns=["frame_id", "index"])
+    columns = set(pq.read_schema(rundir / "frames.parquet").names)
+    frames_table = pq.read_table(
+        rundir / "frames.parquet",
+        columns=[c for c in ("frame_id", "index", "left", "right") if c in columns],
+    )
+    image_files = [
+        str(p) for c in ("left", "right") if c in columns for p in frames_table[c].to_pylist()
+    ]
     frame_ids = frames_table["frame_id"].to_pylist()
     index = dict(zip(frame_ids, frames_table["index"].to_pylist(), strict=True))
     stages = list(meta.get("stages", {}))
@@ -109,6 +118,20 @@ def status(rundir: str | os.PathLike[str], *, verify: bool = False) -> RunStatus
             "failed": n_failed,
             "pending": len(frame_ids) - n_done - n_failed,
         }
+    notes = summarize_notes(
+        # the records counted as done above: a failed frame keeps its earlier stages' notes
+        (
+            [
+                (stage, note)
+                for stage in stages
+                if (f, stage) in done and (f, stage) not in stale
+                for note in done[f, stage].notes
+            ]
+            for f in frame_ids
+        ),
+        stages=stages,
+        files=image_files,
+    )
     lock_state = meta.get("status", "?")
     from .lock import lock_holder
 
@@ -130,6 +153,7 @@ def status(rundir: str | os.PathLike[str], *, verify: bool = False) -> RunStatus
         verified=verify,
         reset=reset,
         products=str(meta.get("products") or ""),
+        notes=notes,
     )
 
 
@@ -215,6 +239,9 @@ def format_status(st: RunStatus) -> str:
         lines.append(f"{stage:<12}{row['done']:>8}{row['failed']:>8}{row['pending']:>9}")
     for fid, error in sorted(st.failures.items()):
         lines.append(f"failed {fid}: {error}")
+    if st.notes is not None:
+        text = format_notes(st.notes, st.rundir, running=st.run_state == "running")
+        lines += text.splitlines()
     if st.verified:
         if st.damaged and not st.reset:
             lines.append(

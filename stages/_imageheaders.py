@@ -6,6 +6,11 @@ must reach its ``IEND`` chunk, a JPEG its ``FFD9`` end-of-image marker after the
 TIFF's directory, tag values and strips/tiles must lie inside the file, a PNM or uncompressed
 BMP must hold all its samples. Other known formats (GIF, WebP, BigTIFF...) and text are named
 in the error. Parsing is bounded by the data's length: nothing is allocated from header values.
+
+The header also says how many bits of a sample are significant when the file declares it: a
+PNG's ``sBIT`` chunk, or a 16-bit PGM/PPM's maximum value (4095: 12 bits). Ingest notes a
+16-bit file that declares fewer bits than ``ingest.sample_bits``; it does not decode it
+differently.
 """
 
 from __future__ import annotations
@@ -55,11 +60,22 @@ class ImageHeader:
     format : {'PNG', 'JPEG', 'TIFF', 'PNM', 'BMP'}
     width, height : int
         Pixels, > 0.
+    bit_depth : int
+        Bits per stored sample: 8, or 16 for a 16-bit PNG or PGM/PPM (others: 8, not read).
+    significant_bits : int or None
+        Significant bits per sample the file declares, 1 to ``bit_depth`` (the largest of
+        the colour channels' for a PNG ``sBIT`` chunk); None when it declares none.
+    significant_from : str
+        Where ``significant_bits`` was read, for messages (``"its sBIT chunk"``); empty
+        when None.
     """
 
     format: str
     width: int
     height: int
+    bit_depth: int = 8
+    significant_bits: int | None = None
+    significant_from: str = ""
 
 
 def read_header(data: bytes) -> ImageHeader:
@@ -108,6 +124,8 @@ def _png_header(data: bytes) -> ImageHeader:
     length, kind, width, height = struct.unpack(">I4sII", data[8:24])
     if kind != b"IHDR" or length != 13:
         raise HeaderError("corrupt PNG: the first chunk is not a valid IHDR header")
+    depth, colour = data[24], data[25]
+    significant = None
     position = 8
     while True:
         if position + 8 > len(data):
@@ -119,8 +137,34 @@ def _png_header(data: bytes) -> ImageHeader:
                 "PNG", f"chunk {kind.decode('latin-1')!r} runs past the end of the file"
             )
         if kind == b"IEND":
-            return _size("PNG", width, height)
+            header = _size("PNG", width, height)
+            return ImageHeader(
+                "PNG", header.width, header.height, bit_depth=depth,
+                significant_bits=significant,
+                significant_from="its sBIT chunk" if significant else "",
+            )  # fmt: skip
+        if kind == b"sBIT":
+            significant = _png_significant_bits(data[position + 8 : end - 4], depth, colour)
         position = end
+
+
+# Colour channels (alpha left out) of a PNG colour type, in the order of its sBIT bytes.
+_PNG_COLOUR_CHANNELS = {0: 1, 2: 3, 3: 3, 4: 1, 6: 3}
+
+
+def _png_significant_bits(payload: bytes, depth: int, colour: int) -> int | None:
+    """The largest colour channel's significant bits from an sBIT payload; None when the
+    chunk does not fit the colour type or its values lie outside 1..depth (an ancillary
+    chunk: a bad one is ignored, as decoders do, rather than failing the frame)."""
+    channels = _PNG_COLOUR_CHANNELS.get(colour)
+    # palette images declare against 8 bits, whatever their index depth
+    top = 8 if colour == 3 else depth
+    if channels is None or len(payload) < channels:
+        return None
+    values = payload[:channels]
+    if not all(1 <= v <= top for v in values):
+        return None
+    return max(values)
 
 
 def _jpeg_header(data: bytes) -> ImageHeader:
@@ -231,6 +275,11 @@ def _pnm_header(data: bytes) -> ImageHeader:
     if position >= len(data) or not data[position : position + 1].isspace():
         raise _truncated("PNM", "no pixel data after the header")
     header = _size("PNM", width, height)
+    if maxval > 255:
+        header = ImageHeader(
+            "PNM", width, height, bit_depth=16, significant_bits=maxval.bit_length(),
+            significant_from=f"its maximum value {maxval}",
+        )  # fmt: skip
     channels = 3 if kind in (b"P3", b"P6") else 1
     samples = width * height * channels
     body = data[position + 1 :]

@@ -35,7 +35,11 @@ Conversion to 8-bit gray (each step adds a note to the frame's record):
   setting. With ``sample_bits`` below 16 a sample above ``2**sample_bits - 1`` cannot come
   from such a camera: it is clipped to 255 and the note counts the clipped samples, names
   the file and says the setting looks wrong (the frame does not fail: its other pixels are
-  good, and the note is in the frame's record).
+  good, and the note is in the frame's record). A 16-bit file that declares fewer
+  significant bits than ``sample_bits`` (a PNG ``sBIT`` chunk, a PGM/PPM maximum value
+  such as 4095) gets a note with the value to set; it is decoded as before, by
+  ``sample_bits`` alone (the declaration is optional and sometimes wrong, and following it
+  would change the products of existing runs).
   8-bit and float samples are not affected by ``sample_bits`` (a note says so when it is
   not 16).
 * float (TIFF) -> 8-bit: samples in [0, 1] are scaled by 255, samples in [0, 255] are
@@ -197,6 +201,8 @@ def decode_gray(
                 f"{header.format} data is corrupt or an unsupported variant of the format"
             )
         image, notes = to_gray_uint8(decoded, sample_bits=sample_bits, name=name)
+        if decoded.dtype == np.uint16:
+            notes.extend(_declared_bits_notes(header, sample_bits))
     except ValueError as exc:
         raise FrameError(f"{name}: {exc}") from None
     extension = os.path.splitext(name)[1].lower()
@@ -210,6 +216,28 @@ def decode_gray(
         nbytes=len(data),
         format=header.format,
     )
+
+
+def _declared_bits_notes(header: ImageHeader, sample_bits: int) -> list[str]:
+    """A note when a 16-bit file declares fewer significant bits than ``sample_bits``.
+
+    Only a note: decoding by the declaration would change the products of runs made
+    before it was read.
+    """
+    declared = header.significant_bits
+    if header.bit_depth != 16 or declared is None or declared >= sample_bits:
+        return []
+    # sample_bits cannot go below 8: a file declaring fewer is scaled as 8-bit data
+    suggest = max(declared, 8)
+    advice = (
+        f"set ingest.sample_bits = {suggest} (catalog [params] or --set)"
+        if suggest < sample_bits
+        else f"ingest.sample_bits is already at its lowest, {sample_bits}"
+    )
+    return [
+        f"the file declares {declared} significant bits of 16 ({header.significant_from}) "
+        f"but ingest.sample_bits = {sample_bits}: {advice}"
+    ]
 
 
 # libjpeg's warnings that mean damaged entropy-coded data (jerror.h: JWRN_HIT_MARKER,

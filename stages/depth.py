@@ -185,13 +185,24 @@ def _image(name: str, long_name: str, units: str) -> Product:
     return Product(name, dtype="float32", attrs={"units": units, "long_name": long_name})
 
 
+def _residual_long_name(reference: str) -> str:
+    """The residual's description: the non-reference image minus the reference image
+    warped into its geometry by the disparity."""
+    other = "left" if reference == "right" else "right"
+    return (
+        f"{other} minus pseudo-{other} ({reference} warped by disparity), NaN undefined"
+    )
+
+
 OUTPUTS: tuple[Product, ...] = (
     _image("disparity", "disparity in the reference image, NaN invalid", "px"),
     _image("range", "range Z = f*b/d along the optical axis, NaN invalid", "m"),
-    _image(
+    Product(
         "residual",
-        "left minus pseudo-left (right warped by disparity), NaN undefined",
-        "gray level",
+        dtype="float32",
+        attrs={"units": "gray level", "long_name": _residual_long_name("right")},
+        # reference 'left' swaps the roles: right minus pseudo-right
+        camera_attrs=lambda camera: {"long_name": _residual_long_name(camera.reference)},
     ),
     _image("height", "height above the fitted ground plane, NaN invalid", "m"),
     Product(

@@ -13,9 +13,11 @@ Parameters (catalog ``[params] ingest = {...}`` or ``--set ingest.NAME=VALUE``):
   writes 12-bit data in 16-bit PNG/TIFF files needs ``sample_bits = 12``: its samples are
   then scaled by ``>> 4`` to the full 0-255 range instead of ``>> 8`` to 0-15 (a dark frame
   in which segmentation finds nothing). Samples above ``2**sample_bits - 1`` are clipped
-  to 255 and noted, naming the file. 8-bit and float images are not affected. At its
-  default the parameter is left out of the cache key (``Param.omit_default_from_key``), so
-  run directories made before it existed keep their results.
+  to 255 and noted, naming the file; a 16-bit file that declares fewer significant bits
+  (PNG ``sBIT``, PGM maximum value) is noted with the value to set. 8-bit and float
+  images are not affected. At its default the parameter is left out of the cache key
+  (``Param.omit_default_from_key``), so run directories made before it existed keep their
+  results.
 """
 
 from __future__ import annotations

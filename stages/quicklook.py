@@ -9,7 +9,8 @@
     level changes between 4-neighbours, so no contour runs along the image border.
 ``quicklooks/<frame_id>/residual.png``
     Left minus right beside left minus pseudo-left (Fig. 15 and 18), both on the same gray
-    scale (mid-gray = 0); undefined residual pixels are dark blue.
+    scale (mid-gray = 0); undefined residual pixels are dark blue. With the camera's
+    reference ``left`` the residual is right minus pseudo-right, beside right minus left.
 
 With ``every = N`` (> 1) only about one frame in N gets quicklooks: those whose frame id's
 CRC-32 is a multiple of N, so the choice does not depend on which frames a run selects or in
@@ -38,6 +39,7 @@ __all__ = [
     "objects_image",
     "range_contours_image",
     "residual_image",
+    "residual_labels",
     "encode_png",
     "draws_frame",
     "run_quicklook",
@@ -305,27 +307,54 @@ def _diff_panel(diff, scale, undefined, out):  # pragma: no cover - numba
                 out[y, x, 2] = undefined[2]
 
 
-def residual_image(left: np.ndarray, right: np.ndarray, residual: np.ndarray) -> np.ndarray:
-    """Left minus right beside left minus pseudo-left, on one gray scale.
+def residual_labels(reference: str) -> tuple[str, str]:
+    """Titles of the residual image's panels for the camera's ``reference`` image.
+
+    Parameters
+    ----------
+    reference : {'right', 'left'}
+
+    Returns
+    -------
+    (str, str)
+        ``("left - right", "left - pseudo-left")`` for ``'right'``, ``("right - left",
+        "right - pseudo-right")`` for ``'left'``: the other image minus the reference
+        before and after warping it by the disparity.
+    """
+    if reference not in ("right", "left"):
+        raise ValueError(f"reference must be 'right' or 'left', got {reference!r}")
+    other = "left" if reference == "right" else "right"
+    return f"{other} - {reference}", f"{other} - pseudo-{other}"
+
+
+def residual_image(
+    left: np.ndarray, right: np.ndarray, residual: np.ndarray, *, reference: str = "right"
+) -> np.ndarray:
+    """The other image minus the reference beside the depth stage's residual, on one gray
+    scale.
 
     Parameters
     ----------
     left, right : (M, N) ndarray of uint8
     residual : (M, N) ndarray of float32
-        Left minus pseudo-left, NaN where undefined.
+        Left minus pseudo-left (reference ``'right'``) or right minus pseudo-right
+        (``'left'``), NaN where undefined.
+    reference : {'right', 'left'}
+        The camera's reference image; names and orders the panels (:func:`residual_labels`).
 
     Returns
     -------
     (M, 2 N + 4, 3) ndarray of uint8
-        BGR: left panel ``left - right``, right panel ``left - pseudo-left``; mid-gray is 0,
-        the scale maps the 99th percentile of ``|left - right|`` (on a 1-in-9 pixel sample)
-        to full contrast.
+        BGR: left panel ``left - right`` (``right - left``), right panel the residual;
+        mid-gray is 0, the scale maps the 99th percentile of ``|left - right|`` (on a 1-in-9
+        pixel sample) to full contrast.
     """
+    titles = residual_labels(reference)
     lf = _coerce_image("left", left).astype(np.float32)
     rt = _coerce_image("right", right).astype(np.float32)
     _check_shape("right", rt, lf.shape)
     res = np.asarray(_check_shape("residual", residual, lf.shape), dtype=np.float32)
-    raw = lf - rt
+    raw = lf - rt if reference == "right" else rt - lf
     # every 3rd pixel of every 3rd row is plenty for a display scale
     sample = np.abs(raw[::3, ::3]) if raw.size >= 900 else np.abs(raw)
     spread = float(np.percentile(sample, 99)) if raw.size else 0.0
@@ -337,8 +366,8 @@ def residual_image(left: np.ndarray, right: np.ndarray, residual: np.ndarray) ->
     undefined = np.array(_UNDEFINED_BGR, np.uint8)
     _diff_panel(raw, np.float32(scale), undefined, out[:, :w])
     _diff_panel(res, np.float32(scale), undefined, out[:, w + _PANEL_GAP_PX :])
-    _text(out, "left - right", (3, 12), (255, 255, 255))
-    _text(out, "left - pseudo-left", (w + _PANEL_GAP_PX + 3, 12), (255, 255, 255))
+    _text(out, titles[0], (3, 12), (255, 255, 255))
+    _text(out, titles[1], (w + _PANEL_GAP_PX + 3, 12), (255, 255, 255))
     return out
 
 
@@ -374,7 +403,12 @@ def run_quicklook(
             range_contours_image(reference, inputs["range"], step_m=step)
         ),
         f"{prefix}/residual.png": encode_png(
-            residual_image(inputs["left"], inputs["right"], inputs["residual"])
+            residual_image(
+                inputs["left"],
+                inputs["right"],
+                inputs["residual"],
+                reference=frame.camera.reference,
+            )
         ),
     }
     return StageResult(files=files)

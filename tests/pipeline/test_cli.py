@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import shlex
+
+import cv2
+import numpy as np
 import pytest
 
 from conftest import write_archive
@@ -200,3 +204,36 @@ def test_status_verify_exits_1_on_damage(archive, tmp_path, capsys):
     assert main(["status", str(out), "--verify"]) == 1
     assert "problem(s)" in capsys.readouterr().out
     assert main(["status", str(out)]) == 0  # without --verify: counts only
+
+
+def test_regression_run_and_status_showed_no_frame_notes(tmp_path, capsys, monkeypatch):
+    """Bug (user audit): a run of 12-bit images in 16-bit files "succeeded" (with no rocks);
+    the notes saying the frames came out dark and naming ingest.sample_bits were only in
+    frames.parquet. The run's summary and `arroyo status` now count the frames with notes,
+    show the most common kinds and the `arroyo query` command that lists them all."""
+    monkeypatch.setenv("ARROYO_STAGE_PACKAGE", "arroyo_ingest_stages")
+    root = tmp_path / "my archive"  # a space: the printed command must quote the path
+    catalog = write_archive(root, frames=3, shape=(16, 24))
+    for k in (0, 2):  # two frames from a 12-bit camera, written as 16-bit PNGs
+        for side in ("left", "right"):
+            path = root / "images" / f"f{k:03d}_{side}.png"
+            gray = cv2.imread(str(path), cv2.IMREAD_UNCHANGED).astype(np.uint16)
+            assert cv2.imwrite(str(path), gray << 4)
+    out = tmp_path / "run dir"
+    assert main(["run", str(catalog), "--out", str(out), "--scheduler", "synchronous"]) == 0
+    printed = capsys.readouterr().out
+    assert "3 done, 0 failed" in printed
+    assert "notes: 2 of 3 frames carry notes" in printed
+    dark = [line for line in printed.splitlines() if "comes out dark" in line]
+    assert len(dark) == 1 and dark[0].lstrip().startswith("2 frames  ingest: ")
+    assert "set ingest.sample_bits = 12" in dark[0]
+    assert main(["status", str(out)]) == 0
+    status_text = capsys.readouterr().out
+    assert "notes: 2 of 3 frames carry notes" in status_text and dark[0] in status_text
+    command = next(line for line in printed.splitlines() if "every note: " in line)
+    argv = shlex.split(command.split("every note: ", 1)[1])
+    assert argv[:2] == ["arroyo", "query"]
+    assert main([*argv[1:], "--format", "csv"]) == 0
+    listed = capsys.readouterr().out.splitlines()
+    assert [line.split(",")[0] for line in listed[1:]] == ['"f000"', '"f002"']
+    assert all("comes out dark" in line for line in listed[1:])

@@ -227,12 +227,15 @@ def test_frame_failed_on_rerun_shows_no_earlier_run_images(tmp_path):
 
 def test_report_draws_over_the_reference_image(tmp_path):
     """Regression: the report drew a frame's outlines and range contours over the right
-    image even when the run's reference was the left one (the labels' geometry)."""
+    image even when the run's reference was the left one (the labels' geometry); and its
+    residual caption said "left − pseudo-left" (the residual is right minus pseudo-right)."""
     run = make_run(tmp_path / "lab", frames=2, quicklooks=False)
     meta = json.loads((run / "run.json").read_text())
     meta["camera"]["reference"] = "left"
     (run / "run.json").write_text(json.dumps(meta))
-    _, page = _parse(build_report(run))
+    text, page = _parse(build_report(run))
+    assert "<figcaption>right − left | right − pseudo-right</figcaption>" in text
+    assert "pseudo-left" not in text
     first = next(i for i in page.images if i["frame"] == "lab_000")
     group = zarr.open_group(run / "products.zarr", mode="r")
     want = objects_image(np.asarray(group["left"][0]), np.asarray(group["labels"][0]))

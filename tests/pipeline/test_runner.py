@@ -13,6 +13,7 @@ import pytest
 import xarray as xr
 import zarr
 
+from conftest import write_archive
 from pipeline.errors import ParamError, RunDirError, RunLockedError
 from pipeline.lock import RunLock
 from pipeline.plan import RunPlan
@@ -413,3 +414,24 @@ def test_run_directory_with_its_journal_moved_away_still_owns_its_products(archi
     assert status(out, verify=True).damaged == []
     with pytest.raises(RunDirError, match="holds the products of another run directory"):
         _run(archive, tmp_path / "other", products=shared)
+
+
+def test_regression_residual_attrs_said_left_minus_pseudo_left_for_reference_left(tmp_path):
+    """Bug (user audit): ``products.zarr``'s ``residual`` said "left minus pseudo-left"
+    whatever the catalog's reference camera; with reference "left" the depth stage stores
+    right minus pseudo-right. The attribute follows the run's camera, also when a rerun of
+    the run directory changes it (the store is prepared before any frame: 4x4 frames fail
+    at ingest, which keeps the test fast)."""
+    catalog = write_archive(tmp_path / "archive", frames=1, shape=(4, 4))
+    toml = catalog.read_text()
+    out = tmp_path / "run"
+    names = {}
+    for reference in ("left", "right"):
+        catalog.write_text(
+            toml.replace("baseline_m = 0.1\n", f'baseline_m = 0.1\nreference = "{reference}"\n')
+        )
+        assert run(catalog, out, scheduler="synchronous").failures
+        residual = zarr.open_group(str(out / "products.zarr"), mode="r")["residual"]
+        names[reference] = residual.attrs["long_name"]
+    assert names["left"].startswith("right minus pseudo-right (left warped")
+    assert names["right"].startswith("left minus pseudo-left (right warped")

@@ -157,6 +157,43 @@ def test_sample_bits_scale_other_bit_depths_to_full_range(gray: np.ndarray, bits
     assert not any("dark" in note or "clipped" in note for note in notes), notes
 
 
+def with_sbit(png: bytes, payload: bytes) -> bytes:
+    """The PNG with an sBIT chunk (correct CRC) right after its IHDR chunk."""
+    chunk = b"sBIT" + payload
+    ihdr_end = 8 + 12 + 13
+    crc = struct.pack(">I", zlib.crc32(chunk) & 0xFFFFFFFF)
+    return png[:ihdr_end] + struct.pack(">I", len(payload)) + chunk + crc + png[ihdr_end:]
+
+
+def test_regression_declared_12_significant_bits_were_not_noted(
+    tmp_path: Path, gray: np.ndarray
+) -> None:
+    """Bug (user audit): a 16-bit PNG whose sBIT chunk, or a PGM whose maximum value (4095),
+    declares 12 significant bits was read at the default ingest.sample_bits = 16 without a
+    word about the declaration. Now the frame's note names it and the value to set; the
+    pixels are decoded as before (changing them would change existing runs' products)."""
+    twelve = camera_samples(gray, 12)
+    png = tmp_path / "sbit.png"
+    png.write_bytes(with_sbit(encoded(".png", twelve), b"\x0c"))
+    pgm = tmp_path / "max4095.pgm"
+    pgm.write_bytes(b"P5\n64 48\n4095\n" + twelve.astype(">u2").tobytes())
+    for path, source in ((png, "sBIT chunk"), (pgm, "maximum value 4095")):
+        decoded = read_gray(path)
+        np.testing.assert_array_equal(decoded.image, (twelve >> 8).astype(np.uint8))
+        declared = [n for n in decoded.notes if "declares 12 significant bits" in n]
+        assert len(declared) == 1, decoded.notes
+        assert source in declared[0] and "set ingest.sample_bits = 12" in declared[0]
+        # at the declared setting (or a 16-bit file that declares 16) there is nothing to say
+        assert not any("declares" in n for n in read_gray(path, sample_bits=12).notes)
+    full = tmp_path / "sbit16.png"
+    full.write_bytes(with_sbit(encoded(".png", twelve << 4), b"\x10"))
+    assert not any("declares" in n for n in read_gray(full).notes)
+    # an 8-bit file's sBIT says nothing about 16-bit scaling
+    eight = tmp_path / "sbit8.png"
+    eight.write_bytes(with_sbit(encoded(".png", gray), b"\x06"))
+    assert not any("declares" in n for n in read_gray(eight).notes)
+
+
 def test_sample_bits_16_is_the_old_rule_bit_for_bit() -> None:
     samples = np.random.default_rng(3).integers(0, 65536, size=(40, 50), dtype=np.uint16)
     for image in (samples, samples >> 4, samples >> 9):  # full, 12-bit, 7-bit data

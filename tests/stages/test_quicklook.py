@@ -8,6 +8,7 @@ import pytest
 
 from pipeline.camera import Camera
 from pipeline.stage import FrameContext
+from stages import quicklook
 from stages.quicklook import (
     STAGE,
     _crossings,
@@ -17,6 +18,7 @@ from stages.quicklook import (
     objects_image,
     range_contours_image,
     residual_image,
+    residual_labels,
 )
 
 SHAPE = (72, 96)
@@ -203,6 +205,36 @@ def test_stage_writes_three_decodable_pngs():
     for path, content in result.files.items():
         image = cv2.imdecode(np.frombuffer(content, np.uint8), cv2.IMREAD_UNCHANGED)
         assert image is not None and image.shape == expected_shapes[path]
+
+
+def test_regression_residual_quicklook_said_left_minus_pseudo_left_for_reference_left(
+    monkeypatch,
+):
+    """Bug (user audit): with the camera's reference "left" the depth residual is right
+    minus pseudo-right, but the quicklook's panel was titled "left - pseudo-left" (and its
+    first panel was left - right, the opposite sign). Titles and sign follow the reference."""
+    assert residual_labels("right") == ("left - right", "left - pseudo-left")
+    assert residual_labels("left") == ("right - left", "right - pseudo-right")
+    with pytest.raises(ValueError, match="'right' or 'left'"):
+        residual_labels("centre")
+    left = _gray(100)
+    right = left.copy()
+    right[40:, :] = 110
+    residual = np.zeros(SHAPE, np.float32)
+    inputs = {**_inputs(), "left": left, "right": right, "residual": residual}
+    camera = Camera(focal_px=100.0, baseline_m=0.1, reference="left")
+    frame = FrameContext(frame_id="f007", archive="t", camera=camera)
+    files = STAGE.run(inputs, frame=frame, params=STAGE.defaults()).files
+    image = cv2.imdecode(
+        np.frombuffer(files["quicklooks/f007/residual.png"], np.uint8), cv2.IMREAD_UNCHANGED
+    )
+    np.testing.assert_array_equal(image, residual_image(left, right, residual, reference="left"))
+    assert image[60, 40, 0] == 255  # right - left = +10: light, where left - right is dark
+    assert residual_image(left, right, residual)[60, 40, 0] == 1
+    drawn = []
+    monkeypatch.setattr(quicklook, "_text", lambda image, text, *a: drawn.append(text))
+    residual_image(left, right, residual, reference="left")
+    assert drawn == ["right - left", "right - pseudo-right"]
 
 
 def test_stage_disabled_writes_nothing():
