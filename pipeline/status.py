@@ -252,6 +252,7 @@ def format_status(st: RunStatus) -> str:
             lines.append(
                 f"verify: {len(st.damaged)} problem(s); the next `arroyo run` redoes them:"
             )
+        if st.damaged:
             lines += [f"  - {d}" for d in st.damaged]
         else:
             lines.append("verify: every recorded checksum matches")

@@ -96,3 +96,18 @@ def test_status_and_verify_of_a_read_only_run_directory(archive, tmp_path, reado
     assert report.damaged and not report.reset
     assert "read-only, so nothing was reset" in format_status(report)
     assert all(row["done"] == 4 for row in report.per_stage.values())
+
+
+def test_regression_read_only_verify_listed_no_damage(tmp_path):
+    """Regression: `status --verify` on a read-only run directory said how many problems it
+    found but listed none of them (the list was printed only where verify could reset)."""
+    from pipeline.status import RunStatus
+
+    damaged = ["f001 tally: products.zarr/blend/c/1/0/0 checksum differs"]
+    report = RunStatus(
+        rundir=tmp_path, run_id="r", archive="a", run_state="finished", frames=1,
+        per_stage={}, failures={}, damaged=damaged, verified=True, reset=False,
+    )
+    text = format_status(report)
+    assert "read-only, so nothing was reset" in text
+    assert f"  - {damaged[0]}" in text
