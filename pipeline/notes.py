@@ -9,6 +9,9 @@ kinds of note: notes are grouped by their text without file names, numbers and i
 differ). Kinds are listed in stage order (an input problem explains what the later stages
 found, and segment's routine notes, on nearly every frame, must not push it out), at most
 two per stage and five in all, with the ``arroyo query`` command that lists every note.
+A note that starts with a count ("171 px of weak halves joined to their objects", "2 streak(s)
+... dropped") reports what a rule did, routine on nearly every frame: such kinds are only
+counted, in one line, so a normal run's summary is that line and the command.
 """
 
 from __future__ import annotations
@@ -178,27 +181,43 @@ def format_notes(summary: NotesSummary, rundir: str | Path, *, running: bool = F
     """
     if not summary.noted:
         return ""
+    reports = [kind for kind in summary.kinds if _is_rule_report(kind.example)]
+    telling = [kind for kind in summary.kinds if not _is_rule_report(kind.example)]
+    command = f"every note: {notes_query(rundir, running=running)}"
+    header = f"notes: {summary.noted} of {_count(summary.frames, 'frame')} carry notes"
+    if not telling:
+        return f"{header}: {_reports_line(reports)}; {command}\n"
     shown: list[NoteKind] = []
     per_stage: dict[str, int] = {}
-    for kind in summary.kinds:
+    for kind in telling:
         if len(shown) == _SHOWN:
             break
         if per_stage.get(kind.stage, 0) < _PER_STAGE:
             per_stage[kind.stage] = per_stage.get(kind.stage, 0) + 1
             shown.append(kind)
-    n_kinds = len(summary.kinds)
-    lines = [
-        f"notes: {summary.noted} of {_count(summary.frames, 'frame')} carry notes, "
-        f"{_count(n_kinds, 'kind')}; the most common, earliest stage first:"
-    ]
+    lines = [f"{header}, {_count(len(telling), 'kind')}; the most common, earliest stage first:"]
     width = len(_count(max(kind.frames for kind in shown), "frame"))
     for kind in shown:
         example = f"e.g. {kind.example}" if kind.varies else kind.example
         lines.append(f"  {_count(kind.frames, 'frame'):>{width}}  {kind.stage}: {example}")
-    if n_kinds > len(shown):
-        lines.append(f"  and {_count(n_kinds - len(shown), 'other kind')}")
-    lines.append(f"  every note: {notes_query(rundir, running=running)}")
+    if len(telling) > len(shown):
+        lines.append(f"  and {_count(len(telling) - len(shown), 'other kind')}")
+    if reports:
+        lines.append(f"  and {_reports_line(reports)}")
+    lines.append(f"  {command}")
     return "\n".join(lines) + "\n"
+
+
+def _is_rule_report(note: str) -> bool:
+    """A note that starts with a count says what a rule did (see the module docstring)."""
+    return note[:1].isdigit()
+
+
+def _reports_line(reports: Sequence[NoteKind]) -> str:
+    stages = ", ".join(dict.fromkeys(kind.stage for kind in reports))
+    frames = max(kind.frames for kind in reports)
+    kinds = _count(len(reports), "kind")
+    return f"{kinds} of rule report ({stages}, up to {_count(frames, 'frame')})"
 
 
 def _count(n: int, noun: str) -> str:

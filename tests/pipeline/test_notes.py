@@ -46,13 +46,27 @@ def test_input_notes_come_before_routine_notes_of_later_stages():
     assert [k.stage for k in summary.kinds] == ["ingest", "depth", *["segment"] * 3]
     text = format_notes(summary, "runs/lab")
     lines = [line.strip() for line in text.splitlines()]
-    assert lines[0].startswith("notes: 9 of 9 frames carry notes, 5 kinds; the most common")
+    assert lines[0].startswith("notes: 9 of 9 frames carry notes, 3 kinds; the most common")
     assert lines[1] == "1 frame  ingest: left: alpha channel ignored"
     assert lines[2] == "1 frame  depth: no ground plane fitted: height is NaN"
-    assert lines[3] == "9 frames  segment: e.g. 100 px of weak halves joined to their objects"
-    assert len([line for line in lines if "  segment: " in line]) == 2  # two a stage
-    assert lines[-2] == "and 1 other kind"
+    assert lines[3] == (
+        "9 frames  segment: e.g. height noise 1.0 cm: heights unusable, intensity rules only"
+    )
+    assert lines[-2] == "and 2 kinds of rule report (segment, up to 9 frames)"
     assert lines[-1].startswith("every note: arroyo query runs/lab ")
+
+
+def test_regression_routine_rule_reports_filled_every_run_summary():
+    """Regression: a normal lab run ended with four lines of segment's rule reports ("171 px
+    of weak halves joined to their objects" ...), on every frame of every run; notes that
+    start with a count are now only counted, in one line."""
+    frames = [_segment_routine(k)[:2] for k in range(3)] + [[]]
+    text = format_notes(summarize_notes(frames, stages=STAGES), "runs/lab")
+    assert text.count("\n") == 1
+    assert text.startswith(
+        "notes: 3 of 4 frames carry notes: 2 kinds of rule report (segment, up to 3 frames); "
+        "every note: arroyo query runs/lab "
+    )
 
 
 def test_at_most_five_kinds_are_shown():
