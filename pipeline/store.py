@@ -620,7 +620,9 @@ class _SlabWriter:
         self.compress = _numcodec(codecs[1]) if len(codecs) == 2 else None
         if remote:  # an object store: one PUT (or DELETE) per file, atomic by itself
             fs, self.root = _remote(root)
-            self._put: Callable[[str, bytes], None] = fs.pipe_file
+            self._put: Callable[[str, bytes | Sequence[bytes]], None] = functools.partial(
+                _put_object, fs.pipe_file
+            )
             self._delete: Callable[[str], None] = functools.partial(_forget, fs.rm_file)
         else:
             self.root = root
@@ -665,7 +667,7 @@ class _SlabWriter:
                 continue
             raw = table.tobytes()
             parts += (raw, struct.pack("<I", google_crc32c.value(raw)))
-            self._put(path, b"".join(parts))
+            self._put(path, parts)
 
     def _encode(
         self,
@@ -774,6 +776,12 @@ def _numcodec(config: Mapping[str, Any]) -> Any:
     raise _Unsupported(f"compressor {name!r}")
 
 
+def _put_object(
+    pipe: Callable[[str, bytes], Any], path: str, data: bytes | Sequence[bytes]
+) -> None:
+    pipe(path, data if isinstance(data, bytes) else b"".join(data))
+
+
 def _forget(remove: Callable[[str], Any], path: str) -> None:
     with contextlib.suppress(FileNotFoundError):
         remove(path)
@@ -783,9 +791,10 @@ _TMP_PREFIX = uuid.uuid4().hex[:16]  # per process (with the pid: forks share it
 _tmp_serial = itertools.count()
 
 
-def _replace_file(path: str, data: bytes) -> None:
+def _replace_file(path: str, data: bytes | Sequence[bytes]) -> None:
     # zarr's temporary name is <chunk>.<uuid hex>.partial: the same shape, so that
-    # remove_orphan_temp_files finds both, without reading urandom for each file
+    # remove_orphan_temp_files finds both, without reading urandom for each file; a
+    # shard comes in parts, written one after the other rather than joined (a copy)
     tmp = f"{path}.{_TMP_PREFIX}{os.getpid():x}{next(_tmp_serial):08x}.partial"
     try:
         fh = open(tmp, "wb")
@@ -794,7 +803,10 @@ def _replace_file(path: str, data: bytes) -> None:
         fh = open(tmp, "wb")
     try:
         with fh:
-            fh.write(data)
+            if isinstance(data, bytes):
+                fh.write(data)
+            else:
+                fh.writelines(data)
         os.replace(tmp, path)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
