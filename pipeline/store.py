@@ -5,18 +5,26 @@ Layout under the products root (by default RUNDIR)::
 
     products.zarr/                 zarr v3 group; one array per array product, dims
                                    (frame, ...); chunks: one frame x tiles; coordinate `frame`
+      <array>/c/<frame>/0/0        one shard per frame: the frame's tiles in one file
     quicklooks/<frame_id>/*.png    loose files of ``files`` products
+
+A new store gets one shard per frame and array (:func:`frame_shard`: 13 files per frame
+instead of 34), holding the same tiles (:func:`tile_chunks`) as inner chunks, so readers
+still read single tiles; a store made before shards keeps one file per chunk (the arrays it
+gains later too), and both are written and read. A shard holds one frame only, so it is
+owned by the task that writes the frame, as a chunk is: it is written whole, never read back
+or merged with another frame's bytes.
 
 Every file is written to a temporary name in its final directory, then renamed, so a reader
 never sees half a file (the driver flushes the filesystem before it records a frame). Zarr
-arrays are created once by the driver; workers only write whole chunk-aligned frame slabs of
-existing arrays.
+arrays are created once by the driver; workers only write whole chunk-aligned (or
+shard-aligned) frame slabs of existing arrays.
 
 The array products and loose files (what workers write) may live elsewhere than the run
 directory: a *products root* is either a local directory (a shared filesystem) or an fsspec
 URL such as ``s3://bucket/prefix``; the run records it in ``run.json`` (``products``) and every
-reader goes through :func:`products_root`. On an object store each chunk or file is one PUT,
-which is atomic, so no temporaries are involved. The journal, staged parts and published
+reader goes through :func:`products_root`. On an object store each shard, chunk or file is
+one PUT, which is atomic, so no temporaries are involved. The journal, staged parts and published
 tables stay in the run directory, which only the driver writes.
 """
 
@@ -31,16 +39,19 @@ import hashlib
 import itertools
 import math
 import os
+import struct
 import uuid
 import warnings
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+import google_crc32c
 import numcodecs
 import numpy as np
 import zarr
 from zarr.codecs import BloscCodec, ZstdCodec
+from zarr.core.indexing import morton_order_iter
 from zarr.core.metadata import ArrayV3Metadata
 
 from .errors import RunDirError, StoreError
@@ -59,6 +70,7 @@ __all__ = [
     "remove_other_product_files",
     "read_product_file",
     "tile_chunks",
+    "frame_shard",
     "compressor_for",
     "atomic_write_bytes",
     "ensure_zarr",
@@ -396,6 +408,10 @@ def ensure_zarr(
 ) -> set[str]:
     """Create or extend ``products.zarr`` for these frames and arrays.
 
+    New arrays get chunks of one frame x :func:`tile_chunks` tiles, stored as one shard per
+    frame (:func:`frame_shard`), unless the store already holds unsharded product arrays
+    (made before shards): then they get one file per chunk like the others.
+
     Parameters
     ----------
     root : path or str
@@ -435,6 +451,7 @@ def ensure_zarr(
         )
         coord[:] = ids
     recreated: set[str] = set()
+    sharded = _store_is_sharded(group)
     for name, (product, frame_shape, attrs) in arrays.items():
         full = (n, *frame_shape)
         if name in group:
@@ -447,11 +464,13 @@ def ensure_zarr(
                     existing.resize(full)
                 existing.attrs.update(dict(attrs))
                 continue
+        chunks = (1, *tile_chunks(frame_shape))
         group.create_array(
             name,
             shape=full,
             dtype=product.dtype,
-            chunks=(1, *tile_chunks(frame_shape)),
+            chunks=chunks,
+            shards=frame_shard(frame_shape) if sharded else None,
             fill_value=product.resolved_fill(),
             compressors=compressor_for(product.dtype or "float32"),
             dimension_names=product.dims,
@@ -463,6 +482,25 @@ def ensure_zarr(
         warnings.simplefilter("ignore", zarr.errors.ZarrUserWarning)
         zarr.consolidate_metadata(path)
     return recreated
+
+
+def frame_shard(shape: Sequence[int]) -> tuple[int, ...]:
+    """Shard shape of a new product array: one whole frame, (1, *shape) rounded up to whole
+    :func:`tile_chunks` tiles (a shard holds whole inner chunks; those past the frame's
+    edge are padded with the fill value, as unsharded edge chunks are)."""
+    tiles = tile_chunks(shape)
+    return (1, *(math.ceil(n / c) * c if n else c for n, c in zip(shape, tiles, strict=True)))
+
+
+def _store_is_sharded(group: zarr.Group) -> bool:
+    """Whether new arrays of this store get one shard per frame: yes in a new store, and in
+    a store whose product arrays are sharded; a store made before shards keeps one file per
+    chunk for the arrays added to it or recreated, so that a run directory has one layout."""
+    for name, node in group.arrays():
+        if name != "frame":
+            codecs = getattr(node.metadata, "codecs", ())  # a zarr v2 array has none
+            return any(c.to_dict()["name"] == "sharding_indexed" for c in codecs)
+    return True
 
 
 def _array(group: zarr.Group, name: str) -> zarr.Array:
@@ -496,14 +534,32 @@ def _slab_writer(path: Path) -> _SlabWriter | None:
 @functools.lru_cache(maxsize=64)
 def _cached_writer(path: str, ino: int, mtime_ns: int) -> _SlabWriter | None:
     try:
-        return _SlabWriter(Path(path), _cached_array(path, "r+", ino, mtime_ns))
+        return _SlabWriter(path, _cached_array(path, "r+", ino, mtime_ns))
     except _Unsupported:
         return None
 
 
-# a chunk of a frame slab: its window in the slab, its chunk coordinates after the frame's,
-# whether it is an edge chunk that zarr pads with the fill value
-_Tile = tuple[tuple[slice, ...], tuple[int, ...], bool]
+@functools.lru_cache(maxsize=64)
+def _remote_writer(url: str, token: str) -> _SlabWriter | None:
+    """The slab writer of a sharded array at a URL, None for other arrays (zarr writes
+    them): zarr reads a shard back before it writes one (a GET per shard, and a damaged
+    shard stops its own rewrite), which a frame's shard, written whole, does not need."""
+    try:
+        writer = _SlabWriter(url, _remote_array(url, token), remote=True)
+    except _Unsupported:
+        return None
+    return writer if writer.inner is not None else None
+
+
+# a chunk of a frame slab: its window in the slab (None for a chunk of a shard that lies
+# wholly outside the array), its chunk coordinates after the frame's (of the shard, or local
+# to the shard for an inner chunk), whether it is an edge chunk that zarr pads with the fill
+_Tile = tuple[tuple[slice, ...] | None, tuple[int, ...], bool]
+# a shard of a frame slab: its key's coordinates after the frame's and its inner chunks in
+# the order zarr stores them (Morton order)
+_Shard = tuple[tuple[int, ...], list[_Tile]]
+
+_NO_CHUNK = 2**64 - 1  # a shard index entry (offset, nbytes) of an inner chunk not stored
 
 
 class _Unsupported(Exception):
@@ -511,7 +567,8 @@ class _Unsupported(Exception):
 
 
 class _SlabWriter:
-    """Writes a frame's chunks of one array straight to their files, in the calling thread.
+    """Writes a frame's chunks or shards of one array straight to their files, in the
+    calling thread.
 
     ``array[index] = data`` sends each chunk through zarr's asyncio loop and two thread
     hops (encode, write); for the ~30 small chunks of a frame that machinery cost more than
@@ -519,68 +576,172 @@ class _SlabWriter:
     would, byte for byte (``tests/pipeline/test_store.py`` compares them): the ``bytes``
     codec (C order, the declared endianness), then the array's blosc or zstd compressor
     through the same ``numcodecs`` classes zarr uses; a chunk equal to the fill value is
-    removed instead of written (zarr's ``write_empty_chunks=False``); each file goes to a
+    left out (zarr's ``write_empty_chunks=False``); each file goes to a
     ``<chunk>.<uuid>.partial`` temporary and is renamed over the chunk, as zarr's local
-    store does. Arrays with any other layout (sharding, transposes, other compressors) raise
-    ``_Unsupported`` and are written through zarr.
+    store does.
+
+    Two layouts are known. Unsharded (stores made before shards, and arrays added to them):
+    one file per chunk, a fill-only chunk's file removed. Sharded (``sharding_indexed``,
+    index at the end, coded ``bytes`` little-endian + ``crc32c`` as zarr's default): the
+    inner chunks' encoded bytes concatenated in Morton order, then the index, one
+    (offset, nbytes) uint64 pair per inner chunk, ``(2**64-1, 2**64-1)`` for a fill-only
+    chunk that is left out, then the index's crc32c; a shard whose inner chunks are all fill
+    is removed. A shard is written whole, never read back, so a shard must lie within one
+    frame (shards of shape (1, ...)). Arrays with any other layout (index first, other
+    index codecs, transposes, other compressors) raise ``_Unsupported`` and are written
+    through zarr.
     """
 
-    def __init__(self, root: Path, array: zarr.Array) -> None:
+    def __init__(self, root: str, array: zarr.Array, *, remote: bool = False) -> None:
         meta = array.metadata
         if not isinstance(meta, ArrayV3Metadata) or meta.storage_transformers:
             raise _Unsupported("not a plain zarr v3 array")
         if array.config.write_empty_chunks:
             raise _Unsupported("write_empty_chunks")
-        chunk_shape = tuple(getattr(meta.chunk_grid, "chunk_shape", ()))
-        if len(chunk_shape) != array.ndim or not chunk_shape or chunk_shape[0] != 1:
-            raise _Unsupported("chunks are not one frame each")
+        outer = tuple(getattr(meta.chunk_grid, "chunk_shape", ()))
+        if len(outer) != array.ndim or not outer or outer[0] != 1:
+            raise _Unsupported("chunks (or shards) are not one frame each")
         codecs: list[dict[str, Any]] = [dict(c.to_dict()) for c in meta.codecs]
+        self.inner: tuple[int, ...] | None = None  # inner chunk shape of a sharded array
+        if len(codecs) == 1 and codecs[0]["name"] == "sharding_indexed":
+            conf = codecs[0].get("configuration", {})
+            index_codecs = [dict(c) for c in conf.get("index_codecs", ())]
+            if conf.get("index_location", "end") != "end" or index_codecs != [
+                {"name": "bytes", "configuration": {"endian": "little"}},
+                {"name": "crc32c"},
+            ]:
+                raise _Unsupported(f"shard index {conf}")
+            self.inner = tuple(conf["chunk_shape"])[1:]
+            codecs = [dict(c) for c in conf["codecs"]]
         if not codecs or codecs[0]["name"] != "bytes" or len(codecs) > 2:
             raise _Unsupported(f"codecs {codecs}")
         endian = codecs[0].get("configuration", {}).get("endian") or "little"
         self.dtype = array.dtype.newbyteorder("<" if endian == "little" else ">")
         self.compress = _numcodec(codecs[1]) if len(codecs) == 2 else None
-        self.root = str(root)
-        self.chunks = chunk_shape[1:]
+        if remote:  # an object store: one PUT (or DELETE) per file, atomic by itself
+            fs, self.root = _remote(root)
+            self._put: Callable[[str, bytes | Sequence[bytes]], None] = functools.partial(
+                _put_object, fs.pipe_file
+            )
+            self._delete: Callable[[str], None] = functools.partial(_forget, fs.rm_file)
+        else:
+            self.root = root
+            self._put = _replace_file
+            self._delete = functools.partial(_forget, os.unlink)
+        self.chunks = outer[1:]  # the file grid: chunks, or shards
         self.key = meta.chunk_key_encoding.encode_chunk_key
         self.fill = np.asarray(meta.fill_value, dtype=array.dtype)
         self._grid: dict[tuple[int, ...], list[_Tile]] = {}
+        self._shards: dict[tuple[int, ...], list[_Shard]] = {}
         self._fill_nan = self.fill.dtype.kind in "fc" and bool(np.isnan(self.fill))
         self._fill_item = self.fill.item()
 
     def write(self, index: int, data: np.ndarray) -> None:
+        if self.inner is not None:
+            self._write_shards(index, data)
+            return
         for window, tail, edge in self._tiles(data.shape):
-            block = data[window]
-            if edge:  # an edge chunk: zarr pads it with the fill value
-                padded = np.full(self.chunks, self.fill, dtype=data.dtype)
-                padded[tuple(slice(0, n) for n in block.shape)] = block
-                block = padded
-            path = os.path.join(self.root, self.key((index, *tail)))
-            if self._is_fill(block):
-                with contextlib.suppress(FileNotFoundError):
-                    os.unlink(path)  # an earlier attempt's chunk must not survive
+            path = f"{self.root}/{self.key((index, *tail))}"
+            encoded = self._encode(data, window, self.chunks, edge)
+            if encoded is None:
+                self._delete(path)  # an earlier attempt's chunk must not survive
                 continue
-            raw = np.ascontiguousarray(block, dtype=self.dtype)
-            encoded = raw.tobytes() if self.compress is None else self.compress.encode(raw)
-            _replace_file(path, encoded)
+            self._put(path, encoded)
+
+    def _write_shards(self, index: int, data: np.ndarray) -> None:
+        assert self.inner is not None
+        for tail, tiles in self._shard_grid(data.shape):
+            path = f"{self.root}/{self.key((index, *tail))}"
+            table = np.full((*self._per_shard, 2), _NO_CHUNK, dtype="<u8")
+            parts: list[bytes] = []
+            offset = 0
+            for window, local, edge in tiles:
+                encoded = self._encode(data, window, self.inner, edge)
+                if encoded is None:
+                    continue
+                table[local] = (offset, len(encoded))
+                parts.append(encoded)
+                offset += len(encoded)
+            if not parts:  # zarr removes a shard with no stored chunk
+                self._delete(path)
+                continue
+            raw = table.tobytes()
+            parts += (raw, struct.pack("<I", google_crc32c.value(raw)))
+            self._put(path, parts)
+
+    def _encode(
+        self,
+        data: np.ndarray,
+        window: tuple[slice, ...] | None,
+        chunks: tuple[int, ...],
+        edge: bool,
+    ) -> bytes | None:
+        """The encoded bytes of one chunk, None for a chunk that is all fill (not stored)."""
+        if window is None:
+            return None
+        block = data[window]
+        if edge:  # an edge chunk: zarr pads it with the fill value
+            padded = np.full(chunks, self.fill, dtype=data.dtype)
+            padded[tuple(slice(0, n) for n in block.shape)] = block
+            block = padded
+        if self._is_fill(block):
+            return None
+        raw = np.ascontiguousarray(block, dtype=self.dtype)
+        return raw.tobytes() if self.compress is None else self.compress.encode(raw)
 
     def _tiles(self, shape: tuple[int, ...]) -> list[_Tile]:
-        """(slab window, chunk coordinates after the frame's, whether padded) of each chunk;
-        computed once per slab shape, not per frame."""
+        """(slab window, chunk or shard coordinates after the frame's, whether padded) of
+        each file; computed once per slab shape, not per frame."""
         tiles = self._grid.get(shape)
         if tiles is None:
             tiles = []
-            grid = [range(0, n, c) for n, c in zip(shape, self.chunks, strict=True)]
+            chunks = self.chunks
+            grid = [range(0, n, c) for n, c in zip(shape, chunks, strict=True)]
             for starts in itertools.product(*grid):
                 window = tuple(
-                    slice(s, min(s + c, n))
-                    for s, c, n in zip(starts, self.chunks, shape, strict=True)
+                    slice(s, min(s + c, n)) for s, c, n in zip(starts, chunks, shape, strict=True)
                 )
-                edge = any(w.stop - w.start != c for w, c in zip(window, self.chunks, strict=True))
-                tail = tuple(s // c for s, c in zip(starts, self.chunks, strict=True))
+                edge = any(w.stop - w.start != c for w, c in zip(window, chunks, strict=True))
+                tail = tuple(s // c for s, c in zip(starts, chunks, strict=True))
                 tiles.append((window, tail, edge))
             self._grid[shape] = tiles
         return tiles
+
+    @property
+    def _per_shard(self) -> tuple[int, ...]:
+        assert self.inner is not None
+        return tuple(s // c for s, c in zip(self.chunks, self.inner, strict=True))
+
+    def _shard_grid(self, shape: tuple[int, ...]) -> list[_Shard]:
+        """Each shard of a slab of this shape with its inner chunks in Morton order (zarr's
+        order within a shard); computed once per slab shape."""
+        shards = self._shards.get(shape)
+        if shards is None:
+            assert self.inner is not None
+            shards = []
+            per_shard = self._per_shard
+            for shard_window, tail, _ in self._tiles(shape):
+                tiles: list[_Tile] = []
+                for local in morton_order_iter((1, *per_shard)):
+                    local = local[1:]  # the frame axis: one inner chunk per shard
+                    starts = [
+                        w.start + i * c
+                        for w, i, c in zip(shard_window or (), local, self.inner, strict=True)
+                    ]
+                    if any(s >= n for s, n in zip(starts, shape, strict=True)):
+                        tiles.append((None, local, False))  # wholly outside: fill only
+                        continue
+                    window = tuple(
+                        slice(s, min(s + c, n))
+                        for s, c, n in zip(starts, self.inner, shape, strict=True)
+                    )
+                    edge = any(
+                        w.stop - w.start != c for w, c in zip(window, self.inner, strict=True)
+                    )
+                    tiles.append((window, local, edge))
+                shards.append((tail, tiles))
+            self._shards[shape] = shards
+        return shards
 
     def _is_fill(self, block: np.ndarray) -> bool:
         # the same test as zarr's Buffer.all_equal: bit patterns for a zero float fill (so
@@ -615,13 +776,25 @@ def _numcodec(config: Mapping[str, Any]) -> Any:
     raise _Unsupported(f"compressor {name!r}")
 
 
+def _put_object(
+    pipe: Callable[[str, bytes], Any], path: str, data: bytes | Sequence[bytes]
+) -> None:
+    pipe(path, data if isinstance(data, bytes) else b"".join(data))
+
+
+def _forget(remove: Callable[[str], Any], path: str) -> None:
+    with contextlib.suppress(FileNotFoundError):
+        remove(path)
+
+
 _TMP_PREFIX = uuid.uuid4().hex[:16]  # per process (with the pid: forks share it)
 _tmp_serial = itertools.count()
 
 
-def _replace_file(path: str, data: bytes) -> None:
+def _replace_file(path: str, data: bytes | Sequence[bytes]) -> None:
     # zarr's temporary name is <chunk>.<uuid hex>.partial: the same shape, so that
-    # remove_orphan_temp_files finds both, without reading urandom for each file
+    # remove_orphan_temp_files finds both, without reading urandom for each file; a
+    # shard comes in parts, written one after the other rather than joined (a copy)
     tmp = f"{path}.{_TMP_PREFIX}{os.getpid():x}{next(_tmp_serial):08x}.partial"
     try:
         fh = open(tmp, "wb")
@@ -630,7 +803,10 @@ def _replace_file(path: str, data: bytes) -> None:
         fh = open(tmp, "wb")
     try:
         with fh:
-            fh.write(data)
+            if isinstance(data, bytes):
+                fh.write(data)
+            else:
+                fh.writelines(data)
         os.replace(tmp, path)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
@@ -643,14 +819,17 @@ def write_frame_array(
 ) -> str:
     """Write one frame's slab of an array product; return its checksum.
 
-    Local chunk files reach the disk when the driver calls :func:`sync_filesystem` before it
-    records the frame as complete (one flush per batch instead of one per chunk file); on an
-    object store zarr PUTs each chunk. ``token`` (the run id) keys the cached handles of
+    Local shard or chunk files reach the disk when the driver calls :func:`sync_filesystem`
+    before it records the frame as complete (one flush per batch instead of one per file);
+    on an object store each shard is encoded here and PUT whole, each chunk of an
+    unsharded array is PUT by zarr. ``token`` (the run id) keys the cached handles of
     remote arrays, whose metadata cannot be checked for changes as cheaply as a local file's.
     """
     writer: _SlabWriter | None = None
     if is_url(root):
-        array = _remote_array(f"{zarr_location(root)}/{name}", token)
+        url = f"{zarr_location(root)}/{name}"
+        array = _remote_array(url, token)
+        writer = _remote_writer(url, token)
     else:
         # plain strings: three pathlib objects per array and frame cost more than the stat
         path = os.path.join(root, ZARR_NAME, name)

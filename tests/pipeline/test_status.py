@@ -111,3 +111,52 @@ def test_regression_read_only_verify_listed_no_damage(tmp_path):
     text = format_status(report)
     assert "read-only, so nothing was reset" in text
     assert f"  - {damaged[0]}" in text
+
+
+def _frame_files(out, name, frame):
+    return [p for p in (out / "products.zarr" / name / "c" / str(frame)).rglob("*") if p.is_file()]
+
+
+def test_verify_finds_a_damaged_and_a_missing_frame_shard(archive, tmp_path):
+    """A new run's arrays hold one shard file per frame: verify finds a shard with altered
+    bytes (its index's crc32c or its chunks no longer match) and a removed one, and the
+    next run writes them anew."""
+    out = tmp_path / "run"
+    _run(archive, out)
+    damaged, missing = _frame_files(out, "blend", 1), _frame_files(out, "blend", 2)
+    assert len(damaged) == len(missing) == 1  # the frame's one shard
+    raw = bytearray(damaged[0].read_bytes())
+    raw[len(raw) // 2] ^= 0xFF
+    damaged[0].write_bytes(bytes(raw))
+    missing[0].unlink()
+    report = status(out, verify=True)
+    assert sorted(d for d in report.damaged if d.startswith("blend")) == [
+        "blend of frame f001 does not match its checksum",
+        "blend of frame f002 does not match its checksum",
+    ]
+    assert report.per_stage["blend"]["done"] == 2
+    assert _run(archive, out).done == 4
+    assert status(out, verify=True).damaged == []
+
+
+def test_a_run_directory_made_before_shards_keeps_its_chunk_files(archive, tmp_path):
+    """A run directory whose products.zarr has one file per chunk (made by the code before
+    shards) is resumed, rerun with another parameter and verified in that layout."""
+    from unittest import mock
+
+    import zarr
+
+    import pipeline.store
+
+    out = tmp_path / "run"
+    with mock.patch.object(pipeline.store, "_store_is_sharded", return_value=False):
+        _run(archive, out, frames="f00[01]")
+    per_frame = len(_frame_files(out, "blend", 0))
+    assert _run(archive, out).done == 4  # resumed: the other two frames
+    assert _run(archive, out, overrides=["blend.weight=0.25"]).done == 4  # rerun
+    group = zarr.open_group(out / "products.zarr", mode="r")
+    assert all(group[name].shards is None for name in ("left", "blend", "grid"))
+    assert [len(_frame_files(out, "blend", k)) for k in range(4)] == [per_frame] * 4
+    assert status(out, verify=True).damaged == []
+    _frame_files(out, "blend", 3)[0].unlink()
+    assert status(out, verify=True).damaged == ["blend of frame f003 does not match its checksum"]

@@ -2,13 +2,18 @@
 
 from __future__ import annotations
 
+import itertools
+import tempfile
 import uuid
 import warnings
 from pathlib import Path
+from unittest import mock
 
 import numpy as np
 import pytest
 import zarr
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 from zarr.codecs import BloscCodec, ZstdCodec
 
 import pipeline.store
@@ -58,6 +63,7 @@ def _slabs(dtype: str, shape: tuple[int, ...], fill: float | int | bool) -> list
     return frames
 
 
+@pytest.mark.parametrize("sharded", [False, True], ids=["chunk-files", "frame-shards"])
 @pytest.mark.parametrize(
     ("dtype", "shape", "chunks", "compressor"),
     [
@@ -72,7 +78,7 @@ def _slabs(dtype: str, shape: tuple[int, ...], fill: float | int | bool) -> list
     ],
 )
 def test_slab_writer_writes_the_same_chunk_files_as_zarr(
-    tmp_path, dtype, shape, chunks, compressor
+    tmp_path, dtype, shape, chunks, compressor, sharded
 ):
     fill = np.nan if np.dtype(dtype).kind == "f" else np.zeros((), dtype)[()]
     compressors = {
@@ -85,6 +91,7 @@ def test_slab_writer_writes_the_same_chunk_files_as_zarr(
             tmp_path / "products.zarr" / name,
             shape=(_FRAMES, *shape),
             chunks=(1, *chunks),
+            shards=_frame_shard(shape, chunks) if sharded else None,
             dtype=dtype,
             fill_value=fill,
             compressors=compressors,
@@ -113,18 +120,137 @@ def test_an_all_fill_rerun_removes_the_chunks_an_earlier_attempt_wrote(tmp_path)
     assert read_frame_array(tmp_path, "a", 1).sum() == 0
 
 
-def test_sharded_arrays_are_written_through_zarr(tmp_path):
+@pytest.mark.parametrize(
+    ("shards", "location"),
+    [((2, 8, 8), "end"), ((1, 8, 8), "start")],
+    ids=["shard-of-two-frames", "index-first"],
+)
+def test_shards_the_slab_writer_does_not_know_are_written_through_zarr(
+    tmp_path, shards, location
+):
+    # a shard shared by two frames would need a read-modify-write: zarr does it
     zarr.create_array(
         tmp_path / "products.zarr" / "s",
         shape=(2, 8, 8),
         chunks=(1, 4, 4),
-        shards=(1, 8, 8),
+        shards={"shape": shards, "index_location": location},
         dtype="float32",
     )
     assert pipeline.store._slab_writer(tmp_path / "products.zarr" / "s") is None
     data = np.arange(64, dtype="float32").reshape(8, 8)
     write_frame_array(tmp_path, "s", 1, data)
     np.testing.assert_array_equal(read_frame_array(tmp_path, "s", 1), data)
+
+
+def _frame_shard(shape: tuple[int, ...], chunks: tuple[int, ...]) -> tuple[int, ...]:
+    """One frame per shard, rounded up to whole chunks (as ensure_zarr's frame_shard)."""
+    return (1, *(-(-n // c) * c for n, c in zip(shape, chunks, strict=True)))
+
+
+_DTYPES = ["float32", "float64", "uint8", "uint16", "int8", "int32", "bool"]  # the products'
+
+
+@st.composite
+def _frames(draw: st.DrawFn) -> tuple[np.ndarray, tuple[int, ...], np.ndarray]:
+    """Two frames of a random product dtype and shape (not a multiple of the chunk), chunks,
+    and a fill value; some chunks of the frames all fill, sometimes a whole frame."""
+    dtype = np.dtype(draw(st.sampled_from(_DTYPES)))
+    shape = tuple(draw(st.lists(st.integers(1, 40), min_size=1, max_size=2)))
+    chunks = tuple(draw(st.integers(1, n)) for n in shape)
+    fill = np.asarray(np.nan if dtype.kind == "f" else 0, dtype=dtype)
+    if dtype.kind == "f" and draw(st.booleans()):
+        fill = np.zeros((), dtype)  # a 0.0 fill: -0.0 is data, stored
+    rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
+    if dtype.kind == "f":
+        data = rng.normal(0.0, 3.0, size=(2, *shape)).astype(dtype)
+        data[rng.random(data.shape) < 0.1] = -0.0
+        data[rng.random(data.shape) < 0.1] = np.nan
+    elif dtype.kind == "b":
+        data = rng.random((2, *shape)) < 0.5
+    else:
+        info = np.iinfo(dtype)
+        data = rng.integers(info.min, info.max, size=(2, *shape), endpoint=True, dtype=dtype)
+    blank = draw(st.sampled_from(["none", "some chunks", "frame"]))
+    for starts in itertools.product(*(range(0, n, c) for n, c in zip(shape, chunks, strict=True))):
+        if blank == "frame" or (blank == "some chunks" and rng.random() < 0.5):
+            window = tuple(slice(s, s + c) for s, c in zip(starts, chunks, strict=True))
+            data[(1, *window)] = fill
+    return data, chunks, fill
+
+
+@settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(frames=_frames())
+def test_frame_shards_round_trip_as_zarr_writes_and_reads_them(frames):
+    """Property: a one-frame shard the slab writer writes is byte for byte zarr's shard of
+    the same frame (Morton order, fill-only inner chunks left out, crc32c index; a shard of
+    all fill removed), and zarr and xarray read it back: the whole frame and single tiles."""
+    xarray = pytest.importorskip("xarray")
+    data, chunks, fill = frames
+    shape = data.shape[1:]
+    with tempfile.TemporaryDirectory() as tmp:
+        root = Path(tmp)
+        group = zarr.open_group(root / "products.zarr", mode="w")
+        for name in ("ours", "zarr"):
+            group.create_array(
+                name,
+                shape=data.shape,
+                chunks=(1, *chunks),
+                shards=_frame_shard(shape, chunks),
+                dtype=data.dtype,
+                fill_value=fill,
+                compressors=compressor_for(data.dtype),
+                dimension_names=("frame", *(f"d{i}" for i in range(len(shape)))),
+            )
+        assert pipeline.store._slab_writer(root / "products.zarr" / "ours") is not None
+        reference = zarr.open_array(root / "products.zarr" / "zarr", mode="r+")
+        for k in (0, 1, 0):  # frame 0 again: its shard replaced whole
+            write_frame_array(root, "ours", k, data[k])
+            reference[k] = data[k]
+        assert _chunk_files(root / "products.zarr" / "ours") == _chunk_files(
+            root / "products.zarr" / "zarr"
+        )
+        ours = zarr.open_array(root / "products.zarr" / "ours", mode="r")
+        tile = tuple(slice(0, c) for c in chunks)
+        for k in range(2):
+            np.testing.assert_array_equal(ours[k], data[k])  # NaN == NaN; -0.0 == 0.0
+            assert ours[k].tobytes() == data[k].tobytes()  # ... so compare the bits too
+            np.testing.assert_array_equal(ours[(k, *tile)], data[(k, *tile)])
+        with xarray.open_zarr(root / "products.zarr", consolidated=False) as ds:
+            assert ds["ours"].encoding["chunks"] == (1, *chunks)  # dask reads tiles
+            assert ds["ours"].values.tobytes() == data.tobytes()
+
+
+def test_new_stores_get_one_shard_per_frame_and_old_stores_keep_chunk_files(tmp_path):
+    """A new products.zarr holds one file per frame and array (frame-shaped shards of the
+    same tiles); a store made before shards keeps one file per chunk when it is extended or
+    gets a new array, and both read the same values."""
+    products = {
+        "left": (Product("left", dtype="uint8"), (300, 520), {}),
+        "sector_low": (Product("sector_low", dtype="float32"), (8, 8), {}),
+    }
+    frames = {
+        "left": np.arange(300 * 520, dtype=np.int64).reshape(300, 520).astype("uint8"),
+        "sector_low": np.linspace(0, 1, 64, dtype="float32").reshape(8, 8),
+    }
+    new, old = tmp_path / "new", tmp_path / "old"
+    ensure_zarr(new, ["a", "b"], products)
+    with mock.patch.object(pipeline.store, "_store_is_sharded", return_value=False):
+        ensure_zarr(old, ["a"], {"left": products["left"]})  # what the code before made
+    ensure_zarr(old, ["a", "b"], products)  # a rerun extends it and adds an array
+    tiles = {"left": 2 * 3, "sector_low": 1}  # 300x520 in tiles of 150x174
+    for root in (new, old):
+        for name, data in frames.items():
+            for k in range(2):
+                write_frame_array(root, name, k, data)
+                np.testing.assert_array_equal(read_frame_array(root, name, k), data)
+    group = zarr.open_group(new / "products.zarr", mode="r")
+    assert group["left"].shards == pipeline.store.frame_shard((300, 520)) == (1, 300, 522)
+    assert group["left"].chunks == (1, 150, 174)
+    for name, n in tiles.items():
+        for root, files in ((new, 1), (old, n)):
+            frame = root / "products.zarr" / name / "c" / "1"
+            assert len([p for p in frame.rglob("*") if p.is_file()]) == files
+        assert zarr.open_group(old / "products.zarr", mode="r")[name].shards is None
 
 
 def test_write_frame_array_rejects_a_frame_outside_the_array(tmp_path):
@@ -243,3 +369,26 @@ def test_damaged_group_metadata_says_how_to_recover(tmp_path):
     meta.unlink()  # the advice: arroyo writes it anew, the arrays are kept
     assert ensure_zarr(tmp_path, ["a"], products) == set()
     assert "labels" in zarr.open_group(tmp_path / "products.zarr", mode="r")
+
+
+def test_frame_shards_at_a_url_are_one_put_each_and_replace_a_damaged_shard():
+    """Products at an fsspec URL: a frame's shard is encoded here and PUT whole, as
+    locally. Regression: through zarr, writing a shard first reads the old one back (a GET
+    per shard), so a damaged shard (crc32c mismatch) made every rerun of its frame fail."""
+    import fsspec
+
+    root = f"memory://arroyo-{uuid.uuid4().hex}"
+    products = {"height": (Product("height", dtype="float32"), (30, 20), {})}
+    ensure_zarr(root, ["a", "b"], products)
+    data = _slabs("float32", (30, 20), np.nan)[0]
+    fs = fsspec.filesystem("memory")
+    shard = f"{root[len('memory://'):]}/products.zarr/height/c/1/0/0"
+    write_frame_array(root, "height", 1, data)
+    assert fs.find(f"{root}/products.zarr/height/c") == [f"/{shard}"]
+    fs.pipe_file(shard, fs.cat_file(shard)[:-3] + b"bad")  # the index's crc32c
+    with pytest.raises(ValueError, match="checksum"):
+        read_frame_array(root, "height", 1)
+    write_frame_array(root, "height", 1, data)
+    assert read_frame_array(root, "height", 1).tobytes() == data.tobytes()
+    write_frame_array(root, "height", 1, np.full((30, 20), np.nan, dtype="float32"))
+    assert not fs.exists(shard)  # all fill: no shard, as zarr leaves none
