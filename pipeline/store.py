@@ -51,7 +51,6 @@ import numcodecs
 import numpy as np
 import zarr
 from zarr.codecs import BloscCodec, ZstdCodec
-from zarr.core.indexing import morton_order_iter
 from zarr.core.metadata import ArrayV3Metadata
 
 from .errors import RunDirError, StoreError
@@ -562,6 +561,30 @@ _Shard = tuple[tuple[int, ...], list[_Tile]]
 _NO_CHUNK = 2**64 - 1  # a shard index entry (offset, nbytes) of an inner chunk not stored
 
 
+@functools.lru_cache(maxsize=16)
+def _morton_order(grid: tuple[int, ...]) -> tuple[tuple[int, ...], ...]:
+    """The inner chunks of a shard of ``grid`` chunks in the order zarr stores them: the
+    compressed Morton (Z) order of Neuroglancer, as ``zarr.core.indexing.decode_morton``
+    (kept here, not imported: that module is zarr's internals; a test compares the two).
+    Codes are decoded from 0 up and those outside ``grid`` skipped."""
+    bits = tuple((n - 1).bit_length() for n in grid)
+    total = math.prod(grid)
+    order: list[tuple[int, ...]] = []
+    code = 0
+    while len(order) < total:
+        out = [0] * len(grid)
+        used = 0
+        for bit in range(max(bits, default=0)):
+            for dim, width in enumerate(bits):
+                if bit < width:
+                    out[dim] |= ((code >> used) & 1) << bit
+                    used += 1
+        if all(c < n for c, n in zip(out, grid, strict=True)):
+            order.append(tuple(out))
+        code += 1
+    return tuple(order)
+
+
 class _Unsupported(Exception):
     """The array uses a layout or codec the slab writer does not encode itself."""
 
@@ -722,7 +745,7 @@ class _SlabWriter:
             per_shard = self._per_shard
             for shard_window, tail, _ in self._tiles(shape):
                 tiles: list[_Tile] = []
-                for local in morton_order_iter((1, *per_shard)):
+                for local in _morton_order((1, *per_shard)):
                     local = local[1:]  # the frame axis: one inner chunk per shard
                     starts = [
                         w.start + i * c

@@ -392,3 +392,18 @@ def test_frame_shards_at_a_url_are_one_put_each_and_replace_a_damaged_shard():
     assert read_frame_array(root, "height", 1).tobytes() == data.tobytes()
     write_frame_array(root, "height", 1, np.full((30, 20), np.nan, dtype="float32"))
     assert not fs.exists(shard)  # all fill: no shard, as zarr leaves none
+
+
+@pytest.mark.parametrize(
+    "grid", [(1,), (1, 1, 1), (1, 2, 2), (1, 3, 5), (1, 1, 7), (1, 4, 4), (1, 8, 3), (2, 3, 2)]
+)
+def test_shard_morton_order_is_zarrs(grid):
+    """The shard writer keeps its own copy of zarr's inner-chunk order (zarr's is internal
+    API); the bytes it writes match zarr's only while the two agree."""
+    from pipeline.store import _morton_order
+
+    indexing = pytest.importorskip("zarr.core.indexing")
+    if not hasattr(indexing, "morton_order_iter"):
+        pytest.skip("this zarr has no morton_order_iter to compare with")
+    assert list(_morton_order(grid)) == [tuple(c) for c in indexing.morton_order_iter(grid)]
+    assert sorted(_morton_order(grid)) == sorted(np.ndindex(*grid))
