@@ -36,6 +36,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
             dry_run=args.dry_run,
             progress=callback,
             products=args.products,
+            worker_wait=args.wait_for_workers,
         )
     finally:
         close()
@@ -136,6 +137,13 @@ def build_parser() -> argparse.ArgumentParser:
         "--scheduler",
         help="'threads', 'synchronous', or a dask.distributed "
         "scheduler address such as tcp://host:8786",
+    )
+    p.add_argument(
+        "--wait-for-workers",
+        type=float,
+        metavar="SECONDS",
+        help="with --scheduler ADDRESS: how long to wait for the first worker before stopping "
+        "(default 60; raise it when workers come from a batch queue)",
     )
     p.add_argument(
         "--products",

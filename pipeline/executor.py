@@ -22,6 +22,7 @@ __all__ = [
     "describe_scheduler",
     "check_scheduler",
     "check_workers",
+    "check_worker_wait",
     "terminate_as_interrupt",
 ]
 
@@ -137,7 +138,11 @@ def prestart_local_workers(
 
 
 def open_executor(
-    *, scheduler: str | None, workers: int | None, stage_package: str | None = None
+    *,
+    scheduler: str | None,
+    workers: int | None,
+    stage_package: str | None = None,
+    worker_wait: float | None = None,
 ) -> Executor:
     """The executor for ``--scheduler`` / ``--workers``.
 
@@ -153,8 +158,13 @@ def open_executor(
     stage_package : str, optional
         The stage package local worker processes import before their first task (see
         :mod:`pipeline._forkserver`); default: :func:`pipeline.graph.stage_package_name`.
+    worker_wait : float, optional
+        Seconds (> 0) a remote ``scheduler`` may take to get its first worker before
+        ParamError; default :data:`WORKER_WAIT_SECONDS`.
     """
     check_workers(workers)
+    wait = WORKER_WAIT_SECONDS if worker_wait is None else worker_wait
+    check_worker_wait(wait)
     if scheduler == "synchronous":
         return Executor()
     from distributed import Client, LocalCluster
@@ -209,19 +219,35 @@ def open_executor(
         ) from None
     try:
         # a scheduler without workers took the frames and the run waited without a word
-        client.wait_for_workers(1, timeout=WORKER_WAIT_SECONDS)
+        client.wait_for_workers(1, timeout=wait)
     except (TimeoutError, OSError) as exc:
         client.close()
         raise ParamError(
             f"--scheduler {scheduler}: the dask scheduler has no worker (none joined within "
-            f"{WORKER_WAIT_SECONDS:g} s: {type(exc).__name__}); start workers with `dask worker "
-            f"{scheduler}`, or leave --scheduler out for local worker processes"
+            f"{wait:g} s: {type(exc).__name__}); start workers with `dask worker {scheduler}` "
+            "(give them longer with --wait-for-workers SECONDS, e.g. from a batch queue), or "
+            "leave --scheduler out for local worker processes"
         ) from None
     return _DistributedExecutor(client, None, f"dask.distributed at {scheduler}")
 
 
 WORKER_WAIT_SECONDS = 60.0
-"""How long a run waits for a remote scheduler's first worker before it stops (exit 2)."""
+"""How long a run waits for a remote scheduler's first worker before it stops (exit 2), by
+default (``--wait-for-workers``)."""
+
+
+def check_worker_wait(seconds: float) -> None:
+    """Raise ParamError unless ``seconds`` is a finite number > 0."""
+    if isinstance(seconds, bool) or not isinstance(seconds, (int, float)):
+        raise ParamError(
+            f"--wait-for-workers expects seconds (a number > 0), got {seconds!r} "
+            f"({type(seconds).__name__})"
+        )
+    if not (0 < seconds < float("inf")):
+        raise ParamError(
+            f"--wait-for-workers must be a finite number of seconds > 0, got {seconds!r}; "
+            f"leave it out for {WORKER_WAIT_SECONDS:g} s"
+        )
 
 
 class _DeferredInterrupt:

@@ -15,6 +15,7 @@ from ._forkserver import stop_forkserver
 from .errors import ParamError, RunDirError, StoreError
 from .executor import (
     check_scheduler,
+    check_worker_wait,
     check_workers,
     open_executor,
     prestart_local_workers,
@@ -79,6 +80,7 @@ def run(
     progress: Callable[[int, int, str], None] | None = None,
     stage_package: str | None = None,
     products: str | os.PathLike[str] | None = None,
+    worker_wait: float | None = None,
 ) -> RunSummary | RunPlan:
     """Run (or with ``dry_run`` only plan) a catalog into a run directory.
 
@@ -91,8 +93,13 @@ def run(
     directory already uses, RunLockedError when another run holds the directory, StoreError
     when products cannot be written. A SIGTERM to the main thread stops the run as a ^C
     does: the finished frames are committed and published, then KeyboardInterrupt.
+    ``worker_wait`` (seconds, > 0; default ``executor.WORKER_WAIT_SECONDS``, 60) is how long
+    a run on a remote ``scheduler`` waits for its first worker before it stops with
+    ParamError (workers from a batch queue may need more).
     """
     check_scheduler(scheduler)  # a typo stops the run before the run directory exists
+    if worker_wait is not None:
+        check_worker_wait(worker_wait)
     # checked here, not when the executor opens: `--workers 0` passed a dry run and a run
     # with nothing pending, and a run with work stopped only after writing run.json
     check_workers(workers)
@@ -100,7 +107,7 @@ def run(
         return _run(
             catalog_path, out, overrides=overrides, workers=workers, scheduler=scheduler,
             frames=frames, dry_run=dry_run, progress=progress, stage_package=stage_package,
-            products=products,
+            products=products, worker_wait=worker_wait,
         )
 
 
@@ -116,6 +123,7 @@ def _run(
     progress: Callable[[int, int, str], None] | None,
     stage_package: str | None,
     products: str | os.PathLike[str] | None,
+    worker_wait: float | None,
 ) -> RunSummary | RunPlan:
     # local workers' imports run beside the planning (pipeline._forkserver)
     forked = not dry_run and prestart_local_workers(scheduler, workers, stage_package)
@@ -144,7 +152,8 @@ def _run(
             try:
                 plan = plan_run(request, rundir, state=state, products=root)
                 return _execute(
-                    plan, state, workers=workers, scheduler=scheduler, progress=progress
+                    plan, state, workers=workers, scheduler=scheduler, progress=progress,
+                    worker_wait=worker_wait,
                 )
             finally:
                 state.close()
@@ -322,6 +331,7 @@ def _execute(
     workers: int | None,
     scheduler: str | None,
     progress: Callable[[int, int, str], None] | None,
+    worker_wait: float | None,
 ) -> RunSummary:
     t0 = time.monotonic()
     run_id = new_run_id()
@@ -388,7 +398,8 @@ def _execute(
             (plan.rundir / _EVALUATION_NAME).unlink(missing_ok=True)
             try:
                 executor = open_executor(
-                    scheduler=scheduler, workers=workers, stage_package=plan.stage_package
+                    scheduler=scheduler, workers=workers, stage_package=plan.stage_package,
+                    worker_wait=worker_wait,
                 )
             except Exception:  # no worker ran: the run stopped, not 'interrupted'
                 meta.update(status="stopped", finished=now_iso())

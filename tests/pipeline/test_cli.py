@@ -237,3 +237,11 @@ def test_regression_run_and_status_showed_no_frame_notes(tmp_path, capsys, monke
     listed = capsys.readouterr().out.splitlines()
     assert [line.split(",")[0] for line in listed[1:]] == ['"f000"', '"f002"']
     assert all("comes out dark" in line for line in listed[1:])
+
+
+def test_bad_wait_for_workers_exits_2_before_any_work(archive, tmp_path, capsys):
+    out = tmp_path / "run"
+    code = main(["run", str(archive), "--out", str(out), "--wait-for-workers", "-5"])
+    assert code == 2
+    assert "--wait-for-workers must be a finite number of seconds > 0" in capsys.readouterr().err
+    assert not out.exists()

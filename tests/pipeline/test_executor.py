@@ -189,3 +189,21 @@ def test_scheduler_without_workers_is_a_param_error(monkeypatch):
     ) as cluster:
         with pytest.raises(ParamError, match="has no worker .*start workers with `dask worker"):
             open_executor(scheduler=cluster.scheduler_address, workers=None)
+
+
+def test_regression_workers_from_a_batch_queue_got_only_60_s(monkeypatch):
+    """Regression: a run on a remote scheduler stopped after a fixed 60 s without a worker,
+    too short for workers submitted to a batch queue; ``worker_wait`` sets the wait."""
+    import distributed
+
+    import pipeline.executor
+
+    monkeypatch.setattr(pipeline.executor, "WORKER_WAIT_SECONDS", 3600.0)  # never reached
+    with distributed.LocalCluster(
+        n_workers=0, processes=False, dashboard_address=":0"
+    ) as cluster:
+        with pytest.raises(ParamError, match=r"none joined within 0.3 s.*--wait-for-workers"):
+            open_executor(scheduler=cluster.scheduler_address, workers=None, worker_wait=0.3)
+    for bad in (0, -1.0, float("nan"), float("inf"), True, "60"):
+        with pytest.raises(ParamError, match="--wait-for-workers"):
+            open_executor(scheduler="tcp://127.0.0.1:1", workers=None, worker_wait=bad)
