@@ -8,13 +8,15 @@ BMP must hold all its samples. Other known formats (GIF, WebP, BigTIFF...) and t
 in the error. Parsing is bounded by the data's length: nothing is allocated from header values.
 
 The header also says how many bits of a sample are significant when the file declares it: a
-PNG's ``sBIT`` chunk, or a 16-bit PGM/PPM's maximum value (4095: 12 bits). Ingest notes a
+PNG's ``sBIT`` chunk, a 16-bit PGM/PPM's maximum value (4095: 12 bits), or a 16-bit TIFF's
+``MaxSampleValue`` tag (281). Ingest notes a
 16-bit file that declares fewer bits than ``ingest.sample_bits``; it does not decode it
 differently.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import struct
 from dataclasses import dataclass
 
@@ -61,7 +63,8 @@ class ImageHeader:
     width, height : int
         Pixels, > 0.
     bit_depth : int
-        Bits per stored sample: 8, or 16 for a 16-bit PNG or PGM/PPM (others: 8, not read).
+        Bits per stored sample: 8, or 16 for a 16-bit PNG, PGM/PPM or TIFF (others: 8, not
+        read).
     significant_bits : int or None
         Significant bits per sample the file declares, 1 to ``bit_depth`` (the largest of
         the colour channels' for a PNG ``sBIT`` chunk); None when it declares none.
@@ -233,7 +236,7 @@ def _tiff_header(data: bytes) -> ImageHeader:
             (offset,) = struct.unpack(order + "I", entry[8:12])
             if offset + nbytes > len(data):
                 raise _truncated("TIFF", f"the values of tag {tag} lie past the end of the file")
-        if tag not in (256, 257, 273, 279, 324, 325) or kind not in _TIFF_TYPES:
+        if tag not in (256, 257, 258, 273, 279, 281, 324, 325) or kind not in _TIFF_TYPES:
             continue
         dtype = np.dtype(order + _TIFF_TYPES[kind])
         raw = entry[8 : 8 + nbytes] if offset is None else data[offset : offset + nbytes]
@@ -249,7 +252,21 @@ def _tiff_header(data: bytes) -> ImageHeader:
         )
     if int((offsets + counts).max()) > len(data):
         raise _truncated("TIFF", "image data (strips/tiles) lies past the end of the file")
-    return _size("TIFF", int(tags[256][0]), int(tags[257][0]))
+    header = _size("TIFF", int(tags[256][0]), int(tags[257][0]))
+    bits = tags.get(258)
+    if bits is None or not len(bits) or int(bits.max()) != 16:
+        return header
+    # MaxSampleValue (tag 281): a 12-bit camera's 4095 declares 12 significant bits
+    top = tags.get(281)
+    declared = int(top.max()).bit_length() if top is not None and len(top) else 0
+    if not 1 <= declared < 16:
+        return dataclasses.replace(header, bit_depth=16)
+    return dataclasses.replace(
+        header,
+        bit_depth=16,
+        significant_bits=declared,
+        significant_from=f"its MaxSampleValue tag {int(top.max())}",
+    )
 
 
 def _pnm_header(data: bytes) -> ImageHeader:

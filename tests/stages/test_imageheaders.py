@@ -1,4 +1,4 @@
-"""Significant bits in image headers (PNG sBIT chunk, PGM/PPM maximum value)."""
+"""Significant bits in image headers (PNG sBIT chunk, PGM/PPM maximum value, TIFF tag 281)."""
 
 from __future__ import annotations
 
@@ -70,3 +70,56 @@ def test_pgm_maximum_value_gives_the_significant_bits(
 def test_8bit_pgm_declares_nothing(sixteen: np.ndarray) -> None:
     data = b"P5\n20 12\n255\n" + (sixteen % 256).astype(np.uint8).tobytes()
     assert (read_header(data).bit_depth, read_header(data).significant_bits) == (8, None)
+
+
+def tiff_bytes(samples: np.ndarray, *, max_sample: int | None) -> bytes:
+    """A baseline little-endian gray 16-bit TIFF, one strip, with or without tag 281."""
+    h, w = samples.shape
+    pixels = samples.astype("<u2").tobytes()
+    tags = [
+        (256, 3, w), (257, 3, h), (258, 3, 16), (259, 3, 1), (262, 3, 1),
+        (273, 4, 0), (277, 3, 1), (278, 3, h), (279, 4, len(pixels)),
+    ]  # fmt: skip
+    if max_sample is not None:
+        tags.append((281, 3, max_sample))
+    data_offset = 8 + 2 + 12 * len(tags) + 4
+    entries = b"".join(
+        struct.pack("<HHI", tag, kind, 1)
+        + (struct.pack("<I", data_offset if tag == 273 else value) if kind == 4
+           else struct.pack("<HH", value, 0))
+        for tag, kind, value in tags
+    )  # fmt: skip
+    return (
+        b"II*\x00" + struct.pack("<I", 8) + struct.pack("<H", len(tags)) + entries
+        + b"\x00\x00\x00\x00" + pixels
+    )  # fmt: skip
+
+
+def test_tiff_max_sample_value_gives_the_significant_bits(sixteen: np.ndarray) -> None:
+    data = tiff_bytes(sixteen, max_sample=4095)
+    decoded = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    assert decoded.dtype == np.uint16 and np.array_equal(decoded, sixteen)  # a valid TIFF
+    header = read_header(data)
+    assert (header.format, header.width, header.height) == ("TIFF", 20, 12)
+    assert (header.bit_depth, header.significant_bits) == (16, 12)
+    assert "MaxSampleValue tag 4095" in header.significant_from
+
+
+def test_tiff_without_max_sample_value_declares_nothing(sixteen: np.ndarray) -> None:
+    for data in (tiff_bytes(sixteen, max_sample=None), tiff_bytes(sixteen, max_sample=65535)):
+        header = read_header(data)
+        assert (header.bit_depth, header.significant_bits) == (16, None)
+
+
+def test_tiff_declaring_12_significant_bits_is_noted_at_ingest(tmp_path, sixteen) -> None:
+    """A 16-bit TIFF's MaxSampleValue tag (4095) gets ingest's note, as a PNG's sBIT chunk
+    does; the pixels are decoded by ``sample_bits`` alone."""
+    from stages._imageio import read_gray
+
+    path = tmp_path / "max4095.tif"
+    path.write_bytes(tiff_bytes(sixteen, max_sample=4095))
+    decoded = read_gray(path)
+    np.testing.assert_array_equal(decoded.image, (sixteen >> 8).astype(np.uint8))
+    declared = [n for n in decoded.notes if "declares 12 significant bits" in n]
+    assert len(declared) == 1 and "MaxSampleValue tag 4095" in declared[0], decoded.notes
+    assert not any("declares" in n for n in read_gray(path, sample_bits=12).notes)
