@@ -38,9 +38,8 @@ Conversion to 8-bit gray (each step adds a note to the frame's record):
   good, and the note is in the frame's record). A 16-bit file that declares fewer
   significant bits than ``sample_bits`` (a PNG ``sBIT`` chunk, a PGM/PPM maximum value
   such as 4095, a TIFF ``MaxSampleValue`` tag) gets a note with the value to set; it is
-  decoded as before, by
-  ``sample_bits`` alone (the declaration is optional and sometimes wrong, and following it
-  would change the products of existing runs).
+  decoded as before, by ``sample_bits`` alone (the declaration is optional and sometimes
+  wrong, and following it would change the products of existing runs).
   8-bit and float samples are not affected by ``sample_bits`` (a note says so when it is
   not 16).
 * float (TIFF) -> 8-bit: samples in [0, 1] are scaled by 255, samples in [0, 255] are
