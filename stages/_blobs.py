@@ -395,13 +395,8 @@ def _grow(
     # (level 0, outside the cores, is 0)
     levels = _lookup(np.clip(np.round(level), 0, 255).astype(np.uint8), core_ids)
     reach = cv2.dilate(levels, np.ones((2 * grow_px + 1, 2 * grow_px + 1), np.uint8))
-    past = _reachable(reach, contrast, free, sign=sign)
-    n_parts, parts = cv2.connectedComponents(past.view(np.uint8), connectivity=8)
-    seeded = np.zeros(n_parts, bool)
-    seeded[parts[cores & past]] = True
-    seeded[0] = False
+    filled = _seeded_regions(cores, reach, contrast, free, sign=sign)
     # blotches of ground texture touching a rock hang off it by a pixel or two
-    filled = _fill_seeded_holes(seeded, parts)
     opened = cv2.morphologyEx(filled.view(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
     return opened > 0
 
@@ -431,6 +426,102 @@ def _reach_pass(reach, contrast, sign, free, out):  # pragma: no cover - numba
         for x in range(cols):
             r = reach[y, x]
             out[y, x] = r > 0 and free[y, x] and sign * contrast[y, x] >= share * np.float32(r)
+
+
+def _seeded_regions(
+    cores: np.ndarray,
+    reach: np.ndarray,
+    contrast: np.ndarray,
+    free: np.ndarray,
+    *,
+    sign: float = 1.0,
+) -> np.ndarray:
+    """The 8-connected parts of :func:`_reachable` that hold a pixel of ``cores``, each
+    with its pockets filled (:func:`_fill_seeded_holes`).
+
+    One compiled pass: each part is walked from its cores (the reach test read at the
+    pixels the walk meets), then flooded in its box, instead of the whole-frame reach
+    map, its connected components and the seeded parts' lookup (``test_blobs.py``
+    compares that composition).
+    """
+    filled = np.zeros(reach.shape, bool)
+    _seeded_pass(
+        np.ascontiguousarray(cores),
+        np.ascontiguousarray(reach),
+        np.ascontiguousarray(contrast, dtype=np.float32),
+        np.float32(sign),
+        np.ascontiguousarray(free),
+        filled,
+    )
+    return filled
+
+
+@njit(cache=True)
+def _seeded_pass(cores, reach, contrast, sign, free, filled):  # pragma: no cover - numba
+    share = np.float32(_GROW_SHARE)
+    rows, cols = reach.shape
+    # 0: not reached yet; 1.. the parts in the order their first core is met
+    ids = np.zeros((rows, cols), np.int32)
+    stack = np.empty(rows * cols + 2 * (rows + cols) + 8, np.int64)
+    part = 0
+    for sy in range(rows):
+        for sx in range(cols):
+            if not cores[sy, sx] or ids[sy, sx] != 0:
+                continue
+            r = reach[sy, sx]
+            # the reach test of _reach_pass, at this pixel
+            if not (r > 0 and free[sy, sx] and sign * contrast[sy, sx] >= share * np.float32(r)):
+                continue
+            part += 1
+            ids[sy, sx] = part
+            filled[sy, sx] = True
+            y0, y1, x0, x1 = sy, sy, sx, sx
+            stack[0] = sy * cols + sx
+            n_stack = 1
+            while n_stack > 0:
+                n_stack -= 1
+                y, x = divmod(stack[n_stack], cols)
+                y0, y1 = min(y0, y), max(y1, y)
+                x0, x1 = min(x0, x), max(x1, x)
+                for ny in range(max(y - 1, 0), min(y + 2, rows)):
+                    for nx in range(max(x - 1, 0), min(x + 2, cols)):
+                        if ids[ny, nx] != 0:
+                            continue
+                        r = reach[ny, nx]
+                        if (
+                            r > 0
+                            and free[ny, nx]
+                            and sign * contrast[ny, nx] >= share * np.float32(r)
+                        ):
+                            ids[ny, nx] = part
+                            filled[ny, nx] = True
+                            stack[n_stack] = ny * cols + nx
+                            n_stack += 1
+            # the part's pockets, as in _fill_parts: its box grown by a pixel, flooded
+            # from that edge through 4-steps over pixels not the part's
+            top_row, left = y0 - 1, x0 - 1
+            height, width = y1 - y0 + 3, x1 - x0 + 3
+            outside = np.zeros((height, width), np.bool_)
+            n_stack = 0
+            for i in range(height):
+                for j in range(width):
+                    if i == 0 or j == 0 or i == height - 1 or j == width - 1:
+                        outside[i, j] = True
+                        stack[n_stack] = i * width + j
+                        n_stack += 1
+            while n_stack > 0:
+                n_stack -= 1
+                i, j = divmod(stack[n_stack], width)
+                for ni, nj in ((i + 1, j), (i - 1, j), (i, j + 1), (i, j - 1)):
+                    if 0 <= ni < height and 0 <= nj < width and not outside[ni, nj]:
+                        if ids[top_row + ni, left + nj] != part:
+                            outside[ni, nj] = True
+                            stack[n_stack] = ni * width + nj
+                            n_stack += 1
+            for i in range(1, height - 1):
+                for j in range(1, width - 1):
+                    if not outside[i, j]:
+                        filled[top_row + i, left + j] = True
 
 
 def _fill_seeded_holes(seeded: np.ndarray, parts: np.ndarray) -> np.ndarray:

@@ -11,6 +11,7 @@ from stages._blobs import (
     _blob_statistics,
     _fill_seeded_holes,
     _reachable,
+    _seeded_regions,
     _tile_spread,
     add_compact_blobs,
 )
@@ -206,4 +207,28 @@ def test_seeded_fill_per_part_equals_the_whole_frame_flood():
             cv2.floodFill(outside, None, (0, 0), 2, flags=4)
             np.testing.assert_array_equal(
                 _fill_seeded_holes(seeded, parts), outside[1:-1, 1:-1] != 2
+            )
+
+
+def test_seeded_regions_equal_reach_components_and_fill():
+    # the fused walk against the composition it replaced: the reach map, its 8-connected
+    # parts, those holding a core pixel of the map, their pockets filled
+    rng = np.random.default_rng(21)
+    for _ in range(200):
+        shape = tuple(rng.integers(1, 45, 2))
+        reach = rng.integers(0, 40, shape).astype(np.uint8)
+        reach[rng.random(shape) < rng.uniform(0.05, 0.5)] = 0
+        contrast = rng.normal(5, 10, shape).astype(np.float32)
+        contrast[rng.random(shape) < 0.05] = np.nan
+        free = rng.random(shape) < 0.85
+        cores = rng.random(shape) < rng.uniform(0.0, 0.1)
+        for sign in (1.0, -1.0):
+            past = _reachable(reach, contrast, free, sign=sign)
+            n_parts, parts = cv2.connectedComponents(past.view(np.uint8), connectivity=8)
+            seeded = np.zeros(n_parts, bool)
+            seeded[parts[cores & past]] = True
+            seeded[0] = False
+            np.testing.assert_array_equal(
+                _seeded_regions(cores, reach, contrast, free, sign=sign),
+                _fill_seeded_holes(seeded, parts),
             )
