@@ -69,7 +69,7 @@ import cv2
 import numpy as np
 from numba import njit
 
-from ._regions import _box_window, _label_sums, _lookup, _object_boxes
+from ._regions import _box_window, _object_boxes
 from ._sectors import sector_edges
 
 __all__ = ["BlobScales", "add_compact_blobs", "blob_scales"]
@@ -383,22 +383,81 @@ def _grow(
 ) -> np.ndarray:
     """The union of the cores' regions (module docstring, step 3), all cores at once;
     contrast on the blobs' side is ``sign * contrast`` (+-1)."""
-    n_cores, core_ids = cv2.connectedComponents(cores.view(np.uint8), connectivity=8)
-    if n_cores == 1:
+    at, owner, counts, sums = _core_sums(cores, contrast)
+    if counts.size == 1:
         return np.zeros(cores.shape, bool)
-    counts, sums = _label_sums(core_ids, contrast, n_cores)
     # a sum of negated values is the negated sum (rounding is symmetric)
     level = (sign * sums) / np.maximum(counts, 1)
     level[0] = 0.0
     # each pixel within grow_px of a core needs half the contrast of the strongest one
     # whole gray levels: a uint8 dilation is several times faster than a float one
     # (level 0, outside the cores, is 0)
-    levels = _lookup(np.clip(np.round(level), 0, 255).astype(np.uint8), core_ids)
+    levels = np.zeros(cores.shape, np.uint8)
+    levels.ravel()[at] = np.clip(np.round(level), 0, 255).astype(np.uint8)[owner]
     reach = cv2.dilate(levels, np.ones((2 * grow_px + 1, 2 * grow_px + 1), np.uint8))
     filled = _seeded_regions(cores, reach, contrast, free, sign=sign)
     # blotches of ground texture touching a rock hang off it by a pixel or two
     opened = cv2.morphologyEx(filled.view(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
     return opened > 0
+
+
+def _core_sums(
+    cores: np.ndarray, contrast: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The cores' 8-connected components: their pixels' flat indices in raster order, each
+    pixel's core (1..), and per core 0..n its pixels and its sum of ``contrast`` (core 0:
+    none, 0). One compiled pass over the (few) core pixels instead of the whole frame's
+    connected components, their sums and a lookup; the sums are added in raster order,
+    the same floats as :func:`stages._regions._label_sums` (``test_blobs.py`` compares;
+    the cores may be numbered otherwise)."""
+    return _core_pass(np.ascontiguousarray(cores), np.ascontiguousarray(contrast))
+
+
+@njit(cache=True)
+def _core_pass(cores, contrast):  # pragma: no cover - numba
+    rows, cols = cores.shape
+    at = np.empty(cores.size, np.int64)
+    n = 0
+    for y in range(rows):
+        for x in range(cols):
+            if cores[y, x]:
+                at[n] = y * cols + x
+                n += 1
+    at = at[:n]
+    seen = np.zeros((rows, cols), np.bool_)
+    # read only where seen
+    ids = np.empty((rows, cols), np.int32)
+    stack = np.empty(n, np.int64)
+    count = 0
+    for t in range(n):
+        y, x = divmod(at[t], cols)
+        if seen[y, x]:
+            continue
+        count += 1
+        seen[y, x] = True
+        ids[y, x] = count
+        stack[0] = at[t]
+        top = 1
+        while top > 0:
+            top -= 1
+            py, px = divmod(stack[top], cols)
+            for ny in range(max(py - 1, 0), min(py + 2, rows)):
+                for nx in range(max(px - 1, 0), min(px + 2, cols)):
+                    if cores[ny, nx] and not seen[ny, nx]:
+                        seen[ny, nx] = True
+                        ids[ny, nx] = count
+                        stack[top] = ny * cols + nx
+                        top += 1
+    owner = np.empty(n, np.int64)
+    counts = np.zeros(count + 1, np.int64)
+    sums = np.zeros(count + 1)
+    for t in range(n):
+        y, x = divmod(at[t], cols)
+        k = ids[y, x]
+        owner[t] = k
+        counts[k] += 1
+        sums[k] += contrast[y, x]
+    return at, owner, counts, sums
 
 
 def _reachable(

@@ -9,12 +9,14 @@ from object_masks import disk
 
 from stages._blobs import (
     _blob_statistics,
+    _core_sums,
     _fill_seeded_holes,
     _reachable,
     _seeded_regions,
     _tile_spread,
     add_compact_blobs,
 )
+from stages._regions import _label_sums
 
 SHAPE = (160, 160)
 
@@ -232,3 +234,26 @@ def test_seeded_regions_equal_reach_components_and_fill():
                 _seeded_regions(cores, reach, contrast, free, sign=sign),
                 _fill_seeded_holes(seeded, parts),
             )
+
+
+def test_core_sums_equal_connected_components_and_label_sums():
+    # the compiled walk over the core pixels against OpenCV's components and the
+    # whole-frame raster sums: the same cores (numbered maybe otherwise), the same floats
+    rng = np.random.default_rng(22)
+    for _ in range(200):
+        shape = tuple(rng.integers(1, 45, 2))
+        cores = rng.random(shape) < rng.uniform(0.0, 0.6)
+        contrast = rng.normal(5, 10, shape).astype(np.float32)
+        at, owner, counts, sums = _core_sums(cores, contrast)
+        n_cores, core_ids = cv2.connectedComponents(cores.view(np.uint8), connectivity=8)
+        want_counts, want_sums = _label_sums(core_ids, contrast, n_cores)
+        np.testing.assert_array_equal(at, np.flatnonzero(cores))
+        assert counts.size == n_cores and counts[0] == 0 and sums[0] == 0
+        # one-to-one between the numberings
+        theirs = core_ids.ravel()[at]
+        pairs = np.unique(np.stack([owner, theirs]), axis=1)
+        assert pairs.shape[1] == n_cores - 1 == np.unique(pairs[0]).size == np.unique(pairs[1]).size
+        order = np.argsort(pairs[0])
+        mine, match = pairs[0][order], pairs[1][order]
+        np.testing.assert_array_equal(counts[mine], want_counts[match])
+        np.testing.assert_array_equal(sums[mine], want_sums[match])
