@@ -69,7 +69,7 @@ import cv2
 import numpy as np
 from numba import njit
 
-from ._regions import _box_window, _object_boxes
+from ._regions import _box_window
 from ._sectors import sector_edges
 
 __all__ = ["BlobScales", "add_compact_blobs", "blob_scales"]
@@ -195,7 +195,7 @@ def add_compact_blobs(
         # the interior test for all blobs at once: one blob's 3x3 neighbourhood holds no
         # other blob's pixels (they would be one blob), and the frame's edge erodes nothing
         interior = cv2.erode(grown.view(np.uint8), np.ones((3, 3), np.uint8)).view(bool)
-        peaks, areas, touching, inner = _blob_statistics(
+        peaks, areas, touching, inner, boxes = _blob_statistics(
             blob_ids, n_blobs, z, ring, interior, sign=sign
         )
         need = min_sigmas * (light_factor if sign > 0 else 1.0)
@@ -205,7 +205,6 @@ def add_compact_blobs(
             & (areas >= min_area_px)
             & (inner >= min_interior * areas)
         )
-        boxes = _object_boxes(blob_ids, n_blobs - 1)
         for blob in np.flatnonzero(candidate):
             if blob == 0 or boxes[blob, 1] < boxes[blob, 0]:
                 continue
@@ -270,18 +269,25 @@ def _blob_statistics(
     interior: np.ndarray,
     *,
     sign: float = 1.0,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Per blob 0..n_blobs-1: peak of ``sign * z`` (-inf for 0), pixels, whether a ``ring``
-    pixel is its, and its ``interior`` pixels; one compiled pass instead of an ``ufunc.at``
-    and three ``bincount`` of masked copies (``test_blobs.py`` compares them)."""
+    pixel is its, its ``interior`` pixels and its inclusive (y0, y1, x0, x1) box as
+    :func:`stages._regions._object_boxes` gives it (blob 0: absent, y1 < y0); one compiled
+    pass instead of an ``ufunc.at``, three ``bincount`` of masked copies and the boxes'
+    pass (``test_blobs.py`` compares them)."""
     peaks = np.full(n_blobs, -np.inf)
     counts = np.zeros((3, n_blobs), np.int64)
-    _blob_pass(blob_ids, np.ascontiguousarray(z), float(sign), ring, interior, peaks, counts)
-    return peaks, counts[0], counts[1] > 0, counts[2]
+    boxes = np.empty((n_blobs, 4), np.int64)
+    boxes[:, 0::2] = np.iinfo(np.int64).max
+    boxes[:, 1::2] = -1
+    _blob_pass(
+        blob_ids, np.ascontiguousarray(z), float(sign), ring, interior, peaks, counts, boxes
+    )
+    return peaks, counts[0], counts[1] > 0, counts[2], boxes
 
 
 @njit(cache=True)
-def _blob_pass(blob_ids, z, sign, ring, interior, peaks, counts):  # pragma: no cover - numba
+def _blob_pass(blob_ids, z, sign, ring, interior, peaks, counts, boxes):  # pragma: no cover
     rows, cols = blob_ids.shape
     # blob 0's ring count in a register: ``counts[1, 0] += 1`` on most ring pixels makes
     # each wait for the last store
@@ -302,6 +308,13 @@ def _blob_pass(blob_ids, z, sign, ring, interior, peaks, counts):  # pragma: no 
             counts[0, k] += 1
             if interior[y, x]:
                 counts[2, k] += 1
+            if y < boxes[k, 0]:
+                boxes[k, 0] = y
+            boxes[k, 1] = y  # rows come in order
+            if x < boxes[k, 2]:
+                boxes[k, 2] = x
+            if x > boxes[k, 3]:
+                boxes[k, 3] = x
     counts[1, 0] += ground_ring
 
 

@@ -16,7 +16,7 @@ from stages._blobs import (
     _tile_spread,
     add_compact_blobs,
 )
-from stages._regions import _label_sums
+from stages._regions import _label_sums, _object_boxes
 
 SHAPE = (160, 160)
 
@@ -121,7 +121,10 @@ def test_blob_statistics_equal_their_numpy_twin():
         z = rng.normal(0, 3, shape).astype(np.float32)
         ring = rng.random(shape) < 0.3
         interior = cv2.erode(grown.view(np.uint8), np.ones((3, 3), np.uint8)).view(bool)
-        peaks, areas, touching, inner = _blob_statistics(blob_ids, n_blobs, z, ring, interior)
+        peaks, areas, touching, inner, boxes = _blob_statistics(
+            blob_ids, n_blobs, z, ring, interior
+        )
+        np.testing.assert_array_equal(boxes, _object_boxes(blob_ids, n_blobs - 1))
         owners = blob_ids[grown]
         expected = np.full(n_blobs, -np.inf)
         np.maximum.at(expected, owners, z[grown])
