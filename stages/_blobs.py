@@ -371,18 +371,22 @@ def _tile_spread(
         by_rows = np.add.reduceat(differ, row_edges[:-1], axis=0, dtype=np.int64)
         changed = np.add.reduceat(by_rows, col_edges[:-1], axis=1) > 0
         known = _memo["grid"]
-    for i, (r0, r1) in enumerate(zip(row_edges[:-1], row_edges[1:], strict=True)):
-        for j, (c0, c1) in enumerate(zip(col_edges[:-1], col_edges[1:], strict=True)):
-            if known is not None and not changed[i, j]:
-                grid[i, j] = known[i, j]
-                continue
-            # every other row and column: the spread of tens of thousands of pixels is
-            # stable on a quarter of them
-            sample = values[r0:r1:2, c0:c1:2][use[r0:r1:2, c0:c1:2]]
-            if sample.size >= _MIN_TILE_PX:
-                # the values are already measured from the ground: MAD about 0
-                middle = sample.size // 2
-                grid[i, j] = 1.4826 * np.partition(np.abs(sample), middle)[middle]
+    if known is None:
+        todo = np.ones(grid.shape, bool)
+    else:
+        # the unchanged tiles copied at once; the loop visits the (few) changed ones
+        todo = changed
+        grid[~changed] = known[~changed]
+    for i, j in zip(*np.nonzero(todo), strict=True):
+        r0, r1 = row_edges[i], row_edges[i + 1]
+        c0, c1 = col_edges[j], col_edges[j + 1]
+        # every other row and column: the spread of tens of thousands of pixels is
+        # stable on a quarter of them
+        sample = values[r0:r1:2, c0:c1:2][use[r0:r1:2, c0:c1:2]]
+        if sample.size >= _MIN_TILE_PX:
+            # the values are already measured from the ground: MAD about 0
+            middle = sample.size // 2
+            grid[i, j] = 1.4826 * np.partition(np.abs(sample), middle)[middle]
     if _memo is not None:
         _memo.update(tile_px=tile_px, use=use.copy(), grid=grid.copy())
     if np.isnan(grid).all():
