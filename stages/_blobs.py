@@ -69,7 +69,7 @@ import cv2
 import numpy as np
 from numba import njit
 
-from ._regions import _box_window, _label_sums, _lookup, _object_boxes
+from ._regions import _box_window
 from ._sectors import sector_edges
 
 __all__ = ["BlobScales", "add_compact_blobs", "blob_scales"]
@@ -195,7 +195,7 @@ def add_compact_blobs(
         # the interior test for all blobs at once: one blob's 3x3 neighbourhood holds no
         # other blob's pixels (they would be one blob), and the frame's edge erodes nothing
         interior = cv2.erode(grown.view(np.uint8), np.ones((3, 3), np.uint8)).view(bool)
-        peaks, areas, touching, inner = _blob_statistics(
+        peaks, areas, touching, inner, boxes = _blob_statistics(
             blob_ids, n_blobs, z, ring, interior, sign=sign
         )
         need = min_sigmas * (light_factor if sign > 0 else 1.0)
@@ -205,7 +205,6 @@ def add_compact_blobs(
             & (areas >= min_area_px)
             & (inner >= min_interior * areas)
         )
-        boxes = _object_boxes(blob_ids, n_blobs - 1)
         for blob in np.flatnonzero(candidate):
             if blob == 0 or boxes[blob, 1] < boxes[blob, 0]:
                 continue
@@ -270,18 +269,25 @@ def _blob_statistics(
     interior: np.ndarray,
     *,
     sign: float = 1.0,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Per blob 0..n_blobs-1: peak of ``sign * z`` (-inf for 0), pixels, whether a ``ring``
-    pixel is its, and its ``interior`` pixels; one compiled pass instead of an ``ufunc.at``
-    and three ``bincount`` of masked copies (``test_blobs.py`` compares them)."""
+    pixel is its, its ``interior`` pixels and its inclusive (y0, y1, x0, x1) box as
+    :func:`stages._regions._object_boxes` gives it (blob 0: absent, y1 < y0); one compiled
+    pass instead of an ``ufunc.at``, three ``bincount`` of masked copies and the boxes'
+    pass (``test_blobs.py`` compares them)."""
     peaks = np.full(n_blobs, -np.inf)
     counts = np.zeros((3, n_blobs), np.int64)
-    _blob_pass(blob_ids, np.ascontiguousarray(z), float(sign), ring, interior, peaks, counts)
-    return peaks, counts[0], counts[1] > 0, counts[2]
+    boxes = np.empty((n_blobs, 4), np.int64)
+    boxes[:, 0::2] = np.iinfo(np.int64).max
+    boxes[:, 1::2] = -1
+    _blob_pass(
+        blob_ids, np.ascontiguousarray(z), float(sign), ring, interior, peaks, counts, boxes
+    )
+    return peaks, counts[0], counts[1] > 0, counts[2], boxes
 
 
 @njit(cache=True)
-def _blob_pass(blob_ids, z, sign, ring, interior, peaks, counts):  # pragma: no cover - numba
+def _blob_pass(blob_ids, z, sign, ring, interior, peaks, counts, boxes):  # pragma: no cover
     rows, cols = blob_ids.shape
     # blob 0's ring count in a register: ``counts[1, 0] += 1`` on most ring pixels makes
     # each wait for the last store
@@ -302,6 +308,13 @@ def _blob_pass(blob_ids, z, sign, ring, interior, peaks, counts):  # pragma: no 
             counts[0, k] += 1
             if interior[y, x]:
                 counts[2, k] += 1
+            if y < boxes[k, 0]:
+                boxes[k, 0] = y
+            boxes[k, 1] = y  # rows come in order
+            if x < boxes[k, 2]:
+                boxes[k, 2] = x
+            if x > boxes[k, 3]:
+                boxes[k, 3] = x
     counts[1, 0] += ground_ring
 
 
@@ -358,18 +371,22 @@ def _tile_spread(
         by_rows = np.add.reduceat(differ, row_edges[:-1], axis=0, dtype=np.int64)
         changed = np.add.reduceat(by_rows, col_edges[:-1], axis=1) > 0
         known = _memo["grid"]
-    for i, (r0, r1) in enumerate(zip(row_edges[:-1], row_edges[1:], strict=True)):
-        for j, (c0, c1) in enumerate(zip(col_edges[:-1], col_edges[1:], strict=True)):
-            if known is not None and not changed[i, j]:
-                grid[i, j] = known[i, j]
-                continue
-            # every other row and column: the spread of tens of thousands of pixels is
-            # stable on a quarter of them
-            sample = values[r0:r1:2, c0:c1:2][use[r0:r1:2, c0:c1:2]]
-            if sample.size >= _MIN_TILE_PX:
-                # the values are already measured from the ground: MAD about 0
-                middle = sample.size // 2
-                grid[i, j] = 1.4826 * np.partition(np.abs(sample), middle)[middle]
+    if known is None:
+        todo = np.ones(grid.shape, bool)
+    else:
+        # the unchanged tiles copied at once; the loop visits the (few) changed ones
+        todo = changed
+        grid[~changed] = known[~changed]
+    for i, j in zip(*np.nonzero(todo), strict=True):
+        r0, r1 = row_edges[i], row_edges[i + 1]
+        c0, c1 = col_edges[j], col_edges[j + 1]
+        # every other row and column: the spread of tens of thousands of pixels is
+        # stable on a quarter of them
+        sample = values[r0:r1:2, c0:c1:2][use[r0:r1:2, c0:c1:2]]
+        if sample.size >= _MIN_TILE_PX:
+            # the values are already measured from the ground: MAD about 0
+            middle = sample.size // 2
+            grid[i, j] = 1.4826 * np.partition(np.abs(sample), middle)[middle]
     if _memo is not None:
         _memo.update(tile_px=tile_px, use=use.copy(), grid=grid.copy())
     if np.isnan(grid).all():
@@ -383,27 +400,81 @@ def _grow(
 ) -> np.ndarray:
     """The union of the cores' regions (module docstring, step 3), all cores at once;
     contrast on the blobs' side is ``sign * contrast`` (+-1)."""
-    n_cores, core_ids = cv2.connectedComponents(cores.view(np.uint8), connectivity=8)
-    if n_cores == 1:
+    at, owner, counts, sums = _core_sums(cores, contrast)
+    if counts.size == 1:
         return np.zeros(cores.shape, bool)
-    counts, sums = _label_sums(core_ids, contrast, n_cores)
     # a sum of negated values is the negated sum (rounding is symmetric)
     level = (sign * sums) / np.maximum(counts, 1)
     level[0] = 0.0
     # each pixel within grow_px of a core needs half the contrast of the strongest one
     # whole gray levels: a uint8 dilation is several times faster than a float one
     # (level 0, outside the cores, is 0)
-    levels = _lookup(np.clip(np.round(level), 0, 255).astype(np.uint8), core_ids)
+    levels = np.zeros(cores.shape, np.uint8)
+    levels.ravel()[at] = np.clip(np.round(level), 0, 255).astype(np.uint8)[owner]
     reach = cv2.dilate(levels, np.ones((2 * grow_px + 1, 2 * grow_px + 1), np.uint8))
-    past = _reachable(reach, contrast, free, sign=sign)
-    n_parts, parts = cv2.connectedComponents(past.view(np.uint8), connectivity=8)
-    seeded = np.zeros(n_parts, bool)
-    seeded[parts[cores & past]] = True
-    seeded[0] = False
+    filled = _seeded_regions(cores, reach, contrast, free, sign=sign)
     # blotches of ground texture touching a rock hang off it by a pixel or two
-    filled = _fill_seeded_holes(seeded, parts)
     opened = cv2.morphologyEx(filled.view(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
     return opened > 0
+
+
+def _core_sums(
+    cores: np.ndarray, contrast: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The cores' 8-connected components: their pixels' flat indices in raster order, each
+    pixel's core (1..), and per core 0..n its pixels and its sum of ``contrast`` (core 0:
+    none, 0). One compiled pass over the (few) core pixels instead of the whole frame's
+    connected components, their sums and a lookup; the sums are added in raster order,
+    the same floats as :func:`stages._regions._label_sums` (``test_blobs.py`` compares;
+    the cores may be numbered otherwise)."""
+    return _core_pass(np.ascontiguousarray(cores), np.ascontiguousarray(contrast))
+
+
+@njit(cache=True)
+def _core_pass(cores, contrast):  # pragma: no cover - numba
+    rows, cols = cores.shape
+    at = np.empty(cores.size, np.int64)
+    n = 0
+    for y in range(rows):
+        for x in range(cols):
+            if cores[y, x]:
+                at[n] = y * cols + x
+                n += 1
+    at = at[:n]
+    seen = np.zeros((rows, cols), np.bool_)
+    # read only where seen
+    ids = np.empty((rows, cols), np.int32)
+    stack = np.empty(n, np.int64)
+    count = 0
+    for t in range(n):
+        y, x = divmod(at[t], cols)
+        if seen[y, x]:
+            continue
+        count += 1
+        seen[y, x] = True
+        ids[y, x] = count
+        stack[0] = at[t]
+        top = 1
+        while top > 0:
+            top -= 1
+            py, px = divmod(stack[top], cols)
+            for ny in range(max(py - 1, 0), min(py + 2, rows)):
+                for nx in range(max(px - 1, 0), min(px + 2, cols)):
+                    if cores[ny, nx] and not seen[ny, nx]:
+                        seen[ny, nx] = True
+                        ids[ny, nx] = count
+                        stack[top] = ny * cols + nx
+                        top += 1
+    owner = np.empty(n, np.int64)
+    counts = np.zeros(count + 1, np.int64)
+    sums = np.zeros(count + 1)
+    for t in range(n):
+        y, x = divmod(at[t], cols)
+        k = ids[y, x]
+        owner[t] = k
+        counts[k] += 1
+        sums[k] += contrast[y, x]
+    return at, owner, counts, sums
 
 
 def _reachable(
@@ -431,6 +502,102 @@ def _reach_pass(reach, contrast, sign, free, out):  # pragma: no cover - numba
         for x in range(cols):
             r = reach[y, x]
             out[y, x] = r > 0 and free[y, x] and sign * contrast[y, x] >= share * np.float32(r)
+
+
+def _seeded_regions(
+    cores: np.ndarray,
+    reach: np.ndarray,
+    contrast: np.ndarray,
+    free: np.ndarray,
+    *,
+    sign: float = 1.0,
+) -> np.ndarray:
+    """The 8-connected parts of :func:`_reachable` that hold a pixel of ``cores``, each
+    with its pockets filled (:func:`_fill_seeded_holes`).
+
+    One compiled pass: each part is walked from its cores (the reach test read at the
+    pixels the walk meets), then flooded in its box, instead of the whole-frame reach
+    map, its connected components and the seeded parts' lookup (``test_blobs.py``
+    compares that composition).
+    """
+    filled = np.zeros(reach.shape, bool)
+    _seeded_pass(
+        np.ascontiguousarray(cores),
+        np.ascontiguousarray(reach),
+        np.ascontiguousarray(contrast, dtype=np.float32),
+        np.float32(sign),
+        np.ascontiguousarray(free),
+        filled,
+    )
+    return filled
+
+
+@njit(cache=True)
+def _seeded_pass(cores, reach, contrast, sign, free, filled):  # pragma: no cover - numba
+    share = np.float32(_GROW_SHARE)
+    rows, cols = reach.shape
+    # 0: not reached yet; 1.. the parts in the order their first core is met
+    ids = np.zeros((rows, cols), np.int32)
+    stack = np.empty(rows * cols + 2 * (rows + cols) + 8, np.int64)
+    part = 0
+    for sy in range(rows):
+        for sx in range(cols):
+            if not cores[sy, sx] or ids[sy, sx] != 0:
+                continue
+            r = reach[sy, sx]
+            # the reach test of _reach_pass, at this pixel
+            if not (r > 0 and free[sy, sx] and sign * contrast[sy, sx] >= share * np.float32(r)):
+                continue
+            part += 1
+            ids[sy, sx] = part
+            filled[sy, sx] = True
+            y0, y1, x0, x1 = sy, sy, sx, sx
+            stack[0] = sy * cols + sx
+            n_stack = 1
+            while n_stack > 0:
+                n_stack -= 1
+                y, x = divmod(stack[n_stack], cols)
+                y0, y1 = min(y0, y), max(y1, y)
+                x0, x1 = min(x0, x), max(x1, x)
+                for ny in range(max(y - 1, 0), min(y + 2, rows)):
+                    for nx in range(max(x - 1, 0), min(x + 2, cols)):
+                        if ids[ny, nx] != 0:
+                            continue
+                        r = reach[ny, nx]
+                        if (
+                            r > 0
+                            and free[ny, nx]
+                            and sign * contrast[ny, nx] >= share * np.float32(r)
+                        ):
+                            ids[ny, nx] = part
+                            filled[ny, nx] = True
+                            stack[n_stack] = ny * cols + nx
+                            n_stack += 1
+            # the part's pockets, as in _fill_parts: its box grown by a pixel, flooded
+            # from that edge through 4-steps over pixels not the part's
+            top_row, left = y0 - 1, x0 - 1
+            height, width = y1 - y0 + 3, x1 - x0 + 3
+            outside = np.zeros((height, width), np.bool_)
+            n_stack = 0
+            for i in range(height):
+                for j in range(width):
+                    if i == 0 or j == 0 or i == height - 1 or j == width - 1:
+                        outside[i, j] = True
+                        stack[n_stack] = i * width + j
+                        n_stack += 1
+            while n_stack > 0:
+                n_stack -= 1
+                i, j = divmod(stack[n_stack], width)
+                for ni, nj in ((i + 1, j), (i - 1, j), (i, j + 1), (i, j - 1)):
+                    if 0 <= ni < height and 0 <= nj < width and not outside[ni, nj]:
+                        if ids[top_row + ni, left + nj] != part:
+                            outside[ni, nj] = True
+                            stack[n_stack] = ni * width + nj
+                            n_stack += 1
+            for i in range(1, height - 1):
+                for j in range(1, width - 1):
+                    if not outside[i, j]:
+                        filled[top_row + i, left + j] = True
 
 
 def _fill_seeded_holes(seeded: np.ndarray, parts: np.ndarray) -> np.ndarray:

@@ -9,11 +9,14 @@ from object_masks import disk
 
 from stages._blobs import (
     _blob_statistics,
+    _core_sums,
     _fill_seeded_holes,
     _reachable,
+    _seeded_regions,
     _tile_spread,
     add_compact_blobs,
 )
+from stages._regions import _label_sums, _object_boxes
 
 SHAPE = (160, 160)
 
@@ -118,7 +121,10 @@ def test_blob_statistics_equal_their_numpy_twin():
         z = rng.normal(0, 3, shape).astype(np.float32)
         ring = rng.random(shape) < 0.3
         interior = cv2.erode(grown.view(np.uint8), np.ones((3, 3), np.uint8)).view(bool)
-        peaks, areas, touching, inner = _blob_statistics(blob_ids, n_blobs, z, ring, interior)
+        peaks, areas, touching, inner, boxes = _blob_statistics(
+            blob_ids, n_blobs, z, ring, interior
+        )
+        np.testing.assert_array_equal(boxes, _object_boxes(blob_ids, n_blobs - 1))
         owners = blob_ids[grown]
         expected = np.full(n_blobs, -np.inf)
         np.maximum.at(expected, owners, z[grown])
@@ -207,3 +213,50 @@ def test_seeded_fill_per_part_equals_the_whole_frame_flood():
             np.testing.assert_array_equal(
                 _fill_seeded_holes(seeded, parts), outside[1:-1, 1:-1] != 2
             )
+
+
+def test_seeded_regions_equal_reach_components_and_fill():
+    # the fused walk against the composition it replaced: the reach map, its 8-connected
+    # parts, those holding a core pixel of the map, their pockets filled
+    rng = np.random.default_rng(21)
+    for _ in range(200):
+        shape = tuple(rng.integers(1, 45, 2))
+        reach = rng.integers(0, 40, shape).astype(np.uint8)
+        reach[rng.random(shape) < rng.uniform(0.05, 0.5)] = 0
+        contrast = rng.normal(5, 10, shape).astype(np.float32)
+        contrast[rng.random(shape) < 0.05] = np.nan
+        free = rng.random(shape) < 0.85
+        cores = rng.random(shape) < rng.uniform(0.0, 0.1)
+        for sign in (1.0, -1.0):
+            past = _reachable(reach, contrast, free, sign=sign)
+            n_parts, parts = cv2.connectedComponents(past.view(np.uint8), connectivity=8)
+            seeded = np.zeros(n_parts, bool)
+            seeded[parts[cores & past]] = True
+            seeded[0] = False
+            np.testing.assert_array_equal(
+                _seeded_regions(cores, reach, contrast, free, sign=sign),
+                _fill_seeded_holes(seeded, parts),
+            )
+
+
+def test_core_sums_equal_connected_components_and_label_sums():
+    # the compiled walk over the core pixels against OpenCV's components and the
+    # whole-frame raster sums: the same cores (numbered maybe otherwise), the same floats
+    rng = np.random.default_rng(22)
+    for _ in range(200):
+        shape = tuple(rng.integers(1, 45, 2))
+        cores = rng.random(shape) < rng.uniform(0.0, 0.6)
+        contrast = rng.normal(5, 10, shape).astype(np.float32)
+        at, owner, counts, sums = _core_sums(cores, contrast)
+        n_cores, core_ids = cv2.connectedComponents(cores.view(np.uint8), connectivity=8)
+        want_counts, want_sums = _label_sums(core_ids, contrast, n_cores)
+        np.testing.assert_array_equal(at, np.flatnonzero(cores))
+        assert counts.size == n_cores and counts[0] == 0 and sums[0] == 0
+        # one-to-one between the numberings
+        theirs = core_ids.ravel()[at]
+        pairs = np.unique(np.stack([owner, theirs]), axis=1)
+        assert pairs.shape[1] == n_cores - 1 == np.unique(pairs[0]).size == np.unique(pairs[1]).size
+        order = np.argsort(pairs[0])
+        mine, match = pairs[0][order], pairs[1][order]
+        np.testing.assert_array_equal(counts[mine], want_counts[match])
+        np.testing.assert_array_equal(sums[mine], want_sums[match])
