@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pyarrow as pa
 
 from .camera import Camera
 from .errors import ParamError
@@ -141,9 +142,10 @@ class Product:
         ``camera_attrs(camera) -> dict`` of attributes that depend on the run's camera
         (the depth residual's ``long_name`` names the reference camera), applied over
         ``attrs``; see :meth:`resolved_attrs`.
-    schema : pyarrow.Schema, optional
-        Column types of a table product (without archive/run_id/frame_id), so that frames
-        with zero rows still write typed columns.
+    schema : pyarrow.Schema
+        Column types of a table product (without archive/run_id/frame_id); required for
+        tables. A stage returns exactly these columns; frames with zero rows still write
+        typed columns.
     """
 
     name: str
@@ -161,6 +163,13 @@ class Product:
             raise ValueError(f"Product {self.name!r}: kind must be array, table or files")
         if self.kind == "array" and self.dtype is None:
             raise ValueError(f"Product {self.name!r}: an array product needs a dtype")
+        if self.kind == "table" and not isinstance(self.schema, pa.Schema):
+            # without one the journal kept only archive/run_id/frame_id: every column lost
+            raise ValueError(
+                f"Product {self.name!r}: a table product needs schema=pyarrow.schema([...]) "
+                f"of its columns (without archive/run_id/frame_id), got "
+                f"{type(self.schema).__name__}"
+            )
 
     def frame_shape(self, image_shape: tuple[int, int], params: Mapping[str, Any]) -> tuple:
         """Per-frame shape of an array product."""
