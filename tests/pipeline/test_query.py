@@ -629,3 +629,16 @@ def test_query_output_into_a_read_only_directory(tmp_path, readonly_view):
     with pytest.raises(ParamError, match="is not writable"):
         query_command([view], "SELECT 1", fmt="csv", output=view / "x.csv")
     assert query_runs([view], "SELECT count(*) AS n FROM frames").to_pylist() == [{"n": 1}]
+
+
+def test_regression_own_stage_table_not_queryable(archive, tmp_path):
+    # a table product of a --stage-package stage was published as RUNDIR/<name>.parquet but
+    # `arroyo query` only knew descriptors/relations: "Table with name tallies does not exist"
+    from pipeline.runner import run
+
+    out = tmp_path / "run"
+    assert run(archive, out, scheduler="synchronous", stage_package="arroyo_fake_stages").done
+    table = query_runs(out, "SELECT frame_id, count(*) AS n FROM tallies GROUP BY ALL")
+    assert sorted(table["n"].to_pylist()) == [3] * 4  # tally.rows = 3 rows per frame
+    with pytest.raises(ParamError, match="views: .*tallies"):
+        query_runs(out, "SELECT * FROM tally")
