@@ -36,6 +36,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
             dry_run=args.dry_run,
             progress=callback,
             products=args.products,
+            stage_package=args.stage_package,
         )
     finally:
         close()
@@ -67,7 +68,7 @@ def _cmd_status(args: argparse.Namespace) -> int:
 def _cmd_graph(args: argparse.Namespace) -> int:
     from .graph import describe_graph
 
-    print(describe_graph(fmt=args.format), end="")
+    print(describe_graph(fmt=args.format, stage_package=args.stage_package), end="")
     return EXIT_OK
 
 
@@ -113,6 +114,15 @@ def _cmd_report(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _add_stage_package(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--stage-package",
+        metavar="PACKAGE",
+        help="importable package whose modules declare STAGE = Stage(...) (default: "
+        "$ARROYO_STAGE_PACKAGE, else the shipped 'stages')",
+    )
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="arroyo",
@@ -147,6 +157,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--frames", metavar="PATTERN", help="only frames whose id matches (glob)")
     p.add_argument("--dry-run", action="store_true", help="print what would run and why")
     p.add_argument("--quiet", action="store_true", help="no progress output")
+    _add_stage_package(p)
     p.set_defaults(func=_cmd_run)
 
     p = sub.add_parser("status", help="frames done / failed / pending per stage")
@@ -161,6 +172,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("graph", help="the stage graph in order with each stage's params")
     p.add_argument("--format", choices=("text", "dot"), default="text")
+    _add_stage_package(p)
     p.set_defaults(func=_cmd_graph)
 
     p = sub.add_parser("synth", help="render a built-in synthetic archive with ground truth")

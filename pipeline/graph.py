@@ -134,7 +134,20 @@ def stage_package_name(package: str | None = None) -> str:
 def discover_stages(package: str | None = None) -> list[Stage]:
     """Every ``STAGE`` declared by a public module of the stage package."""
     package = stage_package_name(package)
-    pkg = importlib.import_module(package)
+    try:
+        pkg = importlib.import_module(package)
+    except ModuleNotFoundError as exc:
+        if exc.name is None or not (package == exc.name or package.startswith(exc.name + ".")):
+            raise  # the package exists; something it imports does not
+        raise GraphError(
+            f"stage package {package!r} cannot be imported ({exc}); put its parent "
+            "directory on PYTHONPATH or install it, or pass another --stage-package"
+        ) from None
+    if not hasattr(pkg, "__path__"):
+        raise GraphError(
+            f"stage package {package!r} is a module ({pkg.__file__}), not a package: make it a "
+            "directory with __init__.py and one module per stage declaring STAGE = Stage(...)"
+        )
     found = []
     for info in sorted(pkgutil.iter_modules(pkg.__path__), key=lambda m: m.name):
         if info.name.startswith("_"):
@@ -143,6 +156,12 @@ def discover_stages(package: str | None = None) -> list[Stage]:
         stage = getattr(module, "STAGE", None)
         if isinstance(stage, Stage):
             found.append(stage)
+    if not found:
+        raise GraphError(
+            f"stage package {package!r} ({', '.join(pkg.__path__)}) declares no stage: each "
+            "stage is a public module (name not starting with '_') with a module-level "
+            "STAGE = pipeline.stage.Stage(...)"
+        )
     return found
 
 
@@ -186,14 +205,21 @@ def resolve_stage_params(
     return {s.name: s.resolve_params(merged[s.name]) for s in graph.stages}
 
 
-def describe_graph(graph: StageGraph | None = None, *, fmt: str = "text") -> str:
+def describe_graph(
+    graph: StageGraph | None = None, *, fmt: str = "text", stage_package: str | None = None
+) -> str:
     """The graph in order with each stage's inputs, outputs and params.
 
     Parameters
     ----------
+    graph : StageGraph, optional
+        Default: the graph of ``stage_package``.
     fmt : {'text', 'dot'}
+    stage_package : str, optional
+        Package to discover stages in when ``graph`` is not given (see
+        :func:`stage_package_name`).
     """
-    graph = graph or default_graph()
+    graph = graph or build_graph(discover_stages(stage_package))
     if fmt == "dot":
         lines = ["digraph arroyo {", "  rankdir=LR;", "  node [shape=box];"]
         for stage in graph.stages:

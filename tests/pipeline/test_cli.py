@@ -237,3 +237,30 @@ def test_regression_run_and_status_showed_no_frame_notes(tmp_path, capsys, monke
     listed = capsys.readouterr().out.splitlines()
     assert [line.split(",")[0] for line in listed[1:]] == ['"f000"', '"f002"']
     assert all("comes out dark" in line for line in listed[1:])
+
+
+def test_regression_stage_package_option_missing(archive, tmp_path, monkeypatch, capsys):
+    # the README's own-stages workflow had no --stage-package: only an undocumented
+    # environment variable chose the package
+    monkeypatch.delenv("ARROYO_STAGE_PACKAGE")
+    assert main(["graph", "--stage-package", "arroyo_fake_stages"]) == 0
+    assert "tally" in capsys.readouterr().out
+    out = tmp_path / "run"
+    argv = ["run", str(archive), "--out", str(out), "--stage-package", "arroyo_fake_stages"]
+    assert main([*argv, "--scheduler", "synchronous", "--quiet"]) == 0
+    assert (out / "tallies.parquet").exists()
+
+
+@pytest.mark.parametrize(
+    ("package", "expected"),
+    [
+        ("arroyo_no_such_stages", "cannot be imported"),
+        ("arroyo_fake_stages.tally", "is a module"),
+        ("json", "declares no stage"),
+    ],
+)
+def test_regression_bad_stage_package_traceback(package, expected, capsys):
+    # an unknown package printed a ModuleNotFoundError traceback; a package without stages
+    # gave an empty graph
+    assert main(["graph", "--stage-package", package]) == 2
+    assert expected in capsys.readouterr().err
