@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import difflib
 import graphlib
 import importlib
 import os
@@ -111,9 +112,11 @@ def build_graph(stages: Iterable[Stage]) -> StageGraph:
         deps = []
         for name in stage.inputs:
             if name not in producer:
+                close = difflib.get_close_matches(name, producer, n=1)
+                hint = f" (did you mean {close[0]!r}?)" if close else ""
                 raise MissingProductError(
-                    f"stage {stage.name!r} reads product {name!r}, which no stage writes; "
-                    f"known products: {', '.join(sorted(producer)) or 'none'}"
+                    f"stage {stage.name!r} reads product {name!r}, which no stage writes"
+                    f"{hint}; known products: {', '.join(sorted(producer)) or 'none'}"
                 )
             deps.append(producer[name])
         deps += [producer[n] for n in stage.optional_inputs if n in producer]
@@ -152,7 +155,10 @@ def discover_stages(package: str | None = None) -> list[Stage]:
     for info in sorted(pkgutil.iter_modules(pkg.__path__), key=lambda m: m.name):
         if info.name.startswith("_"):
             continue
-        module = importlib.import_module(f"{package}.{info.name}")
+        try:
+            module = importlib.import_module(f"{package}.{info.name}")
+        except (ValueError, TypeError) as exc:  # a bad declaration: say which module
+            raise GraphError(f"stage module {package}.{info.name}: {exc}") from exc
         stage = getattr(module, "STAGE", None)
         if isinstance(stage, Stage):
             found.append(stage)

@@ -8,6 +8,7 @@ write, and calls ``STAGE.run(inputs, frame=..., params=...)`` once per frame.
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -29,7 +30,17 @@ __all__ = [
 ]
 
 IMAGE_DIMS: tuple[str, str, str] = ("frame", "y", "x")
+_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 _PARAM_TYPES: tuple[type, ...] = (int, float, str, bool)
+
+
+def _check_name(what: str, name: object) -> None:
+    """Names become paths (products), SQL views (tables) and ``--set STAGE.PARAM`` keys."""
+    if not isinstance(name, str) or not _NAME.fullmatch(name):
+        raise ValueError(
+            f"{what} name must be an identifier (letters, digits, '_'; no '.', '/' or "
+            f"spaces), got {name!r}"
+        )
 
 
 @dataclass(frozen=True)
@@ -69,6 +80,11 @@ class Param:
     def __post_init__(self) -> None:
         if self.type not in _PARAM_TYPES:
             raise TypeError(f"Param {self.name!r}: type must be one of int, float, str, bool")
+        if self.minimum is not None and self.maximum is not None and self.minimum > self.maximum:
+            raise ParamError(
+                f"Param {self.name!r}: minimum {self.minimum} is above maximum {self.maximum}; "
+                "swap them"
+            )
         self.validate(self.default, where="default")
 
     def validate(self, value: Any, *, where: str = "") -> Any:
@@ -159,10 +175,19 @@ class Product:
     camera_attrs: Callable[[Camera], Mapping[str, Any]] | None = None
 
     def __post_init__(self) -> None:
+        _check_name("Product", self.name)
         if self.kind not in ("array", "table", "files"):
             raise ValueError(f"Product {self.name!r}: kind must be array, table or files")
         if self.kind == "array" and self.dtype is None:
             raise ValueError(f"Product {self.name!r}: an array product needs a dtype")
+        if self.kind == "array":
+            try:
+                np.dtype(self.dtype)
+            except TypeError:
+                raise ValueError(
+                    f"Product {self.name!r}: dtype {self.dtype!r} is not a NumPy dtype; use "
+                    "'uint8', 'int32', 'float32'..."
+                ) from None
         if self.kind == "table" and not isinstance(self.schema, pa.Schema):
             # without one the journal kept only archive/run_id/frame_id: every column lost
             raise ValueError(
@@ -271,6 +296,38 @@ class Stage:
     doc: str = ""
     optional_inputs: tuple[str, ...] = ()
     check_params: Callable[[Mapping[str, Any]], object] | None = None
+
+    def __post_init__(self) -> None:
+        _check_name("Stage", self.name)
+        for attr, kind in (
+            ("inputs", str),
+            ("optional_inputs", str),
+            ("outputs", Product),
+            ("params", Param),
+        ):
+            value = getattr(self, attr)
+            if not isinstance(value, tuple | list) or not all(isinstance(v, kind) for v in value):
+                raise TypeError(
+                    f"Stage {self.name!r}: {attr} must be a tuple of {kind.__name__}, got "
+                    f"{value!r} (a single item needs a trailing comma: (item,))"
+                )
+        if not isinstance(self.version, str):
+            raise TypeError(
+                f"Stage {self.name!r}: version must be a str such as '1', got "
+                f"{type(self.version).__name__} {self.version!r}"
+            )
+        if not callable(self.run):
+            raise TypeError(f"Stage {self.name!r}: run must be callable, got {self.run!r}")
+        for attr, names in (
+            ("outputs", [p.name for p in self.outputs]),
+            ("params", [p.name for p in self.params]),
+        ):
+            twice = sorted({n for n in names if names.count(n) > 1})
+            if twice:
+                raise ValueError(
+                    f"Stage {self.name!r}: {attr} name {', '.join(map(repr, twice))} more "
+                    "than once; each must be unique within the stage"
+                )
 
     @property
     def output_names(self) -> tuple[str, ...]:

@@ -4,7 +4,13 @@ from __future__ import annotations
 
 import pytest
 
-from pipeline.errors import DuplicateOutputError, GraphCycleError, MissingProductError, ParamError
+from pipeline.errors import (
+    DuplicateOutputError,
+    GraphCycleError,
+    GraphError,
+    MissingProductError,
+    ParamError,
+)
 from pipeline.graph import build_graph, describe_graph, discover_stages, parse_set_overrides
 from pipeline.stage import Param, Product, Stage, StageResult
 
@@ -92,3 +98,30 @@ def test_stage_check_params_turns_a_bad_combination_into_a_param_error():
     assert stage.resolve_params({"k": 3}) == {"k": 3}
     with pytest.raises(ParamError, match="stage 'a': k must be odd, got 4"):
         stage.resolve_params({"k": 4})
+
+
+def test_regression_misspelt_input_without_suggestion():
+    # the message listed every product but did not point at the near miss
+    from pipeline.graph import build_graph, discover_stages
+    from pipeline.stage import Product, Stage, StageResult
+
+    typo = Stage(
+        "areas", "1", ("blnd",), (Product("mask", dtype="uint8"),), (), lambda i, **k: StageResult()
+    )
+    with pytest.raises(MissingProductError, match="did you mean 'blend'"):
+        build_graph([*discover_stages("arroyo_fake_stages"), typo])
+
+
+def test_regression_bad_declaration_in_a_stage_module_unnamed(tmp_path, monkeypatch):
+    # a Param with a bad default raised at import with no word of which module declared it
+    package = tmp_path / "arroyo_bad_param_stages"
+    package.mkdir()
+    (package / "__init__.py").write_text("")
+    (package / "broken.py").write_text(
+        "from pipeline.stage import Param\nP = Param('k', int, 0, minimum=1)\n"
+    )
+    monkeypatch.syspath_prepend(str(tmp_path))
+    from pipeline.graph import discover_stages
+
+    with pytest.raises(GraphError, match="stage module arroyo_bad_param_stages.broken: .*>= 1"):
+        discover_stages("arroyo_bad_param_stages")
