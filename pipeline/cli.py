@@ -109,7 +109,9 @@ def _cmd_query(args: argparse.Namespace) -> int:
 def _cmd_report(args: argparse.Namespace) -> int:
     from .report import build_report
 
-    path = build_report(args.rundir, args.output, allow_running=args.allow_running)
+    path = build_report(
+        args.rundir, args.output, max_frames=args.max_frames, allow_running=args.allow_running
+    )
     print(f"arroyo: wrote {path}")
     return EXIT_OK
 
@@ -203,6 +205,13 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("report", help="write a self-contained report.html for a run")
     p.add_argument("rundir")
     p.add_argument("--output", "-o", help="where to write (default RUNDIR/report.html)")
+    p.add_argument(
+        "--max-frames",
+        type=int,
+        default=50,
+        metavar="N",
+        help="frames shown with images, in catalog order (default 50; 0: none)",
+    )
     p.add_argument(
         "--allow-running",
         action="store_true",
