@@ -227,16 +227,7 @@ def describe_graph(
     """
     graph = graph or build_graph(discover_stages(stage_package))
     if fmt == "dot":
-        lines = ["digraph arroyo {", "  rankdir=LR;", "  node [shape=box];"]
-        for stage in graph.stages:
-            params = "\\n".join(f"{p.name}={p.default!r}" for p in stage.params)
-            lines.append(f'  "{stage.name}" [label="{stage.name} v{stage.version}\\n{params}"];')
-            for product in graph.inputs_of(stage):
-                lines.append(
-                    f'  "{graph.producer[product]}" -> "{stage.name}" [label="{product}"];'
-                )
-        lines.append("}")
-        return "\n".join(lines) + "\n"
+        return _dot(graph)
     if fmt != "text":
         raise ValueError(f"fmt must be 'text' or 'dot', got {fmt!r}")
     out = []
@@ -248,3 +239,35 @@ def describe_graph(
             extra = f" one of {list(p.choices)}" if p.choices else ""
             out.append(f"   - {p.name} = {p.default!r} ({p.type.__name__}{extra}) {p.doc}")
     return "\n".join(out) + "\n"
+
+
+def _dot_str(text: str) -> str:
+    """A DOT quoted string: a str param default may hold quotes or backslashes."""
+    return '"' + text.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n") + '"'
+
+
+def _dot(graph: StageGraph) -> str:
+    """Stages as boxes, the products one reads from another as edges, and the products no
+    stage reads (the run's results: tables, quicklooks...) as ellipses."""
+    lines = ["digraph arroyo {", "  rankdir=LR;", "  node [shape=box];"]
+    read = {p for stage in graph.stages for p in graph.inputs_of(stage)}
+    for stage in graph.stages:
+        label = "\n".join(
+            [f"{stage.name} v{stage.version}", *(f"{p.name}={p.default!r}" for p in stage.params)]
+        )
+        lines.append(f"  {_dot_str(stage.name)} [label={_dot_str(label)}];")
+        for product in graph.inputs_of(stage):
+            lines.append(
+                f"  {_dot_str(graph.producer[product])} -> {_dot_str(stage.name)} "
+                f"[label={_dot_str(product)}];"
+            )
+        for product in stage.outputs:
+            if product.name not in read:
+                node = _dot_str(f"product:{product.name}")
+                lines.append(
+                    f"  {node} [label={_dot_str(f'{product.name} ({product.kind})')}, "
+                    "shape=ellipse];"
+                )
+                lines.append(f"  {_dot_str(stage.name)} -> {node};")
+    lines.append("}")
+    return "\n".join(lines) + "\n"

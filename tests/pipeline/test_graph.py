@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import re
+
+import pyarrow as pa
 import pytest
 
 from pipeline.errors import (
@@ -125,3 +128,21 @@ def test_regression_bad_declaration_in_a_stage_module_unnamed(tmp_path, monkeypa
 
     with pytest.raises(GraphError, match="stage module arroyo_bad_param_stages.broken: .*>= 1"):
         discover_stages("arroyo_bad_param_stages")
+
+
+def test_regression_dot_broken_by_quotes_and_missing_results():
+    # a str param default with a double quote ended the DOT label early (invalid file), and
+    # products no stage reads (descriptors, relations, quicklooks) did not appear at all
+    a = Stage(
+        "a", "1", (), (Product("x", dtype="uint8"),),
+        (Param("fmt", str, 'say "hi" \\ bye'),), lambda i, **k: StageResult(),
+    )
+    b = Stage(
+        "b", "1", ("x",), (Product("t", kind="table", schema=pa.schema([("v", pa.int32())])),),
+        (), lambda i, **k: StageResult(),
+    )
+    dot = describe_graph(build_graph([a, b]), fmt="dot")
+    for line in dot.splitlines():  # every quote opened is closed on its line
+        assert len(re.findall(r'(?<!\\)"', line.replace("\\\\", ""))) % 2 == 0, line
+    assert '\\"hi\\"' in dot
+    assert '"b" -> "product:t"' in dot and '"a" -> "b" [label="x"]' in dot
