@@ -261,11 +261,11 @@ def _dot(graph: StageGraph) -> str:
                 f"  {_dot_str(graph.producer[product])} -> {_dot_str(stage.name)} "
                 f"[label={_dot_str(product)}];"
             )
-        for product in stage.outputs:
-            if product.name not in read:
-                node = _dot_str(f"product:{product.name}")
+        for output in stage.outputs:
+            if output.name not in read:
+                node = _dot_str(f"product:{output.name}")
                 lines.append(
-                    f"  {node} [label={_dot_str(f'{product.name} ({product.kind})')}, "
+                    f"  {node} [label={_dot_str(f'{output.name} ({output.kind})')}, "
                     "shape=ellipse];"
                 )
                 lines.append(f"  {_dot_str(stage.name)} -> {node};")
