@@ -297,8 +297,15 @@ def _run_json(plan: RunPlan, run_id: str, scheduler: str, started: str) -> dict[
         },
         "camera": catalog.camera.to_dict(),
         "image_shape": list(plan.image_shape) if plan.image_shape else None,
+        # which package's code made the products: a resume may name another package
+        "stage_package": plan.stage_package,
         "stages": {
-            s.name: {"version": s.version, "params": plan.params[s.name]} for s in plan.graph.stages
+            s.name: {
+                "version": s.version,
+                "module": getattr(s.run, "__module__", None),
+                "params": plan.params[s.name],
+            }
+            for s in plan.graph.stages
         },
         "inputs": {
             f.frame_id: {
