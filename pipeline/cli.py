@@ -126,6 +126,7 @@ def _add_stage_package(p: argparse.ArgumentParser) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The ``arroyo`` argument parser; each subcommand sets ``func`` to its handler."""
     parser = argparse.ArgumentParser(
         prog="arroyo",
         description="Stereo pairs of rock fields to depth maps, rock masks, descriptors and "
@@ -232,6 +233,8 @@ def _exit_code(exc: BaseException) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run the ``arroyo`` command line on ``argv`` (default ``sys.argv[1:]``); return the
+    exit code (see the module docstring)."""
     parser = build_parser()
     args = parser.parse_args(argv)
     func: Callable[[argparse.Namespace], int] = args.func

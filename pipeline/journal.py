@@ -121,6 +121,7 @@ class Journal:
 
 
 def table_schema(schema: pa.Schema | None) -> pa.Schema:
+    """A table product's published schema: archive, run_id, frame_id, then ``schema``."""
     ids = [
         pa.field("archive", pa.string()),
         pa.field("run_id", pa.string()),
@@ -230,6 +231,8 @@ def publish(plan: RunPlan, state: RunState, product: str) -> None:
 
 
 def stage_attrs(plan: RunPlan, stage_name: str, extra: Mapping[str, Any]) -> dict[str, Any]:
+    """zarr attributes of a product written by ``stage_name``: ``extra`` plus the stage's
+    name, version and effective params."""
     stage = plan.graph.stage(stage_name)
     attrs = dict(extra)
     attrs.update(

@@ -480,6 +480,7 @@ def _close_quietly(executor: Any) -> None:
 
 
 def load_run_json(rundir: str | os.PathLike[str]) -> dict[str, Any]:
+    """The run directory's ``run.json``; RunDirError when ``rundir`` is not a run directory."""
     path = Path(rundir) / RUN_JSON
     if Path(rundir).exists() and not Path(rundir).is_dir():
         raise RunDirError(f"{rundir} is a file, not a run directory; give the --out of a run")
