@@ -126,6 +126,29 @@ def _check_undeclared(stage: Stage, result: StageResult) -> None:
             )
 
 
+def _check_files(stage: Stage, result: StageResult, frame_id: str) -> None:
+    """Files land only in the frame's folder of a files product the stage declares: a key
+    such as ``../run.json`` or ``state.sqlite`` would overwrite the run's own records."""
+    folders = [f"{p.name}/{frame_id}/" for p in stage.outputs if p.kind == "files"]
+    for rel in result.files:
+        parts = str(rel).split("/")
+        inside = any(str(rel).startswith(folder) for folder in folders)
+        if not inside or "" in parts or "." in parts or ".." in parts or "\\" in str(rel):
+            where = (
+                " or ".join(f"{f}NAME" for f in folders)
+                or "(none: declare Product(NAME, kind='files'))"
+            )
+            raise ValueError(
+                f"stage {stage.name!r} returned file {rel!r}; a stage's files go under "
+                f"{where}, a relative path without '.', '..' or empty parts"
+            )
+        if not isinstance(result.files[rel], bytes | bytearray | memoryview):
+            raise TypeError(
+                f"stage {stage.name!r} returned file {rel!r} as "
+                f"{type(result.files[rel]).__name__}; file content must be bytes"
+            )
+
+
 def _check_tables(stage: Stage, result: StageResult) -> None:
     """Each declared table: columns of equal length, exactly the schema's, castable to it.
 
@@ -215,6 +238,7 @@ def process_frame(job: FrameJob) -> FrameOutcome:
             _check_undeclared(stage, result)
             _check_arrays(job, stage, result)
             _check_tables(stage, result)
+            _check_files(stage, result, ctx.frame_id)
             checksums = {}
             with _store_io(root, "writing"):
                 for product in stage.outputs:

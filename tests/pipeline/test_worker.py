@@ -14,18 +14,21 @@ from pipeline.worker import FrameJob, process_frame
 _SCHEMA = pa.schema([pa.field("object_id", pa.int32()), pa.field("area_px", pa.int64())])
 
 
-def _outcome(tmp_path, monkeypatch, tables, arrays=None):
+def _outcome(tmp_path, monkeypatch, tables, arrays=None, files=None):
     """One frame through a stage writing an ``areas`` table (the arrays are not written
     when a check fails, so no store is needed)."""
 
     def run(inputs, *, frame, params):
-        return StageResult(arrays=arrays or {}, tables=tables)
+        return StageResult(arrays=arrays or {}, tables=tables, files=files or {})
 
     stage = Stage(
         name="areas",
         version="1",
         inputs=(),
-        outputs=(Product("areas", kind="table", schema=_SCHEMA),),
+        outputs=(
+            Product("areas", kind="table", schema=_SCHEMA),
+            Product("looks", kind="files"),
+        ),
         params=(),
         run=run,
     )
@@ -78,3 +81,22 @@ def test_regression_table_product_without_schema_is_refused():
     # without a schema the journal kept only archive/run_id/frame_id: every column was lost
     with pytest.raises(ValueError, match="needs schema=pyarrow.schema"):
         Product("areas", kind="table")
+
+
+@pytest.mark.parametrize(
+    "rel", ["run.json", "looks/f0/../../run.json", "looks/f1/a.png", "/tmp/x.png", "looks/f0/"]
+)
+def test_regression_stage_file_written_outside_its_folder(tmp_path, monkeypatch, rel):
+    # a stage's files were written wherever their key pointed: 'run.json' or '../x'
+    # replaced the run's own records, another frame's folder its quicklooks
+    tables = {"areas": {"object_id": [1], "area_px": [2]}}
+    outcome = _outcome(tmp_path, monkeypatch, tables, files={rel: b"x"})
+    assert outcome.failed_stage == "areas" and "a stage's files go under looks/f0/" in outcome.error
+    assert not (tmp_path / "run.json").exists()
+
+
+def test_stage_file_in_its_folder_is_written(tmp_path, monkeypatch):
+    tables = {"areas": {"object_id": [1], "area_px": [2]}}
+    outcome = _outcome(tmp_path, monkeypatch, tables, files={"looks/f0/a.png": b"x"})
+    assert outcome.error is None
+    assert (tmp_path / "looks" / "f0" / "a.png").read_bytes() == b"x"
