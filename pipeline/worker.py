@@ -149,6 +149,27 @@ def _check_files(stage: Stage, result: StageResult, frame_id: str) -> None:
             )
 
 
+def _check_figures(stage: Stage, result: StageResult) -> None:
+    """Figures become ``frames.parquet`` columns ``<stage>_<name>``: one scalar each (NumPy
+    scalars turned into Python ones here); a list or array there stopped the run's table."""
+    for name, value in list(result.figures.items()):
+        if not isinstance(name, str) or not name.isidentifier():
+            raise ValueError(
+                f"stage {stage.name!r} returned figure {name!r}; a figure name is an "
+                "identifier (it becomes the frames.parquet column "
+                f"{stage.name}_NAME)"
+            )
+        if isinstance(value, np.generic) and value.ndim == 0:
+            value = value.item()
+            result.figures[name] = value
+        if value is not None and not isinstance(value, bool | int | float | str):
+            raise TypeError(
+                f"stage {stage.name!r} returned figure {name!r} as {type(value).__name__}; a "
+                "figure is one number, bool, str or None per frame (a table product holds "
+                "more)"
+            )
+
+
 def _check_tables(stage: Stage, result: StageResult) -> None:
     """Each declared table: columns of equal length, exactly the schema's, castable to it.
 
@@ -239,6 +260,7 @@ def process_frame(job: FrameJob) -> FrameOutcome:
             _check_arrays(job, stage, result)
             _check_tables(stage, result)
             _check_files(stage, result, ctx.frame_id)
+            _check_figures(stage, result)
             checksums = {}
             with _store_io(root, "writing"):
                 for product in stage.outputs:

@@ -100,3 +100,53 @@ def test_stage_file_in_its_folder_is_written(tmp_path, monkeypatch):
     outcome = _outcome(tmp_path, monkeypatch, tables, files={"looks/f0/a.png": b"x"})
     assert outcome.error is None
     assert (tmp_path / "looks" / "f0" / "a.png").read_bytes() == b"x"
+
+
+@pytest.mark.parametrize(
+    ("figures", "expected"),
+    [
+        ({"n": [1, 2]}, "figure 'n' as list"),
+        ({"n": np.zeros(3)}, "figure 'n' as ndarray"),
+        ({"bad name": 1}, "figure 'bad name'; a figure name is an identifier"),
+    ],
+)
+def test_regression_non_scalar_figure_broke_frames_table(tmp_path, monkeypatch, figures, expected):
+    # a list figure was recorded and made the frames view unreadable by arroyo query
+    # ('Unsupported Type: list'); figures must be one scalar per frame
+    tables = {"areas": {"object_id": [1], "area_px": [2]}}
+
+    def run(inputs, *, frame, params):
+        return StageResult(tables=tables, figures=dict(figures))
+
+    stage = Stage(
+        name="areas", version="1", inputs=(), params=(), run=run,
+        outputs=(Product("areas", kind="table", schema=_SCHEMA),),
+    )
+    monkeypatch.setattr(worker, "_stages", lambda package: {"areas": stage})
+    job = FrameJob(
+        rundir=str(tmp_path), index=0,
+        context=FrameContext("f0", "a", Camera(focal_px=100.0, baseline_m=0.1)),
+        stages=(("areas", {}, "key"),), expected={},
+    )
+    outcome = process_frame(job)
+    assert outcome.failed_stage == "areas" and expected in outcome.error
+
+
+def test_numpy_scalar_figures_are_recorded_as_python_scalars(tmp_path, monkeypatch):
+    tables = {"areas": {"object_id": [1], "area_px": [2]}}
+
+    def run(inputs, *, frame, params):
+        return StageResult(tables=tables, figures={"n": np.int64(3), "f": np.float32(0.5)})
+
+    stage = Stage(
+        name="areas", version="1", inputs=(), params=(), run=run,
+        outputs=(Product("areas", kind="table", schema=_SCHEMA),),
+    )
+    monkeypatch.setattr(worker, "_stages", lambda package: {"areas": stage})
+    job = FrameJob(
+        rundir=str(tmp_path), index=0,
+        context=FrameContext("f0", "a", Camera(focal_px=100.0, baseline_m=0.1)),
+        stages=(("areas", {}, "key"),), expected={},
+    )
+    figures = process_frame(job).completed[0].figures
+    assert figures == {"n": 3, "f": 0.5} and type(figures["n"]) is int
