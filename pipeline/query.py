@@ -209,6 +209,19 @@ def _other_tables(rundir: Path) -> list[str]:
     return found
 
 
+def _written_by_current_stage(files: Sequence[Path], meta: Mapping[str, Any]) -> bool:
+    """A table left by a stage the run directory's last run no longer has (another
+    ``--stage-package``) is stale: its rows are not of the current products."""
+    if not files:
+        return False
+    try:
+        metadata = pq.read_schema(files[0]).metadata or {}
+    except (OSError, pa.ArrowInvalid):
+        return True  # unreadable: _branch_sql names the file
+    stage = metadata.get(b"arroyo.stage", b"").decode()
+    return not stage or stage in (meta.get("stages") or {})
+
+
 def _view_names(runs: Sequence[RunInfo]) -> list[str]:
     extra = sorted({name for r in runs for name in r.files} - set(VIEWS))
     return [*VIEWS, *extra]
@@ -253,7 +266,9 @@ def load_runs(rundirs: Any, *, allow_running: bool = False) -> list[RunInfo]:
             "evaluation": [path / EVALUATION_NAME] if (path / EVALUATION_NAME).is_file() else [],
         }
         for product in _other_tables(path):
-            files[product] = _published_files(path, product)
+            published = _published_files(path, product)
+            if _written_by_current_stage(published, meta):
+                files[product] = published
         runs.append(
             RunInfo(
                 path=path,
