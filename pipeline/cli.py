@@ -1,10 +1,11 @@
 """``arroyo`` command line: parse arguments, call one library function, map errors to exit
 codes (0 ok, 1 frames failed or ``status --verify`` found damage, 2 bad catalog/params/run
-directory, 3 run locked, 4 store error, 130 interrupted)."""
+directory, 3 run locked, 4 store error, 130 interrupted, 141 output pipe closed)."""
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from collections.abc import Callable, Sequence
 
@@ -17,6 +18,7 @@ from .errors import (
 __all__ = ["main", "build_parser"]
 
 EXIT_OK, EXIT_FAILED_FRAMES, EXIT_USAGE, EXIT_LOCKED, EXIT_STORE = 0, 1, 2, 3, 4
+EXIT_BROKEN_PIPE = 141  # 128 + SIGPIPE, what a shell reports for a command killed by it
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
@@ -246,6 +248,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (ValueError, TypeError, FileNotFoundError) as exc:
         print(f"arroyo: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
+    except BrokenPipeError:
+        # the reader went away (`arroyo query ... | head`): stop quietly, and point stdout at
+        # /dev/null so that Python's flush at exit does not print a second traceback
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_BROKEN_PIPE
     except KeyboardInterrupt:
         print("arroyo: interrupted; finished frames are kept, rerun to resume", file=sys.stderr)
         return 130

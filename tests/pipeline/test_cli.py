@@ -264,3 +264,24 @@ def test_regression_bad_stage_package_traceback(package, expected, capsys):
     # gave an empty graph
     assert main(["graph", "--stage-package", package]) == 2
     assert expected in capsys.readouterr().err
+
+
+def test_regression_closed_pipe_printed_a_traceback(tmp_path):
+    # `arroyo ... | head` ended in "BrokenPipeError: [Errno 32] Broken pipe" and a traceback
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    env = {**os.environ, "PYTHONPATH": str(root)}
+    env.pop("ARROYO_STAGE_PACKAGE")  # the shipped stages: the fake ones are not on the path
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "pipeline.cli", "graph", "--format", "dot"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, cwd=tmp_path,
+    )
+    proc.stdout.close()  # the reader is gone before the first line is written
+    err = proc.stderr.read().decode()
+    proc.stderr.close()
+    assert proc.wait() == 141
+    assert "Traceback" not in err
