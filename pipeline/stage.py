@@ -197,8 +197,29 @@ class Product:
             )
 
     def frame_shape(self, image_shape: tuple[int, int], params: Mapping[str, Any]) -> tuple:
-        """Per-frame shape of an array product."""
-        return tuple(self.shape(image_shape, params)) if self.shape else tuple(image_shape)
+        """Per-frame shape of an array product: one positive int per dim after ``frame``.
+
+        Raises ValueError naming the product when a ``shape`` callable fails or disagrees
+        with ``dims`` (found when the run creates the store, before any frame runs).
+        """
+        if self.shape is None:
+            shape = tuple(image_shape)
+        else:
+            try:
+                shape = tuple(self.shape(image_shape, params))
+            except Exception as exc:  # a user's callable: name it, whatever it raised
+                raise ValueError(
+                    f"Product {self.name!r}: shape(image_shape={tuple(image_shape)}, params) "
+                    f"raised {type(exc).__name__}: {exc}"
+                ) from exc
+        ints = all(isinstance(n, int | np.integer) and not isinstance(n, bool) for n in shape)
+        if len(shape) != len(self.dims) - 1 or not ints or min(shape, default=1) < 1:
+            raise ValueError(
+                f"Product {self.name!r}: per-frame shape {shape!r} does not fit dims "
+                f"{self.dims} (one positive int per dim after 'frame'); fix Product(shape=...) "
+                "or dims"
+            )
+        return tuple(int(n) for n in shape)
 
     def resolved_attrs(self, camera: Camera) -> dict[str, Any]:
         """``attrs`` with ``camera_attrs(camera)`` applied over them, for this run's camera."""

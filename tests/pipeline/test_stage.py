@@ -65,3 +65,25 @@ def test_regression_param_minimum_above_maximum_blamed_the_default():
     # it said "default must be >= 10, got 5" rather than that the bounds are swapped
     with pytest.raises(ParamError, match="minimum 10 is above maximum 1"):
         Param("k", int, 5, minimum=10, maximum=1)
+
+
+@pytest.mark.parametrize(
+    ("dims", "shape", "expected"),
+    [
+        (("frame", "g"), lambda s, p: 1 / 0, "raised ZeroDivisionError"),
+        (("frame", "g"), lambda s, p: "4", r"per-frame shape \('4',\) does not fit"),
+        (("frame", "y", "x"), lambda s, p: (4,), r"\(4,\) does not fit dims"),
+    ],
+)
+def test_regression_bad_product_shape_crashed_the_run(dims, shape, expected):
+    # a shape callable that raised, or disagreed with dims, ended the run in a traceback
+    # (ZeroDivisionError, KeyError: 'dims') while the store was being created
+    product = Product("grid", dtype="float32", dims=dims, shape=shape)
+    with pytest.raises(ValueError, match=expected):
+        product.frame_shape((8, 8), {})
+
+
+def test_frame_shape_of_images_and_grids():
+    assert Product("m", dtype="uint8").frame_shape((8, 6), {}) == (8, 6)
+    grid = Product("g", dtype="uint8", dims=("frame", "a", "b"), shape=lambda s, p: (p["n"], 2))
+    assert grid.frame_shape((8, 6), {"n": 3}) == (3, 2)
