@@ -259,11 +259,14 @@ class StageResult:
     arrays : dict of str to ndarray
         One entry per array product the stage writes, per-frame shape and declared dtype.
     tables : dict of str to dict of str to sequence
-        Columns (equal lengths) of each table product; the engine adds archive/run_id/frame_id.
+        Columns (equal lengths, exactly the product's schema) of each table product the
+        stage declares; the engine adds archive/run_id/frame_id.
     figures : dict of str to number or str
-        Per-frame scalars for ``frames.parquet``; stored as ``<stage>_<name>``.
+        Per-frame scalars (int, float, bool, str, None; NumPy scalars accepted) for
+        ``frames.parquet``, stored as ``<stage>_<name>``; names are identifiers.
     files : dict of str to bytes
-        Relative path under the run directory to file content (quicklooks).
+        ``<files product>/<frame_id>/<name>`` (under the products root) to file content
+        (quicklooks); a path elsewhere fails the frame.
     notes : list of str
         Human remarks recorded with the frame (``"colour converted to gray"``).
     """
