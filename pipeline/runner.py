@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import sqlite3
 import time
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
@@ -223,6 +224,12 @@ def _journal_owner(rundir: Path) -> str | None:
     state = RunState(rundir, readonly=True)
     try:
         return state.get_meta(_OWNER_KEY)
+    except sqlite3.OperationalError as exc:
+        if "no such table" not in str(exc):
+            raise
+        # a run killed between creating state.sqlite and writing its schema: nothing is
+        # recorded yet, and the writable open creates the schema
+        return None
     finally:
         state.close()
 

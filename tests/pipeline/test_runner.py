@@ -445,3 +445,13 @@ def test_regression_run_json_did_not_record_the_stage_package(archive, tmp_path)
     meta = json.loads((out / "run.json").read_text())
     assert meta["stage_package"] == FAKE
     assert meta["stages"]["tally"]["module"] == f"{FAKE}.tally"
+
+
+def test_regression_run_killed_before_its_journal_schema_could_not_resume(archive, tmp_path):
+    # a SIGKILL between sqlite creating state.sqlite and the schema being written left an
+    # empty file: every rerun failed with "sqlite3.OperationalError: no such table: meta"
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "state.sqlite").write_bytes(b"")
+    summary = _run(archive, out)
+    assert (summary.exit_code, summary.done) == (0, 4)
