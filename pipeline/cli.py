@@ -1,10 +1,11 @@
 """``arroyo`` command line: parse arguments, call one library function, map errors to exit
 codes (0 ok, 1 frames failed or ``status --verify`` found damage, 2 bad catalog/params/run
-directory, 3 run locked, 4 store error, 130 interrupted)."""
+directory, 3 run locked, 4 store error, 130 interrupted, 141 output pipe closed)."""
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from collections.abc import Callable, Sequence
 
@@ -17,6 +18,7 @@ from .errors import (
 __all__ = ["main", "build_parser"]
 
 EXIT_OK, EXIT_FAILED_FRAMES, EXIT_USAGE, EXIT_LOCKED, EXIT_STORE = 0, 1, 2, 3, 4
+EXIT_BROKEN_PIPE = 141  # 128 + SIGPIPE, what a shell reports for a command killed by it
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
@@ -37,6 +39,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
             progress=callback,
             products=args.products,
             worker_wait=args.wait_for_workers,
+            stage_package=args.stage_package,
         )
     finally:
         close()
@@ -68,7 +71,7 @@ def _cmd_status(args: argparse.Namespace) -> int:
 def _cmd_graph(args: argparse.Namespace) -> int:
     from .graph import describe_graph
 
-    print(describe_graph(fmt=args.format), end="")
+    print(describe_graph(fmt=args.format, stage_package=args.stage_package), end="")
     return EXIT_OK
 
 
@@ -109,12 +112,24 @@ def _cmd_query(args: argparse.Namespace) -> int:
 def _cmd_report(args: argparse.Namespace) -> int:
     from .report import build_report
 
-    path = build_report(args.rundir, args.output, allow_running=args.allow_running)
+    path = build_report(
+        args.rundir, args.output, max_frames=args.max_frames, allow_running=args.allow_running
+    )
     print(f"arroyo: wrote {path}")
     return EXIT_OK
 
 
+def _add_stage_package(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--stage-package",
+        metavar="PACKAGE",
+        help="importable package whose modules declare STAGE = Stage(...) (default: "
+        "$ARROYO_STAGE_PACKAGE, else the shipped 'stages')",
+    )
+
+
 def build_parser() -> argparse.ArgumentParser:
+    """The ``arroyo`` argument parser; each subcommand sets ``func`` to its handler."""
     parser = argparse.ArgumentParser(
         prog="arroyo",
         description="Stereo pairs of rock fields to depth maps, rock masks, descriptors and "
@@ -155,6 +170,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--frames", metavar="PATTERN", help="only frames whose id matches (glob)")
     p.add_argument("--dry-run", action="store_true", help="print what would run and why")
     p.add_argument("--quiet", action="store_true", help="no progress output")
+    _add_stage_package(p)
     p.set_defaults(func=_cmd_run)
 
     p = sub.add_parser("status", help="frames done / failed / pending per stage")
@@ -169,6 +185,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("graph", help="the stage graph in order with each stage's params")
     p.add_argument("--format", choices=("text", "dot"), default="text")
+    _add_stage_package(p)
     p.set_defaults(func=_cmd_graph)
 
     p = sub.add_parser("synth", help="render a built-in synthetic archive with ground truth")
@@ -200,6 +217,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("rundir")
     p.add_argument("--output", "-o", help="where to write (default RUNDIR/report.html)")
     p.add_argument(
+        "--max-frames",
+        type=int,
+        default=50,
+        metavar="N",
+        help="frames shown with images, in catalog order (default 50; 0: none)",
+    )
+    p.add_argument(
         "--allow-running",
         action="store_true",
         help="report on a run still in progress (its completed frames only)",
@@ -219,6 +243,8 @@ def _exit_code(exc: BaseException) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run the ``arroyo`` command line on ``argv`` (default ``sys.argv[1:]``); return the
+    exit code (see the module docstring)."""
     parser = build_parser()
     args = parser.parse_args(argv)
     func: Callable[[argparse.Namespace], int] = args.func
@@ -230,6 +256,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (ValueError, TypeError, FileNotFoundError) as exc:
         print(f"arroyo: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
+    except BrokenPipeError:
+        # the reader went away (`arroyo query ... | head`): stop quietly, and point stdout at
+        # /dev/null so that Python's flush at exit does not print a second traceback
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_BROKEN_PIPE
     except KeyboardInterrupt:
         print("arroyo: interrupted; finished frames are kept, rerun to resume", file=sys.stderr)
         return 130

@@ -364,4 +364,5 @@ def _worker_environ() -> dict[str, Any]:
 
 
 def describe_scheduler(scheduler: str | None, workers: int | None) -> str:
+    """How ``run.json`` and the progress line name the scheduler before it starts."""
     return scheduler or f"local ({workers or os.cpu_count()} workers)"

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import difflib
 import graphlib
 import importlib
 import os
@@ -111,9 +112,11 @@ def build_graph(stages: Iterable[Stage]) -> StageGraph:
         deps = []
         for name in stage.inputs:
             if name not in producer:
+                close = difflib.get_close_matches(name, producer, n=1)
+                hint = f" (did you mean {close[0]!r}?)" if close else ""
                 raise MissingProductError(
-                    f"stage {stage.name!r} reads product {name!r}, which no stage writes; "
-                    f"known products: {', '.join(sorted(producer)) or 'none'}"
+                    f"stage {stage.name!r} reads product {name!r}, which no stage writes"
+                    f"{hint}; known products: {', '.join(sorted(producer)) or 'none'}"
                 )
             deps.append(producer[name])
         deps += [producer[n] for n in stage.optional_inputs if n in producer]
@@ -134,15 +137,37 @@ def stage_package_name(package: str | None = None) -> str:
 def discover_stages(package: str | None = None) -> list[Stage]:
     """Every ``STAGE`` declared by a public module of the stage package."""
     package = stage_package_name(package)
-    pkg = importlib.import_module(package)
+    try:
+        pkg = importlib.import_module(package)
+    except ModuleNotFoundError as exc:
+        if exc.name is None or not (package == exc.name or package.startswith(exc.name + ".")):
+            raise  # the package exists; something it imports does not
+        raise GraphError(
+            f"stage package {package!r} cannot be imported ({exc}); put its parent "
+            "directory on PYTHONPATH or install it, or pass another --stage-package"
+        ) from None
+    if not hasattr(pkg, "__path__"):
+        raise GraphError(
+            f"stage package {package!r} is a module ({pkg.__file__}), not a package: make it a "
+            "directory with __init__.py and one module per stage declaring STAGE = Stage(...)"
+        )
     found = []
     for info in sorted(pkgutil.iter_modules(pkg.__path__), key=lambda m: m.name):
         if info.name.startswith("_"):
             continue
-        module = importlib.import_module(f"{package}.{info.name}")
+        try:
+            module = importlib.import_module(f"{package}.{info.name}")
+        except (ValueError, TypeError) as exc:  # a bad declaration: say which module
+            raise GraphError(f"stage module {package}.{info.name}: {exc}") from exc
         stage = getattr(module, "STAGE", None)
         if isinstance(stage, Stage):
             found.append(stage)
+    if not found:
+        raise GraphError(
+            f"stage package {package!r} ({', '.join(pkg.__path__)}) declares no stage: each "
+            "stage is a public module (name not starting with '_') with a module-level "
+            "STAGE = pipeline.stage.Stage(...)"
+        )
     return found
 
 
@@ -186,25 +211,23 @@ def resolve_stage_params(
     return {s.name: s.resolve_params(merged[s.name]) for s in graph.stages}
 
 
-def describe_graph(graph: StageGraph | None = None, *, fmt: str = "text") -> str:
+def describe_graph(
+    graph: StageGraph | None = None, *, fmt: str = "text", stage_package: str | None = None
+) -> str:
     """The graph in order with each stage's inputs, outputs and params.
 
     Parameters
     ----------
+    graph : StageGraph, optional
+        Default: the graph of ``stage_package``.
     fmt : {'text', 'dot'}
+    stage_package : str, optional
+        Package to discover stages in when ``graph`` is not given (see
+        :func:`stage_package_name`).
     """
-    graph = graph or default_graph()
+    graph = graph or build_graph(discover_stages(stage_package))
     if fmt == "dot":
-        lines = ["digraph arroyo {", "  rankdir=LR;", "  node [shape=box];"]
-        for stage in graph.stages:
-            params = "\\n".join(f"{p.name}={p.default!r}" for p in stage.params)
-            lines.append(f'  "{stage.name}" [label="{stage.name} v{stage.version}\\n{params}"];')
-            for product in graph.inputs_of(stage):
-                lines.append(
-                    f'  "{graph.producer[product]}" -> "{stage.name}" [label="{product}"];'
-                )
-        lines.append("}")
-        return "\n".join(lines) + "\n"
+        return _dot(graph)
     if fmt != "text":
         raise ValueError(f"fmt must be 'text' or 'dot', got {fmt!r}")
     out = []
@@ -216,3 +239,35 @@ def describe_graph(graph: StageGraph | None = None, *, fmt: str = "text") -> str
             extra = f" one of {list(p.choices)}" if p.choices else ""
             out.append(f"   - {p.name} = {p.default!r} ({p.type.__name__}{extra}) {p.doc}")
     return "\n".join(out) + "\n"
+
+
+def _dot_str(text: str) -> str:
+    """A DOT quoted string: a str param default may hold quotes or backslashes."""
+    return '"' + text.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n") + '"'
+
+
+def _dot(graph: StageGraph) -> str:
+    """Stages as boxes, the products one reads from another as edges, and the products no
+    stage reads (the run's results: tables, quicklooks...) as ellipses."""
+    lines = ["digraph arroyo {", "  rankdir=LR;", "  node [shape=box];"]
+    read = {p for stage in graph.stages for p in graph.inputs_of(stage)}
+    for stage in graph.stages:
+        label = "\n".join(
+            [f"{stage.name} v{stage.version}", *(f"{p.name}={p.default!r}" for p in stage.params)]
+        )
+        lines.append(f"  {_dot_str(stage.name)} [label={_dot_str(label)}];")
+        for product in graph.inputs_of(stage):
+            lines.append(
+                f"  {_dot_str(graph.producer[product])} -> {_dot_str(stage.name)} "
+                f"[label={_dot_str(product)}];"
+            )
+        for output in stage.outputs:
+            if output.name not in read:
+                node = _dot_str(f"product:{output.name}")
+                lines.append(
+                    f"  {node} [label={_dot_str(f'{output.name} ({output.kind})')}, "
+                    "shape=ellipse];"
+                )
+                lines.append(f"  {_dot_str(stage.name)} -> {node};")
+    lines.append("}")
+    return "\n".join(lines) + "\n"

@@ -121,6 +121,7 @@ class Journal:
 
 
 def table_schema(schema: pa.Schema | None) -> pa.Schema:
+    """A table product's published schema: archive, run_id, frame_id, then ``schema``."""
     ids = [
         pa.field("archive", pa.string()),
         pa.field("run_id", pa.string()),
@@ -189,7 +190,19 @@ def write_frames_table(plan: RunPlan, state: RunState) -> None:
         for name, value in frame.metadata.items():
             if name not in taken:
                 out.setdefault(name, [None] * n)[i] = value
-    write_parquet_atomic(pa.table(out), plan.rundir / FRAMES_NAME)
+    write_parquet_atomic(
+        pa.table({name: _column(values) for name, values in out.items()}),
+        plan.rundir / FRAMES_NAME,
+    )
+
+
+def _column(values: list[Any]) -> pa.Array:
+    """One frames.parquet column; a figure that is a number in one frame and a str in
+    another (a user's stage) is stored as text rather than stopping the run."""
+    try:
+        return pa.array(values)
+    except (pa.ArrowInvalid, pa.ArrowTypeError):
+        return pa.array([None if v is None else str(v) for v in values], pa.string())
 
 
 def publish(plan: RunPlan, state: RunState, product: str) -> None:
@@ -230,6 +243,8 @@ def publish(plan: RunPlan, state: RunState, product: str) -> None:
 
 
 def stage_attrs(plan: RunPlan, stage_name: str, extra: Mapping[str, Any]) -> dict[str, Any]:
+    """zarr attributes of a product written by ``stage_name``: ``extra`` plus the stage's
+    name, version and effective params."""
     stage = plan.graph.stage(stage_name)
     attrs = dict(extra)
     attrs.update(

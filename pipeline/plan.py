@@ -178,6 +178,7 @@ def _probe_shape(catalog: Catalog) -> tuple[int, int] | None:
 
 
 def default_rundir(catalog: Catalog) -> Path:
+    """``runs/<archive name>``: the run directory when ``--out`` is not given."""
     return Path("runs") / catalog.name
 
 

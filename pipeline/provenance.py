@@ -37,6 +37,7 @@ def new_run_id() -> str:
 
 
 def now_iso() -> str:
+    """Local time as ISO 8601 with its UTC offset (``2026-12-01T23:00:00+0000``)."""
     return time.strftime("%Y-%m-%dT%H:%M:%S%z")
 
 

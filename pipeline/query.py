@@ -25,6 +25,9 @@ only (per-archive catalog metadata, new figures) are NULL in the others. A view 
 given run has files for (``evaluation`` before ``arroyo evaluate``) is an empty view with
 the documented columns, so a query over it returns no rows rather than an error.
 
+A table product of a run's own stages (``arroyo run --stage-package``) is a view of the
+same name, built the same way from each run that published it.
+
 What a query sees
 -----------------
 ``descriptors`` and ``relations`` are read from the published generation of each run
@@ -46,6 +49,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import sys
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -86,6 +90,7 @@ FORMATS = ("table", "csv", "parquet", "json")
 EVALUATION_NAME = "evaluation.parquet"
 _TABLE_ROWS_SHOWN = 500
 _READ_ONLY = {"SELECT", "EXPLAIN"}
+_IDENTIFIER = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 _READ_ONLY_PRAGMAS = ("describe", "show", "summarize", "pragma show", "pragma table_info")
 
 
@@ -193,6 +198,35 @@ def _published_files(rundir: Path, product: str) -> list[Path]:
     return sorted(target.glob("archive=*/*.parquet")) or sorted(target.rglob("*.parquet"))
 
 
+def _other_tables(rundir: Path) -> list[str]:
+    """Table products of the run's own stages (``--stage-package``) besides the built-in
+    ones: every published ``<name>.parquet`` link whose name is an SQL identifier."""
+    found = []
+    for link in sorted(rundir.glob("*.parquet")):
+        name = link.name.removesuffix(".parquet")
+        if link.is_symlink() and name not in VIEWS and _IDENTIFIER.fullmatch(name):
+            found.append(name)
+    return found
+
+
+def _written_by_current_stage(files: Sequence[Path], meta: Mapping[str, Any]) -> bool:
+    """A table left by a stage the run directory's last run no longer has (another
+    ``--stage-package``) is stale: its rows are not of the current products."""
+    if not files:
+        return False
+    try:
+        metadata = pq.read_schema(files[0]).metadata or {}
+    except (OSError, pa.ArrowInvalid):
+        return True  # unreadable: _branch_sql names the file
+    stage = metadata.get(b"arroyo.stage", b"").decode()
+    return not stage or stage in (meta.get("stages") or {})
+
+
+def _view_names(runs: Sequence[RunInfo]) -> list[str]:
+    extra = sorted({name for r in runs for name in r.files} - set(VIEWS))
+    return [*VIEWS, *extra]
+
+
 def _run_labels(paths: Sequence[Path]) -> list[str]:
     names = [p.resolve().name or str(p) for p in paths]
     return [
@@ -231,6 +265,10 @@ def load_runs(rundirs: Any, *, allow_running: bool = False) -> list[RunInfo]:
             "frames": [path / FRAMES_NAME] if (path / FRAMES_NAME).is_file() else [],
             "evaluation": [path / EVALUATION_NAME] if (path / EVALUATION_NAME).is_file() else [],
         }
+        for product in _other_tables(path):
+            published = _published_files(path, product)
+            if _written_by_current_stage(published, meta):
+                files[product] = published
         runs.append(
             RunInfo(
                 path=path,
@@ -268,6 +306,8 @@ def _empty_schema(view: str) -> pa.Schema:
                 ("error", pa.string()),
             ]
         )
+    if view != "evaluation":  # a table of the run's own stages that published no files
+        return pa.schema([*ids, ("frame_id", pa.string())])
     return pa.schema(
         [
             *ids,
@@ -314,7 +354,7 @@ def _branch_sql(view: str, run: RunInfo) -> str | None:
 
 
 def _create_views(con: duckdb.DuckDBPyConnection, runs: Sequence[RunInfo]) -> None:
-    for view in VIEWS:
+    for view in _view_names(runs):
         branches = [b for b in (_branch_sql(view, r) for r in runs) if b is not None]
         if branches:
             body = "\nUNION ALL BY NAME\n".join(f"({b})" for b in branches)
@@ -404,8 +444,10 @@ def query_runs(rundirs: Any, sql: str, *, allow_running: bool = False) -> pa.Tab
     RunDirError
         A missing or in-progress run directory.
     """
-    con = open_runs(rundirs, allow_running=allow_running)
+    runs = load_runs(rundirs, allow_running=allow_running)
+    con = duckdb.connect(":memory:")
     try:
+        _create_views(con, runs)
         _check_read_only(con, sql)
         try:
             relation = con.sql(sql)
@@ -416,7 +458,8 @@ def query_runs(rundirs: Any, sql: str, *, allow_running: bool = False) -> pa.Tab
             raise RunDirError(f"cannot read the run's Parquet files: {exc}") from None
         except duckdb.Error as exc:
             raise ParamError(
-                f"query failed: {exc}\nviews: {', '.join(VIEWS)} (DESCRIBE descriptors lists "
+                f"query failed: {exc}\nviews: {', '.join(_view_names(runs))} (DESCRIBE "
+                "descriptors lists "
                 "the columns)"
             ) from None
     finally:

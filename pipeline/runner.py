@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import sqlite3
 import time
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
@@ -232,6 +233,12 @@ def _journal_owner(rundir: Path) -> str | None:
     state = RunState(rundir, readonly=True)
     try:
         return state.get_meta(_OWNER_KEY)
+    except sqlite3.OperationalError as exc:
+        if "no such table" not in str(exc):
+            raise
+        # a run killed between creating state.sqlite and writing its schema: nothing is
+        # recorded yet, and the writable open creates the schema
+        return None
     finally:
         state.close()
 
@@ -306,8 +313,15 @@ def _run_json(plan: RunPlan, run_id: str, scheduler: str, started: str) -> dict[
         },
         "camera": catalog.camera.to_dict(),
         "image_shape": list(plan.image_shape) if plan.image_shape else None,
+        # which package's code made the products: a resume may name another package
+        "stage_package": plan.stage_package,
         "stages": {
-            s.name: {"version": s.version, "params": plan.params[s.name]} for s in plan.graph.stages
+            s.name: {
+                "version": s.version,
+                "module": getattr(s.run, "__module__", None),
+                "params": plan.params[s.name],
+            }
+            for s in plan.graph.stages
         },
         "inputs": {
             f.frame_id: {
@@ -484,6 +498,7 @@ def _close_quietly(executor: Any) -> None:
 
 
 def load_run_json(rundir: str | os.PathLike[str]) -> dict[str, Any]:
+    """The run directory's ``run.json``; RunDirError when ``rundir`` is not a run directory."""
     path = Path(rundir) / RUN_JSON
     if Path(rundir).exists() and not Path(rundir).is_dir():
         raise RunDirError(f"{rundir} is a file, not a run directory; give the --out of a run")

@@ -8,12 +8,14 @@ write, and calls ``STAGE.run(inputs, frame=..., params=...)`` once per frame.
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pyarrow as pa
 
 from .camera import Camera
 from .errors import ParamError
@@ -28,7 +30,17 @@ __all__ = [
 ]
 
 IMAGE_DIMS: tuple[str, str, str] = ("frame", "y", "x")
+_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 _PARAM_TYPES: tuple[type, ...] = (int, float, str, bool)
+
+
+def _check_name(what: str, name: object) -> None:
+    """Names become paths (products), SQL views (tables) and ``--set STAGE.PARAM`` keys."""
+    if not isinstance(name, str) or not _NAME.fullmatch(name):
+        raise ValueError(
+            f"{what} name must be an identifier (letters, digits, '_'; no '.', '/' or "
+            f"spaces), got {name!r}"
+        )
 
 
 @dataclass(frozen=True)
@@ -68,6 +80,11 @@ class Param:
     def __post_init__(self) -> None:
         if self.type not in _PARAM_TYPES:
             raise TypeError(f"Param {self.name!r}: type must be one of int, float, str, bool")
+        if self.minimum is not None and self.maximum is not None and self.minimum > self.maximum:
+            raise ParamError(
+                f"Param {self.name!r}: minimum {self.minimum} is above maximum {self.maximum}; "
+                "swap them"
+            )
         self.validate(self.default, where="default")
 
     def validate(self, value: Any, *, where: str = "") -> Any:
@@ -141,9 +158,10 @@ class Product:
         ``camera_attrs(camera) -> dict`` of attributes that depend on the run's camera
         (the depth residual's ``long_name`` names the reference camera), applied over
         ``attrs``; see :meth:`resolved_attrs`.
-    schema : pyarrow.Schema, optional
-        Column types of a table product (without archive/run_id/frame_id), so that frames
-        with zero rows still write typed columns.
+    schema : pyarrow.Schema
+        Column types of a table product (without archive/run_id/frame_id); required for
+        tables. A stage returns exactly these columns; frames with zero rows still write
+        typed columns.
     """
 
     name: str
@@ -157,14 +175,51 @@ class Product:
     camera_attrs: Callable[[Camera], Mapping[str, Any]] | None = None
 
     def __post_init__(self) -> None:
+        _check_name("Product", self.name)
         if self.kind not in ("array", "table", "files"):
             raise ValueError(f"Product {self.name!r}: kind must be array, table or files")
         if self.kind == "array" and self.dtype is None:
             raise ValueError(f"Product {self.name!r}: an array product needs a dtype")
+        if self.kind == "array":
+            try:
+                np.dtype(self.dtype)
+            except TypeError:
+                raise ValueError(
+                    f"Product {self.name!r}: dtype {self.dtype!r} is not a NumPy dtype; use "
+                    "'uint8', 'int32', 'float32'..."
+                ) from None
+        if self.kind == "table" and not isinstance(self.schema, pa.Schema):
+            # without one the journal kept only archive/run_id/frame_id: every column lost
+            raise ValueError(
+                f"Product {self.name!r}: a table product needs schema=pyarrow.schema([...]) "
+                f"of its columns (without archive/run_id/frame_id), got "
+                f"{type(self.schema).__name__}"
+            )
 
     def frame_shape(self, image_shape: tuple[int, int], params: Mapping[str, Any]) -> tuple:
-        """Per-frame shape of an array product."""
-        return tuple(self.shape(image_shape, params)) if self.shape else tuple(image_shape)
+        """Per-frame shape of an array product: one positive int per dim after ``frame``.
+
+        Raises ValueError naming the product when a ``shape`` callable fails or disagrees
+        with ``dims`` (found when the run creates the store, before any frame runs).
+        """
+        if self.shape is None:
+            shape = tuple(image_shape)
+        else:
+            try:
+                shape = tuple(self.shape(image_shape, params))
+            except Exception as exc:  # a user's callable: name it, whatever it raised
+                raise ValueError(
+                    f"Product {self.name!r}: shape(image_shape={tuple(image_shape)}, params) "
+                    f"raised {type(exc).__name__}: {exc}"
+                ) from exc
+        ints = all(isinstance(n, int | np.integer) and not isinstance(n, bool) for n in shape)
+        if len(shape) != len(self.dims) - 1 or not ints or min(shape, default=1) < 1:
+            raise ValueError(
+                f"Product {self.name!r}: per-frame shape {shape!r} does not fit dims "
+                f"{self.dims} (one positive int per dim after 'frame'); fix Product(shape=...) "
+                "or dims"
+            )
+        return tuple(int(n) for n in shape)
 
     def resolved_attrs(self, camera: Camera) -> dict[str, Any]:
         """``attrs`` with ``camera_attrs(camera)`` applied over them, for this run's camera."""
@@ -204,11 +259,14 @@ class StageResult:
     arrays : dict of str to ndarray
         One entry per array product the stage writes, per-frame shape and declared dtype.
     tables : dict of str to dict of str to sequence
-        Columns (equal lengths) of each table product; the engine adds archive/run_id/frame_id.
+        Columns (equal lengths, exactly the product's schema) of each table product the
+        stage declares; the engine adds archive/run_id/frame_id.
     figures : dict of str to number or str
-        Per-frame scalars for ``frames.parquet``; stored as ``<stage>_<name>``.
+        Per-frame scalars (int, float, bool, str, None; NumPy scalars accepted) for
+        ``frames.parquet``, stored as ``<stage>_<name>``; names are identifiers.
     files : dict of str to bytes
-        Relative path under the run directory to file content (quicklooks).
+        ``<files product>/<frame_id>/<name>`` (under the products root) to file content
+        (quicklooks); a path elsewhere fails the frame.
     notes : list of str
         Human remarks recorded with the frame (``"colour converted to gray"``).
     """
@@ -262,6 +320,38 @@ class Stage:
     doc: str = ""
     optional_inputs: tuple[str, ...] = ()
     check_params: Callable[[Mapping[str, Any]], object] | None = None
+
+    def __post_init__(self) -> None:
+        _check_name("Stage", self.name)
+        for attr, kind in (
+            ("inputs", str),
+            ("optional_inputs", str),
+            ("outputs", Product),
+            ("params", Param),
+        ):
+            value = getattr(self, attr)
+            if not isinstance(value, tuple | list) or not all(isinstance(v, kind) for v in value):
+                raise TypeError(
+                    f"Stage {self.name!r}: {attr} must be a tuple of {kind.__name__}, got "
+                    f"{value!r} (a single item needs a trailing comma: (item,))"
+                )
+        if not isinstance(self.version, str):
+            raise TypeError(
+                f"Stage {self.name!r}: version must be a str such as '1', got "
+                f"{type(self.version).__name__} {self.version!r}"
+            )
+        if not callable(self.run):
+            raise TypeError(f"Stage {self.name!r}: run must be callable, got {self.run!r}")
+        for attr, names in (
+            ("outputs", [p.name for p in self.outputs]),
+            ("params", [p.name for p in self.params]),
+        ):
+            twice = sorted({n for n in names if names.count(n) > 1})
+            if twice:
+                raise ValueError(
+                    f"Stage {self.name!r}: {attr} name {', '.join(map(repr, twice))} more "
+                    "than once; each must be unique within the stage"
+                )
 
     @property
     def output_names(self) -> tuple[str, ...]:

@@ -230,6 +230,7 @@ def _verify(
 
 
 def format_status(st: RunStatus) -> str:
+    """The text ``arroyo status`` prints: frames done / failed / pending per stage, notes."""
     lines = [
         f"run {st.run_id} of archive {st.archive} in {st.rundir}: {st.run_state}, "
         f"{st.frames} frames" + (f", products at {st.products}" if st.products else ""),

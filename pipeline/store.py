@@ -119,6 +119,7 @@ def compressor_for(dtype: np.dtype | str) -> BloscCodec | ZstdCodec:
 
 
 def file_sha256(path: Path) -> str:
+    """Hex sha256 of a file, read in 1 MiB blocks."""
     digest = hashlib.sha256()
     with open(path, "rb") as fh:
         for block in iter(lambda: fh.read(1 << 20), b""):
@@ -876,6 +877,8 @@ def write_frame_array(
 def read_frame_array(
     root: str | os.PathLike[str], name: str, index: int, *, token: str = ""
 ) -> np.ndarray:
+    """Frame ``index`` of array product ``name`` under the products root (a directory or
+    an fsspec URL); ``token`` keys the cache of remote array handles."""
     if is_url(root):
         array = _remote_array(f"{zarr_location(root)}/{name}", token)
     else:
@@ -917,6 +920,7 @@ def _libc() -> Any:
 
 
 def disk_full_error(exc: OSError, what: Path | str) -> StoreError:
+    """The StoreError (exit 4) for a write of ``what`` that failed with ``exc``."""
     return StoreError(
         f"cannot write {what}: {os.strerror(exc.errno or 0)} (errno {exc.errno}); free space "
         "(or fix permissions) and rerun the same command: finished frames are kept"

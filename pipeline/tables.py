@@ -60,6 +60,7 @@ def write_part(rundir: Path, product: str, table: pa.Table) -> tuple[str, str, s
 
 
 def published_path(rundir: Path, product: str) -> Path:
+    """``RUNDIR/<product>.parquet``: the link to a table's published generation."""
     return Path(rundir) / f"{product}.parquet"
 
 

@@ -112,6 +112,110 @@ def _check_arrays(job: FrameJob, stage: Stage, result: StageResult) -> None:
             )
 
 
+def _check_undeclared(stage: Stage, result: StageResult) -> None:
+    """Arrays and tables the stage does not declare would be dropped (or, for a table, stop
+    the whole run when the batch is committed): fail the frame and name the fix."""
+    for kind, returned in (("array", result.arrays), ("table", result.tables)):
+        declared = [p.name for p in stage.outputs if p.kind == kind]
+        extra = sorted(set(returned) - set(declared))
+        if extra:
+            raise ValueError(
+                f"stage {stage.name!r} returned {kind} {', '.join(map(repr, extra))}, which "
+                f"it does not declare (its {kind} outputs: {', '.join(declared) or 'none'}); "
+                f"declare Product(..., kind={kind!r}) in the stage's outputs or drop it"
+            )
+
+
+def _check_files(stage: Stage, result: StageResult, frame_id: str) -> None:
+    """Files land only in the frame's folder of a files product the stage declares: a key
+    such as ``../run.json`` or ``state.sqlite`` would overwrite the run's own records."""
+    folders = [f"{p.name}/{frame_id}/" for p in stage.outputs if p.kind == "files"]
+    for rel in result.files:
+        parts = str(rel).split("/")
+        inside = any(str(rel).startswith(folder) for folder in folders)
+        if not inside or "" in parts or "." in parts or ".." in parts or "\\" in str(rel):
+            where = (
+                " or ".join(f"{f}NAME" for f in folders)
+                or "(none: declare Product(NAME, kind='files'))"
+            )
+            raise ValueError(
+                f"stage {stage.name!r} returned file {rel!r}; a stage's files go under "
+                f"{where}, a relative path without '.', '..' or empty parts"
+            )
+        if not isinstance(result.files[rel], bytes | bytearray | memoryview):
+            raise TypeError(
+                f"stage {stage.name!r} returned file {rel!r} as "
+                f"{type(result.files[rel]).__name__}; file content must be bytes"
+            )
+
+
+def _check_figures(stage: Stage, result: StageResult) -> None:
+    """Figures become ``frames.parquet`` columns ``<stage>_<name>``: one scalar each (NumPy
+    scalars turned into Python ones here); a list or array there stopped the run's table."""
+    for name, value in list(result.figures.items()):
+        if not isinstance(name, str) or not name.isidentifier():
+            raise ValueError(
+                f"stage {stage.name!r} returned figure {name!r}; a figure name is an "
+                "identifier (it becomes the frames.parquet column "
+                f"{stage.name}_NAME)"
+            )
+        if isinstance(value, np.generic) and value.ndim == 0:
+            value = value.item()
+            result.figures[name] = value
+        if value is not None and not isinstance(value, bool | int | float | str):
+            raise TypeError(
+                f"stage {stage.name!r} returned figure {name!r} as {type(value).__name__}; a "
+                "figure is one number, bool, str or None per frame (a table product holds "
+                "more)"
+            )
+
+
+def _check_tables(stage: Stage, result: StageResult) -> None:
+    """Each declared table: columns of equal length, exactly the schema's, castable to it.
+
+    Checked here so that a bad frame fails alone; the journal converts the rows again when
+    it commits a batch, and an error there would stop the run.
+    """
+    import pyarrow as pa
+
+    for product in stage.outputs:
+        if product.kind != "table":
+            continue
+        where = f"stage {stage.name!r} table {product.name!r}"
+        if product.name not in result.tables:
+            raise ValueError(
+                f"{where}: not returned; return its columns (of length 0 for a frame without rows)"
+            )
+        columns = result.tables[product.name]
+        if not isinstance(columns, dict):
+            raise TypeError(
+                f"{where}: expected a dict of column name to values, got {type(columns).__name__}"
+            )
+        lengths = {name: len(values) for name, values in columns.items()}
+        if len(set(lengths.values())) > 1:
+            raise ValueError(
+                f"{where}: columns of unequal lengths {lengths}; every column "
+                "needs one value per row"
+            )
+        declared = list(product.schema.names)
+        if set(columns) != set(declared):
+            missing = [n for n in declared if n not in columns]
+            unknown = [n for n in columns if n not in declared]
+            raise ValueError(
+                f"{where}: columns {sorted(columns)} do not match the declared schema "
+                f"{declared} (missing {missing}, undeclared {unknown}); return exactly the "
+                "schema's columns or change Product(schema=...)"
+            )
+        for field_ in product.schema:
+            try:
+                pa.array(columns[field_.name]).cast(field_.type)
+            except (pa.ArrowInvalid, pa.ArrowTypeError, pa.ArrowNotImplementedError) as exc:
+                raise ValueError(
+                    f"{where}: column {field_.name!r} cannot be stored as {field_.type} "
+                    f"(declared in the schema): {exc}"
+                ) from None
+
+
 class _StoreUnreachable(Exception):
     """Reading or writing a remote products root failed: every other frame would fail alike,
     so the run stops (as for a full disk) instead of recording each frame as failed."""
@@ -152,7 +256,11 @@ def process_frame(job: FrameJob) -> FrameOutcome:
                 raise TypeError(
                     f"stage {stage.name!r} returned {type(result).__name__}, expected StageResult"
                 )
+            _check_undeclared(stage, result)
             _check_arrays(job, stage, result)
+            _check_tables(stage, result)
+            _check_files(stage, result, ctx.frame_id)
+            _check_figures(stage, result)
             checksums = {}
             with _store_io(root, "writing"):
                 for product in stage.outputs:

@@ -258,14 +258,15 @@ def _tiff_header(data: bytes) -> ImageHeader:
         return header
     # MaxSampleValue (tag 281): a 12-bit camera's 4095 declares 12 significant bits
     top = tags.get(281)
-    declared = int(top.max()).bit_length() if top is not None and len(top) else 0
+    largest = int(top.max()) if top is not None and len(top) else 0
+    declared = largest.bit_length()
     if not 1 <= declared < 16:
         return dataclasses.replace(header, bit_depth=16)
     return dataclasses.replace(
         header,
         bit_depth=16,
         significant_bits=declared,
-        significant_from=f"its MaxSampleValue tag {int(top.max())}",
+        significant_from=f"its MaxSampleValue tag {largest}",
     )
 
 

@@ -40,3 +40,25 @@ def test_mypy_on_the_engine():
         [_tool("mypy"), "pipeline"], cwd=ROOT, capture_output=True, text=True, check=False, env=env
     )
     assert result.returncode == 0, result.stdout + result.stderr
+
+
+def test_regression_public_names_without_docstrings():
+    # cli.main, runner.load_run_json, store.read_frame_array... were exported in __all__
+    # with no docstring, and pipeline/__init__.py had no __all__
+    import importlib
+    import inspect
+    import pkgutil
+
+    import pipeline
+
+    assert pipeline.__all__ == ["__version__"]
+    bare = []
+    for info in pkgutil.iter_modules(pipeline.__path__):
+        if info.name.startswith("_"):
+            continue
+        module = importlib.import_module(f"pipeline.{info.name}")
+        for name in module.__all__:
+            obj = getattr(module, name)  # AttributeError: __all__ names a missing object
+            if (inspect.isfunction(obj) or inspect.isclass(obj)) and not obj.__doc__:
+                bare.append(f"pipeline.{info.name}.{name}")
+    assert bare == []

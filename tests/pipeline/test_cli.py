@@ -245,3 +245,51 @@ def test_bad_wait_for_workers_exits_2_before_any_work(archive, tmp_path, capsys)
     assert code == 2
     assert "--wait-for-workers must be a finite number of seconds > 0" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_regression_stage_package_option_missing(archive, tmp_path, monkeypatch, capsys):
+    # the README's own-stages workflow had no --stage-package: only an undocumented
+    # environment variable chose the package
+    monkeypatch.delenv("ARROYO_STAGE_PACKAGE")
+    assert main(["graph", "--stage-package", "arroyo_fake_stages"]) == 0
+    assert "tally" in capsys.readouterr().out
+    out = tmp_path / "run"
+    argv = ["run", str(archive), "--out", str(out), "--stage-package", "arroyo_fake_stages"]
+    assert main([*argv, "--scheduler", "synchronous", "--quiet"]) == 0
+    assert (out / "tallies.parquet").exists()
+
+
+@pytest.mark.parametrize(
+    ("package", "expected"),
+    [
+        ("arroyo_no_such_stages", "cannot be imported"),
+        ("arroyo_fake_stages.tally", "is a module"),
+        ("json", "declares no stage"),
+    ],
+)
+def test_regression_bad_stage_package_traceback(package, expected, capsys):
+    # an unknown package printed a ModuleNotFoundError traceback; a package without stages
+    # gave an empty graph
+    assert main(["graph", "--stage-package", package]) == 2
+    assert expected in capsys.readouterr().err
+
+
+def test_regression_closed_pipe_printed_a_traceback(tmp_path):
+    # `arroyo ... | head` ended in "BrokenPipeError: [Errno 32] Broken pipe" and a traceback
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    env = {**os.environ, "PYTHONPATH": str(root)}
+    env.pop("ARROYO_STAGE_PACKAGE")  # the shipped stages: the fake ones are not on the path
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "pipeline.cli", "graph", "--format", "dot"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, cwd=tmp_path,
+    )
+    proc.stdout.close()  # the reader is gone before the first line is written
+    err = proc.stderr.read().decode()
+    proc.stderr.close()
+    assert proc.wait() == 141
+    assert "Traceback" not in err

@@ -2,9 +2,18 @@
 
 from __future__ import annotations
 
+import re
+
+import pyarrow as pa
 import pytest
 
-from pipeline.errors import DuplicateOutputError, GraphCycleError, MissingProductError, ParamError
+from pipeline.errors import (
+    DuplicateOutputError,
+    GraphCycleError,
+    GraphError,
+    MissingProductError,
+    ParamError,
+)
 from pipeline.graph import build_graph, describe_graph, discover_stages, parse_set_overrides
 from pipeline.stage import Param, Product, Stage, StageResult
 
@@ -92,3 +101,48 @@ def test_stage_check_params_turns_a_bad_combination_into_a_param_error():
     assert stage.resolve_params({"k": 3}) == {"k": 3}
     with pytest.raises(ParamError, match="stage 'a': k must be odd, got 4"):
         stage.resolve_params({"k": 4})
+
+
+def test_regression_misspelt_input_without_suggestion():
+    # the message listed every product but did not point at the near miss
+    from pipeline.graph import build_graph, discover_stages
+    from pipeline.stage import Product, Stage, StageResult
+
+    typo = Stage(
+        "areas", "1", ("blnd",), (Product("mask", dtype="uint8"),), (), lambda i, **k: StageResult()
+    )
+    with pytest.raises(MissingProductError, match="did you mean 'blend'"):
+        build_graph([*discover_stages("arroyo_fake_stages"), typo])
+
+
+def test_regression_bad_declaration_in_a_stage_module_unnamed(tmp_path, monkeypatch):
+    # a Param with a bad default raised at import with no word of which module declared it
+    package = tmp_path / "arroyo_bad_param_stages"
+    package.mkdir()
+    (package / "__init__.py").write_text("")
+    (package / "broken.py").write_text(
+        "from pipeline.stage import Param\nP = Param('k', int, 0, minimum=1)\n"
+    )
+    monkeypatch.syspath_prepend(str(tmp_path))
+    from pipeline.graph import discover_stages
+
+    with pytest.raises(GraphError, match="stage module arroyo_bad_param_stages.broken: .*>= 1"):
+        discover_stages("arroyo_bad_param_stages")
+
+
+def test_regression_dot_broken_by_quotes_and_missing_results():
+    # a str param default with a double quote ended the DOT label early (invalid file), and
+    # products no stage reads (descriptors, relations, quicklooks) did not appear at all
+    a = Stage(
+        "a", "1", (), (Product("x", dtype="uint8"),),
+        (Param("fmt", str, 'say "hi" \\ bye'),), lambda i, **k: StageResult(),
+    )
+    b = Stage(
+        "b", "1", ("x",), (Product("t", kind="table", schema=pa.schema([("v", pa.int32())])),),
+        (), lambda i, **k: StageResult(),
+    )
+    dot = describe_graph(build_graph([a, b]), fmt="dot")
+    for line in dot.splitlines():  # every quote opened is closed on its line
+        assert len(re.findall(r'(?<!\\)"', line.replace("\\\\", ""))) % 2 == 0, line
+    assert '\\"hi\\"' in dot
+    assert '"b" -> "product:t"' in dot and '"a" -> "b" [label="x"]' in dot

@@ -48,3 +48,26 @@ def test_frame_failed_on_rerun_has_no_stale_stage_figures(archive, tmp_path):
     stale = ("ingest_seconds", "ingest_mean", "blend_seconds", "tally_seconds", "tally_rows")
     assert [rows["f001"][c] for c in stale] == [None] * len(stale)
     assert all(rows["f000"][c] is not None for c in stale)
+
+
+def test_regression_figure_of_mixed_types_stopped_the_run(archive, tmp_path, monkeypatch):
+    # a user's figure that was a number in one frame and a str in another made
+    # pa.table(frames columns) raise: the run stopped (exit 2) and frames.parquet went stale
+    package = tmp_path / "arroyo_mixed_figure_stages"
+    package.mkdir()
+    (package / "__init__.py").write_text("")
+    for name in ("load", "blend"):
+        (package / f"{name}.py").write_text(f"from {FAKE}.{name} import STAGE  # noqa: F401\n")
+    (package / "mixed.py").write_text(
+        "from pipeline.stage import Product, Stage, StageResult\n"
+        "def run(inputs, *, frame, params):\n"
+        "    value = 'many' if frame.frame_id.endswith('1') else 3\n"
+        "    return StageResult(arrays={'flag': inputs['blend'] > 0}, figures={'n': value})\n"
+        "STAGE = Stage('mixed', '1', ('blend',), (Product('flag', dtype='bool'),), (), run)\n"
+    )
+    monkeypatch.syspath_prepend(str(tmp_path))
+    out = tmp_path / "run"
+    summary = run(archive, out, scheduler="synchronous", stage_package=package.name)
+    assert (summary.done, summary.failed) == (4, 0)
+    rows = pq.read_table(out / "frames.parquet").to_pylist()
+    assert [r["mixed_n"] for r in rows] == ["3", "many", "3", "3"]

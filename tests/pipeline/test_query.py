@@ -629,3 +629,36 @@ def test_query_output_into_a_read_only_directory(tmp_path, readonly_view):
     with pytest.raises(ParamError, match="is not writable"):
         query_command([view], "SELECT 1", fmt="csv", output=view / "x.csv")
     assert query_runs([view], "SELECT count(*) AS n FROM frames").to_pylist() == [{"n": 1}]
+
+
+def test_regression_own_stage_table_not_queryable(archive, tmp_path):
+    # a table product of a --stage-package stage was published as RUNDIR/<name>.parquet but
+    # `arroyo query` only knew descriptors/relations: "Table with name tallies does not exist"
+    from pipeline.runner import run
+
+    out = tmp_path / "run"
+    assert run(archive, out, scheduler="synchronous", stage_package="arroyo_fake_stages").done
+    table = query_runs(out, "SELECT frame_id, count(*) AS n FROM tallies GROUP BY ALL")
+    assert sorted(table["n"].to_pylist()) == [3] * 4  # tally.rows = 3 rows per frame
+    with pytest.raises(ParamError, match="views: .*tallies"):
+        query_runs(out, "SELECT * FROM tally")
+
+
+def test_regression_table_of_a_stage_no_longer_run_stays_queryable(archive, tmp_path, monkeypatch):
+    # after a rerun with another stage package the earlier package's table stayed published
+    # and was queried as if current
+    from pipeline.runner import run
+
+    package = tmp_path / "arroyo_no_tally_stages"
+    package.mkdir()
+    (package / "__init__.py").write_text("")
+    for name in ("load", "blend"):
+        (package / f"{name}.py").write_text(
+            f"from arroyo_fake_stages.{name} import STAGE  # noqa: F401\n"
+        )
+    monkeypatch.syspath_prepend(str(tmp_path))
+    out = tmp_path / "run"
+    run(archive, out, scheduler="synchronous", stage_package="arroyo_fake_stages")
+    run(archive, out, scheduler="synchronous", stage_package=package.name)
+    with pytest.raises(ParamError, match="tallies does not exist"):
+        query_runs(out, "SELECT * FROM tallies")

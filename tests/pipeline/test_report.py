@@ -149,6 +149,17 @@ def test_frames_beyond_the_cap_are_summarised(tmp_path):
         build_report(run, max_frames=-1)
 
 
+def test_regression_cli_report_could_not_set_max_frames(tmp_path, capsys):
+    # build_report takes max_frames but `arroyo report` had no option for it: a survey run's
+    # page always embedded 50 frames' images, and could never show more
+    run = make_run(tmp_path / "many", frames=3, rocks=1)
+    assert main(["report", str(run), "--max-frames", "2"]) == 0
+    text, page = _parse(run / "report.html")
+    assert len(page.frames) == 2 and "Showing the first 2 of 3 frames" in text
+    assert main(["report", str(run), "--max-frames", "-1"]) == 2
+    assert "max_frames must be an int >= 0" in capsys.readouterr().err
+
+
 def test_output_locations(tmp_path):
     run = make_run(tmp_path / "lab", frames=1, rocks=2)
     assert build_report(run, tmp_path / "r.html") == tmp_path / "r.html"

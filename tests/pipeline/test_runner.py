@@ -435,3 +435,23 @@ def test_regression_residual_attrs_said_left_minus_pseudo_left_for_reference_lef
         names[reference] = residual.attrs["long_name"]
     assert names["left"].startswith("right minus pseudo-right (left warped")
     assert names["right"].startswith("left minus pseudo-left (right warped")
+
+
+def test_regression_run_json_did_not_record_the_stage_package(archive, tmp_path):
+    # provenance named each stage's version and params but not whose code it was: a user's
+    # --stage-package run and a shipped run were indistinguishable
+    out = tmp_path / "run"
+    _run(archive, out)
+    meta = json.loads((out / "run.json").read_text())
+    assert meta["stage_package"] == FAKE
+    assert meta["stages"]["tally"]["module"] == f"{FAKE}.tally"
+
+
+def test_regression_run_killed_before_its_journal_schema_could_not_resume(archive, tmp_path):
+    # a SIGKILL between sqlite creating state.sqlite and the schema being written left an
+    # empty file: every rerun failed with "sqlite3.OperationalError: no such table: meta"
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "state.sqlite").write_bytes(b"")
+    summary = _run(archive, out)
+    assert (summary.exit_code, summary.done) == (0, 4)
