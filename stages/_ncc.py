@@ -250,10 +250,9 @@ def _row_scores(out, hs, n, hw, rs_row, ri_row, os_row, oi_row, d_min, as_cost):
 def _row_peaks(best_index, best_value, second, curves, x0, x1):  # pragma: no cover - numba
     """:func:`_peak` of the columns ``x0 .. x1 - 1`` of the row's curves (all disparities).
 
-    Two passes over the (D, W) curves, each a branch-free update of contiguous columns:
-    the maximum with the first index that reaches it (a strict rise over increasing
-    indices), then the best value more than one index away. Maxima are exact, so the
-    results equal :func:`_peak`'s column by column.
+    Three passes over the (D, W) curves, each a branch-free update of contiguous columns:
+    the maximum, the first index that reaches it, the best value more than one index
+    away. Maxima are exact, so the results equal :func:`_peak`'s column by column.
     """
     n_disp = curves.shape[0]
     if x1 <= x0:
@@ -262,23 +261,17 @@ def _row_peaks(best_index, best_value, second, curves, x0, x1):  # pragma: no co
     index = best_index[x0:x1]
     runner = second[x0:x1]
     top[:] = -np.inf
-    index[:] = n_disp
     for j in range(n_disp):
+        row = curves[j, x0:x1]
+        for i in range(x1 - x0):
+            v = row[i]
+            top[i] = v if v > top[i] else top[i]
+    index[:] = n_disp
+    for j in range(n_disp - 1, -1, -1):  # descending: the smallest index reaching it wins
         row = curves[j, x0:x1]
         jj = np.int32(j)  # as wide as the values: one vector of each per step
         for i in range(x1 - x0):
-            v = row[i]
-            rise = v > top[i]
-            index[i] = jj if rise else index[i]
-            top[i] = v if rise else top[i]
-    # A column that never rose above -inf (all -inf or NaN, as border columns without a
-    # fitting window can be) still takes the first index equal to -inf, as _peak does.
-    for i in range(x1 - x0):
-        if index[i] == n_disp:
-            for j in range(n_disp):
-                if curves[j, x0 + i] == top[i]:
-                    index[i] = j
-                    break
+            index[i] = jj if row[i] == top[i] else index[i]
     runner[:] = -np.inf
     for j in range(n_disp):
         row = curves[j, x0:x1]

@@ -64,23 +64,6 @@ def test_row_peaks_equal_the_per_pixel_peak():
     assert np.all(best[:3] == -7) and np.all(best[37:] == -7)  # outside x0..x1 untouched
 
 
-def test_row_peaks_of_shifted_curves_with_minus_inf_equal_the_per_pixel_peak():
-    # _border_curves leaves -inf where no shifted window fits, down to whole columns; the
-    # single max-and-index pass must still give _peak's first index reaching the maximum
-    curves = _tied_curves((9, 40), seed=2)
-    curves[:4, :10] = -np.inf  # a run of -inf at the low indices, as at the left side
-    curves[6:, 30:] = -np.inf  # and at the high ones
-    curves[:, 12] = -np.inf  # a column no window reaches at any index
-    curves[:, 13] = np.float32(-2.0)  # constant: every index ties
-    best = np.zeros(40, np.int32)
-    top = np.zeros(40, np.float32)
-    second = np.zeros(40, np.float32)
-    _ncc._row_peaks(best, top, second, curves, 0, 40)
-    for x in range(40):
-        expected = _ncc._peak(np.ascontiguousarray(curves[:, x]), 0, curves.shape[0])
-        assert (best[x], top[x], second[x]) == expected
-
-
 @pytest.mark.parametrize("d_min", [-3, 0, 2])
 def test_left_best_is_the_left_reference_argmax(d_min):
     n_disp, w, hw = 7, 30, 2
