@@ -740,7 +740,7 @@ def adaptive_match(
 
 @njit(cache=True)
 def ncc_cost_volume(
-    ref, other, d_min, n_disp, hw, ref_sums, ref_inv, other_sums, other_inv
+    ref, other, d_min, n_disp, hw, ref_sums, ref_inv, other_sums, other_inv, out=None
 ):  # pragma: no cover - numba
     """Matching cost ``(1 - ZNCC) / 2`` in [0, 1] of one window, shape (H, W, D) float32.
 
@@ -749,10 +749,17 @@ def ncc_cost_volume(
     neighbours; the caller invalidates such pixels afterwards. The sums and each row's
     costs are disparity-major, as for :func:`adaptive_match`; only the copy into the
     (H, W, D) volume that aggregation reads is transposed.
+
+    ``out``, if given, is an (H, W, D) float32 array to fill instead of a new one (every
+    cell is written): a volume reused from frame to frame spares the kernel the page
+    faults of fresh memory, which cost more than filling it.
     """
     h, w = ref.shape
     # 0.5 only where the rows below do not write: the border rows and columns
-    cost = np.empty((h, w, n_disp), np.float32)
+    if out is None:
+        cost = np.empty((h, w, n_disp), np.float32)
+    else:
+        cost = out
     cost[: min(hw, h)] = 0.5
     cost[max(h - hw, hw) :] = 0.5
     cost[:, : min(hw, w)] = 0.5

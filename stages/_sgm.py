@@ -112,9 +112,17 @@ def _aggregate_direction(cost, total, dy, dx, p1, p2):  # pragma: no cover - num
 
 
 @njit(cache=True)
-def aggregate(cost, p1, p2, n_paths):  # pragma: no cover - numba
-    """Sum of path costs over 4 (horizontal, vertical) or 8 (plus diagonal) directions."""
-    total = np.zeros(cost.shape, np.float32)
+def aggregate(cost, p1, p2, n_paths, out=None):  # pragma: no cover - numba
+    """Sum of path costs over 4 (horizontal, vertical) or 8 (plus diagonal) directions.
+
+    ``out``, if given, is an array of ``cost``'s shape and dtype that receives the sums
+    (zeroed first) instead of a new one, as for :func:`stages._ncc.ncc_cost_volume`.
+    """
+    if out is None:
+        total = np.zeros(cost.shape, np.float32)
+    else:
+        total = out
+        total[...] = 0
     for i in range(n_paths):
         _aggregate_direction(
             cost, total, _DIRECTIONS_8[i, 0], _DIRECTIONS_8[i, 1], np.float32(p1), np.float32(p2)

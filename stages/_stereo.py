@@ -120,6 +120,7 @@ tile by :mod:`stages._stereo_tiles`, bit-identical to whole-frame matching for `
 from __future__ import annotations
 
 import math
+import threading
 from dataclasses import dataclass
 from typing import Any
 
@@ -326,6 +327,23 @@ def _carry_shifted_rows(
             disparity[rows] = np.where(use, block + carry, block)
 
 
+# sgm's two (H, W, D) float32 volumes, kept per thread for the next frame of the same
+# shape: fresh ones cost more in page faults (~30 ms of system time each at 500 x 500 x 64)
+# than the kernels spend filling them. Per thread, because a threaded worker matches
+# several frames at once.
+_VOLUMES = threading.local()
+
+
+def _sgm_volumes(shape: tuple[int, int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """The calling thread's cost and aggregation volumes of ``shape`` (new when it changes)."""
+    volumes = getattr(_VOLUMES, "arrays", None)
+    if volumes is None or volumes[0].shape != shape:
+        _VOLUMES.arrays = None  # the old pair is freed before the new one is allocated
+        volumes = (np.empty(shape, np.float32), np.empty(shape, np.float32))
+        _VOLUMES.arrays = volumes
+    return volumes
+
+
 def _sgm_coded(
     ref: np.ndarray, oth: np.ndarray, lo: int, hi: int, s: dict, band: np.ndarray | None
 ) -> np.ndarray:
@@ -334,11 +352,12 @@ def _sgm_coded(
     hws = np.array([hw], dtype=np.int64)
     rs, ri, _ = _ncc.window_stats(r32, hws, hws, False)
     os_, oi, _ = _ncc.window_stats(o32, hws, hws, False)
-    cost = _ncc.ncc_cost_volume(
+    cost, total = _sgm_volumes((*ref.shape, hi - lo + 1))
+    _ncc.ncc_cost_volume(
         r32, o32, lo, hi - lo + 1, hw,
-        rs[0], ri[0], os_[0], oi[0],
+        rs[0], ri[0], os_[0], oi[0], cost,
     )  # fmt: skip
-    total = _sgm.aggregate(cost, float(s["sgm_p1"]), float(s["sgm_p2"]), int(s["sgm_paths"]))
+    _sgm.aggregate(cost, float(s["sgm_p1"]), float(s["sgm_p2"]), int(s["sgm_paths"]), total)
     return _sgm.select(total, lo, hw, float(s["lr_tolerance"]))
 
 

@@ -126,6 +126,19 @@ def test_cost_volume_is_half_one_minus_the_zncc(d_min):
         assert cost[y, x, j] == pytest.approx(0.5 * (1.0 - zncc), abs=1e-6)
 
 
+def test_cost_volume_into_a_used_volume_equals_a_fresh_one():
+    # every cell is written, so a volume reused from the previous frame gives the same costs
+    right, left = shifted_pair((21, 40), 3, seed=4)
+    ref, oth = _stereo._centred(right), _stereo._centred(left)
+    hws = np.array([2], np.int64)
+    rs, ri, _ = _ncc.window_stats(ref, hws, hws)
+    os_, oi, _ = _ncc.window_stats(oth, hws, hws)
+    args = (ref, oth, -1, 9, 2, rs[0], ri[0], os_[0], oi[0])
+    out = np.full((21, 40, 9), np.nan, np.float32)
+    _ncc.ncc_cost_volume(*args, out)
+    assert out.tobytes() == _ncc.ncc_cost_volume(*args).tobytes()
+
+
 @pytest.mark.parametrize("d_min", [-4, 0, 3])
 def test_border_curves_read_the_shifted_windows(d_min):
     # a window that does not fit is moved to the nearest centre where it does, at most hw

@@ -91,3 +91,12 @@ def test_select_equals_pixel_by_pixel_python(d_min):
     got = _sgm.select(total, d_min, 1, 1.0)
     assert np.isfinite(expected).any() and np.isneginf(expected).any()
     assert got.tobytes() == expected.tobytes()
+
+
+def test_aggregate_into_a_used_volume_equals_a_fresh_one():
+    # the sgm matcher reuses its volumes from frame to frame: old sums must not leak in
+    rng = np.random.default_rng(3)
+    cost = rng.uniform(0.0, 1.0, (7, 9, 5)).astype(np.float32)
+    out = np.full(cost.shape, 7.0, np.float32)
+    _sgm.aggregate(cost, 0.2, 3.0, 8, out)
+    assert out.tobytes() == _sgm.aggregate(cost, 0.2, 3.0, 8).tobytes()

@@ -299,3 +299,18 @@ def test_ceiling_below_the_truth_stops_the_larger_windows():
     assert np.mean(right_open) > 0.85  # all but the columns that leave the image
     assert np.mean(right_low) < np.mean(right_open) - 0.05
     assert np.all(right_open[right_low])  # the first window's matches stay
+
+
+def test_sgm_frames_in_a_row_match_as_each_alone():
+    # _sgm_coded keeps its volumes per thread for the next frame of the same shape and
+    # replaces them when the shape changes; no frame's result may depend on the one before
+    pairs = [shifted_pair((30, 50), 4, seed=1), shifted_pair((30, 50), 6, seed=2)]
+    other_shape = shifted_pair((26, 44), 5, seed=3)
+    settings = {"method": "sgm", "min_disparity": 0, "max_disparity": 9}
+    alone = []
+    for right, left in [*pairs, other_shape]:
+        _stereo._VOLUMES.arrays = None
+        alone.append(match_disparity(right, left, **settings).disparity)
+    in_a_row = [match_disparity(r, lft, **settings).disparity for r, lft in [*pairs, other_shape]]
+    for got, want in zip(in_a_row, alone, strict=True):
+        assert got.tobytes() == want.tobytes()
