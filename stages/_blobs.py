@@ -477,33 +477,6 @@ def _core_pass(cores, contrast):  # pragma: no cover - numba
     return at, owner, counts, sums
 
 
-def _reachable(
-    reach: np.ndarray, contrast: np.ndarray, free: np.ndarray, *, sign: float = 1.0
-) -> np.ndarray:
-    """``(reach > 0) & (sign * contrast >= 0.5 * reach) & free`` (reach uint8 compared as
-    float32, contrast float32, sign +-1), in one compiled pass instead of five whole-frame
-    temporaries (``test_blobs.py`` compares them)."""
-    out = np.empty(reach.shape, bool)
-    _reach_pass(
-        np.ascontiguousarray(reach),
-        np.ascontiguousarray(contrast, dtype=np.float32),
-        np.float32(sign),
-        np.ascontiguousarray(free),
-        out,
-    )
-    return out
-
-
-@njit(cache=True)
-def _reach_pass(reach, contrast, sign, free, out):  # pragma: no cover - numba
-    share = np.float32(_GROW_SHARE)
-    rows, cols = reach.shape
-    for y in range(rows):
-        for x in range(cols):
-            r = reach[y, x]
-            out[y, x] = r > 0 and free[y, x] and sign * contrast[y, x] >= share * np.float32(r)
-
-
 def _seeded_regions(
     cores: np.ndarray,
     reach: np.ndarray,
@@ -512,8 +485,11 @@ def _seeded_regions(
     *,
     sign: float = 1.0,
 ) -> np.ndarray:
-    """The 8-connected parts of :func:`_reachable` that hold a pixel of ``cores``, each
-    with its pockets filled (:func:`_fill_seeded_holes`).
+    """The 8-connected parts of the pixels ``reach`` can take (``reach > 0``, ``free`` and
+    ``sign * contrast >= 0.5 * reach``, in float32) that hold a pixel of ``cores``, each
+    with its pockets filled: the pixels of a box grown by one pixel around the part that
+    4-steps from its edge through other pixels cannot reach, as flooding the whole frame's
+    background from its border would leave them (``test_blobs.py`` compares both).
 
     One compiled pass: each part is walked from its cores (the reach test read at the
     pixels the walk meets), then flooded in its box, instead of the whole-frame reach
@@ -545,7 +521,7 @@ def _seeded_pass(cores, reach, contrast, sign, free, filled):  # pragma: no cove
             if not cores[sy, sx] or ids[sy, sx] != 0:
                 continue
             r = reach[sy, sx]
-            # the reach test of _reach_pass, at this pixel
+            # the reach test (see _seeded_regions), at this pixel
             if not (r > 0 and free[sy, sx] and sign * contrast[sy, sx] >= share * np.float32(r)):
                 continue
             part += 1
@@ -573,7 +549,7 @@ def _seeded_pass(cores, reach, contrast, sign, free, filled):  # pragma: no cove
                             filled[ny, nx] = True
                             stack[n_stack] = ny * cols + nx
                             n_stack += 1
-            # the part's pockets, as in _fill_parts: its box grown by a pixel, flooded
+            # the part's pockets: its box grown by a pixel, flooded
             # from that edge through 4-steps over pixels not the part's
             top_row, left = y0 - 1, x0 - 1
             height, width = y1 - y0 + 3, x1 - x0 + 3
@@ -598,73 +574,6 @@ def _seeded_pass(cores, reach, contrast, sign, free, filled):  # pragma: no cove
                 for j in range(1, width - 1):
                     if not outside[i, j]:
                         filled[top_row + i, left + j] = True
-
-
-def _fill_seeded_holes(seeded: np.ndarray, parts: np.ndarray) -> np.ndarray:
-    """``seeded[parts]`` with every background pocket it encloses (8-connected outline)
-    filled.
-
-    Each seeded part's own pockets, flooded in its box alone (one compiled pass): the
-    parts are 8-connected components, so no two touch, and a pocket two of them enclose
-    together does not exist -- a 4-connected pocket is enclosed by one 8-connected part
-    (the 8/4 pairing of digital topology), with whatever lies inside. The same pixels as
-    flooding the whole frame's background from its border (``test_blobs.py`` compares
-    the pad-and-flood twin).
-    """
-    filled = np.empty(parts.shape, bool)
-    _fill_parts(np.ascontiguousarray(seeded), np.ascontiguousarray(parts), filled)
-    return filled
-
-
-@njit(cache=True)
-def _fill_parts(seeded, parts, filled):  # pragma: no cover - numba
-    rows, cols = parts.shape
-    n = seeded.size
-    y0 = np.full(n, rows)
-    y1 = np.full(n, -1)
-    x0 = np.full(n, cols)
-    x1 = np.full(n, -1)
-    for y in range(rows):
-        for x in range(cols):
-            p = parts[y, x]
-            filled[y, x] = seeded[p]
-            if seeded[p]:
-                y0[p] = min(y0[p], y)
-                y1[p] = y
-                x0[p] = min(x0[p], x)
-                x1[p] = max(x1[p], x)
-    stack = np.empty(((rows + 2) * (cols + 2), 2), np.int64)
-    for p in range(n):
-        if not seeded[p] or y1[p] < 0:
-            continue
-        # the part's box grown by a pixel (the edge, maybe outside the frame, is not the
-        # part's): its other pixels reached from that edge through 4-steps are outside
-        top_row, left = y0[p] - 1, x0[p] - 1
-        height, width = y1[p] - y0[p] + 3, x1[p] - x0[p] + 3
-        outside = np.zeros((height, width), np.bool_)
-        n_stack = 0
-        for i in range(height):
-            for j in range(width):
-                if i == 0 or j == 0 or i == height - 1 or j == width - 1:
-                    outside[i, j] = True
-                    stack[n_stack, 0] = i
-                    stack[n_stack, 1] = j
-                    n_stack += 1
-        while n_stack > 0:
-            n_stack -= 1
-            i, j = stack[n_stack, 0], stack[n_stack, 1]
-            for ni, nj in ((i + 1, j), (i - 1, j), (i, j + 1), (i, j - 1)):
-                # the edge is marked already: a neighbour not marked lies in the frame
-                if 0 <= ni < height and 0 <= nj < width and not outside[ni, nj]:
-                    if parts[top_row + ni, left + nj] != p:
-                        outside[ni, nj] = True
-                        stack[n_stack, 0] = ni
-                        stack[n_stack, 1] = nj
-                        n_stack += 1
-        for i in range(1, height - 1):
-            for j in range(1, width - 1):
-                if not outside[i, j]:
-                    filled[top_row + i, left + j] = True
 
 
 def _is_solid(region: np.ndarray, *, min_solidity: float) -> bool:

@@ -10,8 +10,6 @@ from object_masks import disk
 from stages._blobs import (
     _blob_statistics,
     _core_sums,
-    _fill_seeded_holes,
-    _reachable,
     _seeded_regions,
     _tile_spread,
     add_compact_blobs,
@@ -19,6 +17,21 @@ from stages._blobs import (
 from stages._regions import _label_sums, _object_boxes
 
 SHAPE = (160, 160)
+
+
+
+def _reachable(reach, contrast, free, *, sign=1.0):
+    """The pixels a blob's reach can take, in numpy: the reference for the compiled walk."""
+    share = np.float32(0.5) * reach.astype(np.float32)
+    return (reach > 0) & (np.float32(sign) * contrast >= share) & free
+
+
+def _fill_seeded_holes(seeded, parts):
+    """``seeded[parts]`` with the background pockets it encloses filled: the whole frame's
+    background flooded from its border (4-steps), the reference for the compiled walk."""
+    outside = np.pad(~seeded[parts], 1, constant_values=True).astype(np.uint8)
+    cv2.floodFill(outside, None, (0, 0), 2, flags=4)
+    return outside[1:-1, 1:-1] != 2
 
 
 def blotchy_ground(seed=0, *, ground=76.0):
@@ -144,34 +157,6 @@ def test_blob_statistics_equal_their_numpy_twin():
         )
 
 
-def test_reachable_and_seeded_fill_equal_their_numpy_twins():
-    # the twins: the whole-frame expressions and the pad-and-flood the passes replaced
-    rng = np.random.default_rng(8)
-    for _ in range(20):
-        shape = tuple(rng.integers(1, 50, 2))
-        reach = rng.integers(0, 40, shape).astype(np.uint8)
-        reach[rng.random(shape) < 0.3] = 0
-        contrast = rng.normal(5, 10, shape).astype(np.float32)
-        contrast[rng.random(shape) < 0.05] = np.nan
-        free = rng.random(shape) < 0.8
-        past = _reachable(reach, contrast, free)
-        np.testing.assert_array_equal(
-            past,
-            (reach > 0) & (contrast >= np.float32(0.5) * reach.astype(np.float32)) & free,
-        )
-        np.testing.assert_array_equal(
-            _reachable(reach, contrast, free, sign=-1.0),
-            (reach > 0) & (-contrast >= np.float32(0.5) * reach.astype(np.float32)) & free,
-        )
-        n_parts, parts = cv2.connectedComponents(past.view(np.uint8), connectivity=8)
-        seeded = rng.random(n_parts) < 0.6
-        seeded[0] = False
-        mask = seeded[parts]
-        outside = np.pad(~mask, 1, constant_values=True).astype(np.uint8)
-        cv2.floodFill(outside, None, (0, 0), 2, flags=4)
-        np.testing.assert_array_equal(_fill_seeded_holes(seeded, parts), outside[1:-1, 1:-1] != 2)
-
-
 def test_tile_spread_memo_measures_changed_tiles_alike():
     # R8b's search reuses R8's tile spreads where no free pixel changed
     rng = np.random.default_rng(9)
@@ -191,28 +176,24 @@ def test_tile_spread_memo_measures_changed_tiles_alike():
     )
 
 
-def test_seeded_fill_per_part_equals_the_whole_frame_flood():
+def test_seeded_regions_fill_nested_rings_as_the_whole_frame_flood():
     # each part flooded in its own box: nested rings (a pocket between two parts, inside
-    # the outer one), parts on the frame's edge and random textures, against the flood of
-    # the whole frame's background from its border
+    # the outer one) and parts on the frame's edge, against the whole frame's flood
     rings = np.zeros((30, 30), np.uint8)
     cv2.rectangle(rings, (2, 2), (27, 27), 1, 1)
     cv2.rectangle(rings, (8, 8), (21, 21), 1, 1)
     rings[14, 14] = 1
-    cases = [rings.astype(bool)]
-    rng = np.random.default_rng(18)
-    for _ in range(300):
-        shape = tuple(rng.integers(1, 45, 2))
-        cases.append(rng.random(shape) < rng.uniform(0.2, 0.8))
-    for past in cases:
+    edge = np.zeros((12, 15), np.uint8)
+    cv2.rectangle(edge, (-3, -3), (7, 6), 1, 1)
+    for past in (rings.astype(bool), edge.astype(bool)):
+        reach = past.astype(np.uint8)
+        contrast = np.full(past.shape, 9.0, np.float32)
+        free = np.ones(past.shape, bool)
         n_parts, parts = cv2.connectedComponents(past.view(np.uint8), connectivity=8)
-        for seeded in (np.arange(n_parts) > 0, rng.random(n_parts) < 0.5):
-            seeded[0] = False
-            outside = np.pad(~seeded[parts], 1, constant_values=True).astype(np.uint8)
-            cv2.floodFill(outside, None, (0, 0), 2, flags=4)
-            np.testing.assert_array_equal(
-                _fill_seeded_holes(seeded, parts), outside[1:-1, 1:-1] != 2
-            )
+        seeded = np.arange(n_parts) > 0
+        np.testing.assert_array_equal(
+            _seeded_regions(past, reach, contrast, free), _fill_seeded_holes(seeded, parts)
+        )
 
 
 def test_seeded_regions_equal_reach_components_and_fill():
