@@ -173,8 +173,9 @@ def _check_figures(stage: Stage, result: StageResult) -> None:
 def _check_tables(stage: Stage, result: StageResult) -> None:
     """Each declared table: columns of equal length, exactly the schema's, castable to it.
 
-    Checked here so that a bad frame fails alone; the journal converts the rows again when
-    it commits a batch, and an error there would stop the run.
+    Checked here so that a bad frame fails alone (an error when the journal commits a batch
+    would stop the run). The columns are replaced by the Arrow arrays the check built, cast
+    to the schema's types, so the driver's journal does not convert them again.
     """
     import pyarrow as pa
 
@@ -206,14 +207,16 @@ def _check_tables(stage: Stage, result: StageResult) -> None:
                 f"{declared} (missing {missing}, undeclared {unknown}); return exactly the "
                 "schema's columns or change Product(schema=...)"
             )
+        converted = {}
         for field_ in product.schema:
             try:
-                pa.array(columns[field_.name]).cast(field_.type)
+                converted[field_.name] = pa.array(columns[field_.name]).cast(field_.type)
             except (pa.ArrowInvalid, pa.ArrowTypeError, pa.ArrowNotImplementedError) as exc:
                 raise ValueError(
                     f"{where}: column {field_.name!r} cannot be stored as {field_.type} "
                     f"(declared in the schema): {exc}"
                 ) from None
+        result.tables[product.name] = converted
 
 
 class _StoreUnreachable(Exception):
