@@ -150,3 +150,16 @@ def test_numpy_scalar_figures_are_recorded_as_python_scalars(tmp_path, monkeypat
     )
     figures = process_frame(job).completed[0].figures
     assert figures == {"n": 3, "f": 0.5} and type(figures["n"]) is int
+
+
+def test_table_columns_reach_the_journal_as_arrow_arrays_of_the_schema(tmp_path, monkeypatch):
+    # the per-frame check converts every column; the driver's journal takes those arrays
+    # rather than converting the Python values a second time
+    outcome = _outcome(
+        tmp_path, monkeypatch, {"areas": {"object_id": [1, 2], "area_px": np.array([5, 7])}}
+    )
+    columns = outcome.completed[0].tables["areas"]
+    assert list(columns) == _SCHEMA.names
+    assert all(isinstance(c, pa.Array) for c in columns.values())
+    assert [columns[f.name].type for f in _SCHEMA] == list(_SCHEMA.types)
+    assert columns["area_px"].to_pylist() == [5, 7]
