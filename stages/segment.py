@@ -17,7 +17,7 @@ noisy-height vote), all documented rule by rule.
 ``method = 'sector-histogram+depth'`` (default) adds the depth stage's ``height`` (metres
 above the fitted ground plane) and ``disparity`` (rules R0-R3 in :mod:`stages._depth_rules`
 and :mod:`stages._height_vote`, R4 in :mod:`stages._regions`, R5-R5d in
-:mod:`stages._texture_rules`, R6-R7c in :mod:`stages._rock_parts`, R6b and R7g in
+:mod:`stages._texture_rules`, R6-R7c in :mod:`stages._rock_parts`, R6b, R6c and R7g in
 :mod:`stages._sun_shadows`, R4b and R7d in :mod:`stages._outlines`, R7e in
 :mod:`stages._shadow_sides`, R7f in :mod:`stages._height_grow`, R7h in
 :mod:`stages._rock_parts`, R8 in :mod:`stages._blobs`,
@@ -92,7 +92,7 @@ from ._sectors import (
     sector_histograms,
 )
 from ._shadow_sides import split_shadow_sides
-from ._sun_shadows import trim_off_side_pieces, trim_sun_shadows
+from ._sun_shadows import trim_flat_shadow_sides, trim_off_side_pieces, trim_sun_shadows
 from ._texture_rules import drop_ripple_pieces, drop_streaks
 from ._two_face_blobs import add_two_faced_blobs
 
@@ -286,7 +286,8 @@ def segment_image(
         Depth method only, in ``[0, 90]`` degrees: where heights are not precise, a dark
         object's lighter pieces within this angle of the frame's direction away from the sun
         (from its lit objects' dark sides), at most half the ground's gray, are dropped as
-        its cast shadow (rule R6b of :mod:`stages._sun_shadows`); 0 disables.
+        its cast shadow (rule R6b of :mod:`stages._sun_shadows`); 0 disables, R6c too (a
+        dark object's flat, darker pixels on that side, where heights are precise).
     blob_sigmas : float
         Depth method only, ``>= 0``: compact blobs this many ground spreads (at their own
         scale) darker or lighter than the ground that no object touches are added (rule R8
@@ -567,6 +568,20 @@ def segment_image(
         )
         if faces:
             notes.append(f"{faces} px of shaded faces joined to lit ones")
+        if sun_shadow_angle_deg > 0:
+            # R6c, after R7e (which splits the shadows beside a lit face it found): a dark
+            # rock whose lit face no rule found keeps its flat, darker cast shadow
+            labels, flat_cut = _trim_flat_shadows(
+                labels,
+                contrast,
+                row_noise,
+                max_noise_m=shadow_noise_m,
+                min_height_m=min_height_m,
+                flat_tol_m=flat_tol_m,
+                min_area_px=min_area_px,
+            )
+            if flat_cut:
+                notes.append(f"{flat_cut} px of flat shadow sides dropped")
     if contrast is not None and row_noise is not None and heights_usable and height_grow_fraction:
         # R7f, after R7e (whose joined faces count as the object's own): the raised rest
         labels, raised = grow_raised_parts(
@@ -670,6 +685,31 @@ def _split_shadow_sides(
         flat_tol_m=flat_tol_m,
         cases=cases,
         facing_only=facing_only,
+    )
+
+
+def _trim_flat_shadows(
+    labels: np.ndarray,
+    contrast: np.ndarray,
+    row_noise: _RowNoise,
+    *,
+    max_noise_m: float,
+    min_height_m: float,
+    flat_tol_m: float,
+    min_area_px: int,
+) -> tuple[np.ndarray, int]:
+    """R6c on the heights the depth rules read: relative to R0's local ground, R0b's noise."""
+    if not labels.any():
+        return labels, 0
+    return trim_flat_shadow_sides(
+        labels,
+        contrast,
+        row_noise.relative,
+        row_noise(labels),
+        max_noise_m=max_noise_m,
+        min_height_m=min_height_m,
+        flat_tol_m=flat_tol_m,
+        min_area_px=min_area_px,
     )
 
 
@@ -814,7 +854,7 @@ def _sector_product(name: str, dtype: str, long_name: str, units: str = "") -> P
 
 STAGE = Stage(
     name="segment",
-    version="39",
+    version="40",
     inputs=("left", "right", "disparity", "height"),
     outputs=(
         Product(

@@ -1,12 +1,17 @@
-"""Tests of stages/_sun_shadows.py: the frame's anti-sun direction, R6b's cast shadows and
-R7g's pieces off the sun's side."""
+"""Tests of stages/_sun_shadows.py: the frame's anti-sun direction, R6b's cast shadows, R6c's
+flat ones and R7g's pieces off the sun's side."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from stages._sun_shadows import anti_sun_direction, trim_off_side_pieces, trim_sun_shadows
+from stages._sun_shadows import (
+    anti_sun_direction,
+    trim_flat_shadow_sides,
+    trim_off_side_pieces,
+    trim_sun_shadows,
+)
 
 _GROUND = 150
 
@@ -209,3 +214,68 @@ def test_anti_sun_direction_equals_its_bincount_twin_bit_for_bit():
             found += 1
             np.testing.assert_array_equal(got, want)
     assert found > 10
+
+
+_R6C = {"max_noise_m": 0.0075, "min_height_m": 0.01, "flat_tol_m": 0.003}
+
+
+def _shaded_rock(shadow_side: int, *, shadow_bands: float = -2.0, shadow_m: float = 0.0):
+    """Three lit rocks (sun from the left), and a dark rock (10x10, 3 cm high, 1 band below
+    the ground's gray) whose lit face no rule found, one object with its cast shadow (an 8-px
+    strip on ``shadow_side``, ``shadow_bands`` and ``shadow_m`` high)."""
+    labels = np.zeros((100, 120), np.int32)
+    contrast = np.zeros(labels.shape)
+    image = np.zeros(labels.shape, np.uint8)
+    _lit_rocks(labels, contrast, image)
+    relative = np.zeros(labels.shape)
+    labels[50:60, 50:60], contrast[50:60, 50:60], relative[50:60, 50:60] = 4, -1.0, 0.03
+    strip = (slice(50, 60), slice(60, 68) if shadow_side > 0 else slice(42, 50))
+    labels[strip], contrast[strip], relative[strip] = 4, shadow_bands, shadow_m
+    return labels, contrast, relative, np.full(100, 0.004), strip
+
+
+def test_r6c_drops_a_dark_rocks_flat_darker_side_away_from_the_sun():
+    labels, contrast, relative, sigma, strip = _shaded_rock(+1)
+    out, trimmed = trim_flat_shadow_sides(labels, contrast, relative, sigma, **_R6C)
+    # the strip's pixels within 30 degrees of the anti-sun direction (+x) from the rock's centre
+    rows, cols = np.mgrid[strip]
+    dy, dx = rows - 54.5, cols - 54.5
+    cone = dx >= np.cos(np.radians(30)) * np.hypot(dy, dx)
+    assert trimmed == np.count_nonzero(cone) > 60
+    assert not out[strip][cone].any()
+    assert (out[50:60, 50:60] == 4).all()
+    assert (out[labels != 4] == labels[labels != 4]).all()
+
+
+@pytest.mark.parametrize(
+    ("side", "bands", "height_m", "noise_m"),
+    [
+        (-1, -2.0, 0.0, 0.004),  # on the sun's side: a lit face's place, not a shadow's
+        (+1, -1.2, 0.0, 0.004),  # hardly darker than the rock's shaded face
+        (+1, -2.0, 0.03, 0.004),  # as high as the rock: its face
+        (+1, -2.0, 0.0, 0.01),  # rows too noisy to call it flat
+    ],
+)
+def test_r6c_keeps_what_may_be_rock(side, bands, height_m, noise_m):
+    labels, contrast, relative, _, _ = _shaded_rock(side, shadow_bands=bands, shadow_m=height_m)
+    sigma = np.full(100, noise_m)
+    out, trimmed = trim_flat_shadow_sides(labels, contrast, relative, sigma, **_R6C)
+    assert trimmed == 0
+    assert (out == labels).all()
+
+
+def test_r6c_needs_a_sun_direction_and_a_standing_rest():
+    labels, contrast, relative, sigma, _ = _shaded_rock(+1)
+    lone = np.where(labels == 4, labels, 0)
+    assert trim_flat_shadow_sides(lone, contrast, relative, sigma, **_R6C)[1] == 0
+    # the rock itself read flat but for its top rows: what is left would not stand up
+    relative[53:60, 50:60] = 0.0
+    assert trim_flat_shadow_sides(labels, contrast, relative, sigma, **_R6C)[1] == 0
+
+
+def test_r6c_refuses_bad_arguments():
+    labels, contrast, relative, sigma, _ = _shaded_rock(+1)
+    with pytest.raises(ValueError, match="one value per row"):
+        trim_flat_shadow_sides(labels, contrast, relative, sigma[:-1], **_R6C)
+    with pytest.raises(ValueError, match="max_angle_deg"):
+        trim_flat_shadow_sides(labels, contrast, relative, sigma, max_angle_deg=95, **_R6C)
