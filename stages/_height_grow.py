@@ -137,7 +137,7 @@ import cv2
 import numpy as np
 from numba import njit
 
-from ._heights import _percentiles_by_label
+from ._heights import _percentiles_by_label, check_height_inputs
 from ._regions import _box_window, _label_areas, _object_boxes
 
 # R7f: rows whose ground height noise is at most this (metres) are read (R7e's 7.5 mm until
@@ -259,16 +259,7 @@ def grow_raised_parts(
     grown : int
         Pixels added.
     """
-    if not labels.shape == contrast.shape == relative.shape:
-        raise ValueError(
-            f"labels {labels.shape}, contrast {contrast.shape} and relative {relative.shape} "
-            "must have one shape"
-        )
-    if row_noise.shape != (labels.shape[0],):
-        raise ValueError(
-            f"row_noise must hold one value per row, shape ({labels.shape[0]},), got "
-            f"{row_noise.shape}"
-        )
+    check_height_inputs(labels, contrast, relative, row_noise)
     if not 0 <= fraction <= 1:
         raise ValueError(f"fraction must be in [0, 1] (0 disables), got {fraction}")
     if not (max_noise_m > 0 and min_height_m > 0 and max_gain > 0):

@@ -19,6 +19,7 @@ from scipy.ndimage import median_filter
 from ._select import median_abs_deviation32, median_filter_nearest32
 
 __all__ = [
+    "check_height_inputs",
     "DepthRuleStats",
     "smooth_height",
     "local_ground",
@@ -218,3 +219,26 @@ def _float32_percentiles_by_label(
         kept = ((keys[rank[present]] & np.int64(0xFFFFFFFF)) - _OFFSET).astype(np.int32)
         row[present] = _ordered_bits(kept).view(np.float32)
     return result
+
+
+def check_height_inputs(
+    labels: np.ndarray,
+    contrast: np.ndarray,
+    relative: np.ndarray,
+    row_noise: np.ndarray,
+    *,
+    noise_name: str = "row_noise",
+) -> None:
+    """Raise ValueError unless ``labels``, ``contrast`` and ``relative`` (heights above the
+    local ground) share one (M, N) shape and ``row_noise`` holds one value per row, (M,):
+    the inputs of the rules that read heights per row (R6c, R7e, R7f)."""
+    if not labels.shape == contrast.shape == relative.shape:
+        raise ValueError(
+            f"labels {labels.shape}, contrast {contrast.shape} and relative {relative.shape} "
+            "must have one shape"
+        )
+    if row_noise.shape != (labels.shape[0],):
+        raise ValueError(
+            f"{noise_name} must hold one value per row, shape ({labels.shape[0]},), got "
+            f"{row_noise.shape}"
+        )

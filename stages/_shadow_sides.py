@@ -89,7 +89,7 @@ import cv2
 import numpy as np
 from numba import njit
 
-from ._heights import _percentile_by_label
+from ._heights import _percentile_by_label, check_height_inputs
 from ._regions import _box_window, _object_boxes, _renumber
 
 # R7e: rows whose ground height noise is at most this (metres) are precise enough ...
@@ -162,16 +162,7 @@ def split_shadow_sides(
     moved : int
         Pixels joined to light objects (raised parts and the gaps closed).
     """
-    if not labels.shape == contrast.shape == relative.shape:
-        raise ValueError(
-            f"labels {labels.shape}, contrast {contrast.shape} and relative {relative.shape} "
-            "must have one shape"
-        )
-    if row_noise.shape != (labels.shape[0],):
-        raise ValueError(
-            f"row_noise must hold one value per row, shape ({labels.shape[0]},), got "
-            f"{row_noise.shape}"
-        )
+    check_height_inputs(labels, contrast, relative, row_noise)
     if not max_noise_m >= 0 or not min_height_m > 0 or not flat_tol_m >= 0 or gap_px < 1:
         raise ValueError(
             "need max_noise_m >= 0 (0 disables), min_height_m > 0, flat_tol_m >= 0 and "

@@ -127,6 +127,7 @@ import cv2
 import numpy as np
 from numba import njit
 
+from ._heights import check_height_inputs
 from ._regions import _lookup, _object_boxes
 from ._select import median_u8
 
@@ -520,16 +521,7 @@ def trim_flat_shadow_sides(
     trimmed : int
         Pixels dropped.
     """
-    if not labels.shape == contrast.shape == relative.shape:
-        raise ValueError(
-            f"labels {labels.shape}, contrast {contrast.shape} and relative {relative.shape} "
-            "must have one shape"
-        )
-    if row_sigma.shape != (labels.shape[0],):
-        raise ValueError(
-            f"row_sigma must hold one value per row ({labels.shape[0]}), got shape "
-            f"{row_sigma.shape}"
-        )
+    check_height_inputs(labels, contrast, relative, row_sigma, noise_name="row_sigma")
     if not (
         0 <= max_angle_deg <= 90
         and min_gap_bands >= 0
