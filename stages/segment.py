@@ -52,7 +52,7 @@ Frames larger than ``tile_px`` on a side get their sector histograms per tile on
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -507,7 +507,8 @@ def segment_image(
         before = labels
         # R7e's first case, before R7b, on dark neighbours clearly raised next to the lit
         # face: else R7b joins face and cast shadow to it whole (mojave_0011 rock 4)
-        labels, faces = _split_shadow_sides(
+        labels, faces = _on_row_heights(
+            split_shadow_sides,
             labels,
             contrast,
             row_noise,
@@ -556,7 +557,8 @@ def segment_image(
             notes.append(f"{off_side} px of the other side off the sun's side dropped")
     if r7e:
         # R7e, after R7d: where heights are precise, a shaded face and its cast shadow
-        labels, faces = _split_shadow_sides(
+        labels, faces = _on_row_heights(
+            split_shadow_sides,
             labels,
             contrast,
             row_noise,
@@ -571,7 +573,8 @@ def segment_image(
         if sun_shadow_angle_deg > 0:
             # R6c, after R7e (which splits the shadows beside a lit face it found): a dark
             # rock whose lit face no rule found keeps its flat, darker cast shadow
-            labels, flat_cut = _trim_flat_shadows(
+            labels, flat_cut = _on_row_heights(
+                trim_flat_shadow_sides,
                 labels,
                 contrast,
                 row_noise,
@@ -661,56 +664,18 @@ class _RowNoise:
         return _row_band_sigma(self.relative, usable, _memo=self._memo)
 
 
-def _split_shadow_sides(
+def _on_row_heights(
+    rule: Callable[..., tuple[np.ndarray, int]],
     labels: np.ndarray,
     contrast: np.ndarray,
     row_noise: _RowNoise,
-    *,
-    max_noise_m: float,
-    min_height_m: float,
-    flat_tol_m: float,
-    cases: tuple[int, ...],
-    facing_only: bool,
+    **settings: Any,
 ) -> tuple[np.ndarray, int]:
-    """R7e on the heights the depth rules read: relative to R0's local ground, R0b's noise."""
+    """A height rule (R6c, R7e) on the heights the depth rules read: relative to R0's local
+    ground, with R0b's noise per row; nothing to do on a frame without objects."""
     if not labels.any():
         return labels, 0
-    return split_shadow_sides(
-        labels,
-        contrast,
-        row_noise.relative,
-        row_noise(labels),
-        max_noise_m=max_noise_m,
-        min_height_m=min_height_m,
-        flat_tol_m=flat_tol_m,
-        cases=cases,
-        facing_only=facing_only,
-    )
-
-
-def _trim_flat_shadows(
-    labels: np.ndarray,
-    contrast: np.ndarray,
-    row_noise: _RowNoise,
-    *,
-    max_noise_m: float,
-    min_height_m: float,
-    flat_tol_m: float,
-    min_area_px: int,
-) -> tuple[np.ndarray, int]:
-    """R6c on the heights the depth rules read: relative to R0's local ground, R0b's noise."""
-    if not labels.any():
-        return labels, 0
-    return trim_flat_shadow_sides(
-        labels,
-        contrast,
-        row_noise.relative,
-        row_noise(labels),
-        max_noise_m=max_noise_m,
-        min_height_m=min_height_m,
-        flat_tol_m=flat_tol_m,
-        min_area_px=min_area_px,
-    )
+    return rule(labels, contrast, row_noise.relative, row_noise(labels), **settings)
 
 
 def _seams(labels: np.ndarray) -> np.ndarray:
