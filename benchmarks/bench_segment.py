@@ -11,6 +11,8 @@ Usage (from the repository root)::
     PYTHONPATH=. .venv/bin/python benchmarks/bench_segment.py --stage-speed  # + describe
     PYTHONPATH=. .venv/bin/python benchmarks/bench_segment.py --stage-speed --archetypes lava \
         --set band_sigmas=2.5 blob_sigmas=4  # the lava catalog's segment settings
+    PYTHONPATH=. .venv/bin/python benchmarks/bench_segment.py --rundir runs/eval/lava \
+        --truth-depth  # a run's frames with the truth's depth: the depth stage made perfect
 
 ``--stage-speed`` prints the CPU time per frame of the segment and describe stages (the
 engine's entry points, depth stage products as input) for ``--frames`` seeds of each
@@ -229,24 +231,31 @@ def scores(
             )
 
 
-def rundir_scores(rundirs: list[str], overrides: dict, verbose: bool = False) -> None:
+def rundir_scores(
+    rundirs: list[str], overrides: dict, verbose: bool = False, *, truth_depth: bool = False
+) -> None:
     """Segment a finished run's frames again (its depth products) and score like evaluate.
 
     Reads the reference image, height and disparity of every frame of ``products.zarr``,
     runs :func:`stages.segment.segment_image` with the catalog's segment params plus
     ``overrides`` (the current code, not the run's), and pools the object scores against
-    the archive's truth labels, as ``arroyo evaluate`` does.
+    the archive's truth labels, as ``arroyo evaluate`` does. ``truth_depth`` feeds the
+    truth's height and disparity instead of the run's: the segmentation's own limit when
+    the depth stage is made perfect (the rules keep the thresholds tuned for the run's
+    noisy heights).
     """
     for rundir in rundirs:
         run = open_run(rundir)
         params = run.segment_params()
         params.update(overrides)
         results = []
+        depth_source = "truth depth" if truth_depth else ""
         for frame in run.frames():
+            depth = frame.truth if truth_depth else frame
             labels = segment_image(
                 frame.product(run.camera.reference),
-                height=frame.product("height"),
-                disparity=frame.product("disparity"),
+                height=_depth_product(depth, "height"),
+                disparity=_depth_product(depth, "disparity"),
                 **params,
             ).labels
             results.append(segmentation_scores(labels, frame.truth["labels"]))
@@ -258,7 +267,13 @@ def rundir_scores(rundirs: list[str], overrides: dict, verbose: bool = False) ->
             f"{run.archive:9s} {params['method']:24s} {pooled['precision']:6.3f} "
             f"{pooled['recall']:6.3f} {pooled['f1']:6.3f} {pooled['mean_iou']:6.3f}"
             f"   (tp {pooled['tp']:.0f} fp {pooled['fp']:.0f} fn {pooled['fn']:.0f})  {rundir}"
+            f"{'  ' + depth_source if depth_source else ''}"
         )
+
+
+def _depth_product(source, name: str) -> np.ndarray:
+    """A depth product of a run frame (``RunFrame.product``) or of its truth (a dict)."""
+    return source[name] if isinstance(source, dict) else source.product(name)
 
 
 
@@ -293,6 +308,11 @@ def main() -> None:
     )
     parser.add_argument("--verbose", action="store_true", help="--rundir: per-frame counts")
     parser.add_argument(
+        "--truth-depth",
+        action="store_true",
+        help="--rundir: segment with the truth's height and disparity instead of the run's",
+    )
+    parser.add_argument(
         "--profile", type=int, default=0, metavar="N", help="--stage-speed: top N functions"
     )
     args = parser.parse_args()
@@ -319,7 +339,7 @@ def main() -> None:
 
 def _run(args: argparse.Namespace, overrides: dict, depth_params: dict) -> None:
     if args.rundir:
-        rundir_scores(args.rundir, overrides, args.verbose)
+        rundir_scores(args.rundir, overrides, args.verbose, truth_depth=args.truth_depth)
         return
     if args.stage_speed:
         stage_speed(
