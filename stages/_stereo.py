@@ -330,17 +330,22 @@ def _carry_shifted_rows(
 # sgm's two (H, W, D) float32 volumes, kept per thread for the next frame of the same
 # shape: fresh ones cost more in page faults (~30 ms of system time each at 500 x 500 x 64)
 # than the kernels spend filling them. Per thread, because a threaded worker matches
-# several frames at once.
+# several frames at once. Only up to _KEEP_MAX_BYTES each: a 1024 px tile with 256
+# disparities takes 1.1 GB a volume, which a worker must not hold between frames (and whose
+# page faults are small next to its matching time).
 _VOLUMES = threading.local()
+_KEEP_MAX_BYTES = 256 * 2**20
 
 
 def _sgm_volumes(shape: tuple[int, int, int]) -> tuple[np.ndarray, np.ndarray]:
-    """The calling thread's cost and aggregation volumes of ``shape`` (new when it changes)."""
+    """The calling thread's cost and aggregation volumes of ``shape`` (new when it changes;
+    not kept for the next frame above ``_KEEP_MAX_BYTES`` each)."""
     volumes = getattr(_VOLUMES, "arrays", None)
     if volumes is None or volumes[0].shape != shape:
         _VOLUMES.arrays = None  # the old pair is freed before the new one is allocated
         volumes = (np.empty(shape, np.float32), np.empty(shape, np.float32))
-        _VOLUMES.arrays = volumes
+        if volumes[0].nbytes <= _KEEP_MAX_BYTES:
+            _VOLUMES.arrays = volumes
     return volumes
 
 

@@ -314,3 +314,21 @@ def test_sgm_frames_in_a_row_match_as_each_alone():
     in_a_row = [match_disparity(r, lft, **settings).disparity for r, lft in [*pairs, other_shape]]
     for got, want in zip(in_a_row, alone, strict=True):
         assert got.tobytes() == want.tobytes()
+
+
+def test_sgm_volumes_above_the_cap_are_not_kept(monkeypatch):
+    # regression: the volumes were kept per thread at any size, so a worker matching 1024 px
+    # tiles with 256 disparities held 2.2 GB per thread between frames
+    _stereo._VOLUMES.arrays = None
+    small = _stereo._sgm_volumes((4, 5, 6))
+    assert _stereo._sgm_volumes((4, 5, 6))[0] is small[0]  # kept for the next frame
+    monkeypatch.setattr(_stereo, "_KEEP_MAX_BYTES", 4 * 5 * 6 * 4 - 1)
+    large = _stereo._sgm_volumes((4, 5, 6 + 1))
+    assert large[0].shape == (4, 5, 7)
+    assert _stereo._VOLUMES.arrays is None  # the kept pair was freed, the new one not kept
+    right, left = shifted_pair((30, 50), 4, seed=1)
+    settings = {"method": "sgm", "min_disparity": 0, "max_disparity": 9}
+    uncapped = match_disparity(right, left, **settings).disparity
+    monkeypatch.setattr(_stereo, "_KEEP_MAX_BYTES", 0)
+    capped = match_disparity(right, left, **settings).disparity
+    assert capped.tobytes() == uncapped.tobytes()
