@@ -4,7 +4,11 @@ Columns ``frame_id,left,right`` are required (image paths relative to the CSV's 
 absolute). A column named like a numeric camera field overrides it per frame (an empty cell
 keeps the catalog's value); any other column is metadata, typed per column: int when every
 non-empty cell is an integer, float when every non-empty cell is a number, str otherwise
-(so each column stores cleanly in Parquet); an empty cell is ``None``.
+(so each column stores cleanly in Parquet); an empty cell is ``None``. A metadata column may
+not take a name of ``frames.parquet``'s own columns (:data:`RESERVED_COLUMNS`; the engine's
+``<stage>_...`` figures are checked by :func:`pipeline.plan.validate_request`, which knows the
+stages): a user's ``notes`` or ``status`` column was dropped without a word, and an ``archive``
+or ``run_id`` column replaced the real ones in ``arroyo query``.
 Every problem raises CatalogError naming the file, the line and the column.
 """
 
@@ -21,10 +25,24 @@ from typing import Any
 
 from .errors import CatalogError
 
-__all__ = ["IndexRow", "read_index", "read_bytes", "decode_utf8", "as_float", "OVERRIDABLE"]
+__all__ = [
+    "IndexRow",
+    "read_index",
+    "read_bytes",
+    "decode_utf8",
+    "as_float",
+    "OVERRIDABLE",
+    "RESERVED_COLUMNS",
+]
 
 OVERRIDABLE: tuple[str, ...] = ("focal_px", "baseline_m", "height_m", "pitch_deg", "cx", "cy")
 """Camera fields an index column of the same name overrides per frame."""
+
+RESERVED_COLUMNS: tuple[str, ...] = (
+    "index", "status", "failed_stage", "error", "notes", "archive", "run", "run_id",
+)  # fmt: skip
+"""Columns of ``frames.parquet`` (and of ``arroyo query``'s views) a metadata column may not
+be named."""
 
 _FRAME_ID_RE = re.compile(r"[A-Za-z0-9_.-]+")
 _FRAME_ID_MAX = 200
@@ -162,6 +180,13 @@ def _check_header(path: Path, line: int, header: list[str]) -> None:
             raise CatalogError(f"{path}: line {line}: header cell {i + 1} is empty; name it")
         if header.index(name) != i:
             raise CatalogError(f"{path}: line {line}: column {name!r} appears twice; rename one")
+        if name in RESERVED_COLUMNS:
+            raise CatalogError(
+                f"{path}: line {line}: column {name!r} is a name frames.parquet uses for its "
+                f"own column (reserved: {', '.join(RESERVED_COLUMNS)}), so this metadata "
+                f"would be lost or would replace the engine's; rename it, e.g. to "
+                f"'my_{name}'"
+            )
 
 
 def _metadata_types(header: list[str], rows: list[tuple[int, list[str]]]) -> dict[str, type]:

@@ -37,7 +37,8 @@ directory, or absolute). A column named like a numeric camera field (``focal_px`
 (an empty cell keeps the catalog's value); any other column is frame metadata. A metadata
 column is typed as a whole so that it stores cleanly in Parquet: int when every non-empty
 cell is an integer, float when every non-empty cell is a number, str otherwise; an empty
-cell is ``None``.
+cell is ``None``. It may not be named like a column ``frames.parquet`` has itself
+(``notes``, ``status``, ``archive``, ``run_id``..., ``<stage>_...``): rename such a column.
 
 Every problem raises :class:`pipeline.errors.CatalogError` whose message names the file,
 the field (with its line where it can be found), what was expected and how to fix it.

@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from .catalog import Catalog, FrameRecord, load_catalog
-from .errors import ParamError
+from .errors import CatalogError, ParamError
 from .graph import (
     StageGraph,
     build_graph,
@@ -192,6 +192,7 @@ def validate_request(
     catalog = load_catalog(catalog_path)
     package = stage_package_name(stage_package)
     graph = build_graph(discover_stages(package))
+    _check_metadata_names(catalog, graph)
     try:  # the catalog's own [params] first, so that its errors name the catalog
         resolve_stage_params(graph, catalog.params)
     except ParamError as exc:
@@ -215,6 +216,21 @@ def validate_request(
             f"{catalog.source}; frame ids look like {catalog.frames[0].frame_id!r}"
         )
     return RunRequest(catalog, graph, params, selected, package)
+
+
+def _check_metadata_names(catalog: Catalog, graph: StageGraph) -> None:
+    """Raise CatalogError when a metadata column of the index is named like a stage's
+    ``<stage>_...`` column of ``frames.parquet``: the engine's value would win and the
+    user's metadata be dropped without a word (fixed names: ``_frame_index``)."""
+    for name in catalog.frames[0].metadata:
+        for stage in graph.stages:
+            if name.startswith(f"{stage.name}_"):
+                raise CatalogError(
+                    f"{catalog.index_path}: header: column {name!r} is named like the columns "
+                    f"frames.parquet gives the {stage.name!r} stage's times and figures "
+                    f"('{stage.name}_...'), so this metadata could be lost; rename it, e.g. "
+                    f"to 'my_{name}'"
+                )
 
 
 def plan_run(

@@ -446,3 +446,17 @@ def test_name_of_a_builtin_archive_points_at_its_catalog(tmp_path: Path) -> None
     not exist; the message now gives the shipped catalog's path."""
     shipped = Path(__file__).resolve().parents[2] / "catalogs" / "lab.toml"
     assert_error(tmp_path / "lab", "does not exist", f"catalog is {shipped}")
+
+
+@pytest.mark.parametrize(
+    "column", ["notes", "status", "index", "error", "archive", "run_id", "run"]
+)
+def test_regression_metadata_column_named_like_a_frames_column_was_lost(
+    tmp_path: Path, column: str
+) -> None:
+    # a user's `notes` column was dropped from frames.parquet without a word, and an
+    # `archive` or `run_id` column replaced the real ones in `arroyo query`
+    csv = f"frame_id,left,right,sol,{column}\nf1,a.png,b.png,12,x\n"
+    assert_error(
+        write_catalog(tmp_path, csv=csv), "frames.csv", "line 1", repr(column), f"my_{column}"
+    )
