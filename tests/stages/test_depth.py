@@ -240,3 +240,36 @@ def test_settings_only_the_matcher_checks_fail_at_planning(override, words):
     with pytest.raises(ParamError, match=words):
         STAGE.resolve_params(override)
     assert STAGE.resolve_params({})["windows"] == STAGE.defaults()["windows"]
+
+
+def _ramp_pair(shape=(96, 160), near_px=80.0, far_px=40.0):
+    """A textured slope whose disparity grows from ``far_px`` (top row) to ``near_px``."""
+    h, w = shape
+    ys, xs = np.indices(shape, dtype=float)
+    disparity = far_px + (near_px - far_px) * ys / (h - 1)
+    world = ndimage.gaussian_filter(np.random.default_rng(0).normal(128, 45, (h, w + 90)), 1)
+    right = ndimage.map_coordinates(world, [ys, xs + disparity], order=3)
+    as_u8 = lambda img: np.clip(np.round(img), 0, 255).astype(np.uint8)  # noqa: E731
+    return as_u8(world[:, :w]), as_u8(right)
+
+
+def test_regression_poseless_frame_searched_only_64_px_without_a_note():
+    # a user's 1024x768 frames without height_m/pitch_deg were matched up to the fixed 64 px
+    # only (their near ground needs 90): 7 % of the bottom rows valid, and nothing said so
+    left, right = _ramp_pair()
+    bare = Camera(focal_px=400.0, baseline_m=0.1)
+    result = _run(left, right, camera=bare)
+    assert result.figures["max_disparity"] == 64
+    (note,) = result.notes
+    assert "no camera pose" in note and "ground plane fitted from the disparity" in note
+    assert "up to 64 px" in note and f"{400.0 * 0.1 / 64:.2f} m" in note
+    assert "likely cut off" in note and "depth.max_disparity" in note
+    # an explicit limit: only the ground plane's source is noted
+    (note,) = _run(left, right, camera=bare, max_disparity=90).notes
+    assert "ground plane fitted" in note and "64" not in note
+    # a frame whose matches stay well below the limit is not told it was cut off
+    left, right = _ramp_pair(near_px=40.0, far_px=20.0)
+    (note,) = _run(left, right, camera=bare).notes
+    assert "up to 64 px" in note and "cut off" not in note
+    # with a pose nothing is assumed
+    assert _run(left, right).notes == []
