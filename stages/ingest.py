@@ -129,10 +129,20 @@ def check_pair_shapes(
             "works on at least 2x2 sectors of 4x4 px); remove the frame from the index"
         )
     if archive_shape is not None and tuple(left_shape) != tuple(archive_shape):
+        fix = (
+            f"resize {left_path} and {right_path}, or remove the frame from the index (set "
+            "[frames] shape in the catalog to choose the size)"
+        )
+        if tuple(left_shape) == tuple(archive_shape)[::-1]:
+            # `shape = [640, 480]` for 640x480 frames failed every frame, each told to
+            # resize its images
+            fix = (
+                "the transpose: [frames] shape in the catalog is [H, W], rows first, so for "
+                f"this frame's size write shape = [{left_shape[0]}, {left_shape[1]}]; else {fix}"
+            )
         raise FrameError(
             f"frame {frame_id} is {_hxw(left_shape)} but the archive's frames are "
-            f"{_hxw(archive_shape)} (HxW); resize {left_path} and {right_path}, or remove "
-            "the frame from the index (set [frames] shape in the catalog to choose the size)"
+            f"{_hxw(archive_shape)} (HxW); {fix}"
         )
 
 

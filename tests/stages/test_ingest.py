@@ -98,6 +98,20 @@ def test_frame_of_another_size_than_the_archive(
         ingest(context(left, right, shape=(64, 64)))
 
 
+def test_regression_transposed_frames_shape_read_as_wrong_size_frames(
+    tmp_path: Path, pair: tuple[np.ndarray, np.ndarray]
+) -> None:
+    # a user's catalog said `shape = [80, 60]` (width first) for 60x80 (HxW) frames: every
+    # frame failed, told to resize its images
+    left = write(tmp_path / "l.png", pair[0])
+    right = write(tmp_path / "r.png", pair[1])
+    with pytest.raises(FrameError) as info:
+        ingest(context(left, right, shape=(80, 60)))
+    message = str(info.value)
+    assert "is 60x80 but the archive's frames are 80x60" in message
+    assert "[H, W], rows first" in message and "shape = [60, 80]" in message
+
+
 def test_bad_file_fails_the_frame_naming_it(
     tmp_path: Path, pair: tuple[np.ndarray, np.ndarray]
 ) -> None:
