@@ -326,6 +326,14 @@ def _load_plain(doc: _TomlDoc, *, source: Path) -> Catalog:
             raise doc.error("truth", "dir", f"expected a directory path, got {truth!r}")
         truth_dir = Path(os.path.abspath(doc.path.parent / truth))
     index_path = Path(os.path.abspath(doc.path.parent / index))
+    if not index_path.exists() and not index_path.is_symlink():
+        # the index reader's own message named neither the catalog nor the line to fix
+        raise doc.error(
+            "frames",
+            "index",
+            f"the frame index {index_path} does not exist (a relative path is taken from the "
+            f"catalog's directory {doc.path.parent}); fix the path",
+        )
     frames = _frames(index_path, camera)
     return Catalog(
         path=doc.path,

@@ -460,3 +460,12 @@ def test_regression_metadata_column_named_like_a_frames_column_was_lost(
     assert_error(
         write_catalog(tmp_path, csv=csv), "frames.csv", "line 1", repr(column), f"my_{column}"
     )
+
+
+def test_regression_missing_index_named_neither_the_catalog_nor_its_line(tmp_path: Path) -> None:
+    # a catalog in another directory than its index: the message named only the CSV path
+    (tmp_path / "catalogs").mkdir()
+    path = write_catalog(tmp_path / "catalogs", csv=None)
+    message = assert_error(path, "cat.toml", "line 13", "[frames] index", "does not exist")
+    assert str(tmp_path / "catalogs" / "frames.csv") in message
+    assert f"catalog's directory {tmp_path / 'catalogs'}" in message
