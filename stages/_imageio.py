@@ -203,6 +203,10 @@ def decode_gray(
         image, notes = to_gray_uint8(decoded, sample_bits=sample_bits, name=name)
         if decoded.dtype == np.uint16:
             notes.extend(_declared_bits_notes(header, sample_bits))
+        if header.more_pages:
+            # a stereo camera's left and right as two pages of one file read as a pair of
+            # identical first pages without a word
+            notes.append("the TIFF holds more than one page: only the first is read")
     except ValueError as exc:
         raise FrameError(f"{name}: {exc}") from None
     extension = os.path.splitext(name)[1].lower()

@@ -277,6 +277,21 @@ def test_constant_and_saturated_frames_decode(tmp_path: Path, value: int) -> Non
     assert decoded.notes == [f"constant frame: every pixel is {value}"]
 
 
+def test_regression_multi_page_tiff_read_its_first_page_without_a_note(
+    tmp_path: Path, gray: np.ndarray
+) -> None:
+    # a camera's left and right as two pages of one TIFF: the catalog names the file for
+    # both sides and ingest read the first page twice, silently
+    path = tmp_path / "pair.tif"
+    assert cv2.imwritemulti(str(path), [gray, 255 - gray])
+    decoded = read_gray(path)
+    np.testing.assert_array_equal(decoded.image, gray)
+    assert decoded.notes == ["the TIFF holds more than one page: only the first is read"]
+    assert read_header(path.read_bytes()).more_pages
+    single = write(tmp_path / "one.tif", gray)
+    assert read_gray(single).notes == [] and not read_header(single.read_bytes()).more_pages
+
+
 def test_extension_mismatch_is_noted(tmp_path: Path, gray: np.ndarray) -> None:
     path = tmp_path / "really_png.jpg"
     path.write_bytes(encoded(".png", gray))
