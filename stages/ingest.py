@@ -2,9 +2,10 @@
 
 The decoding rules (formats, colour -> gray, 16-bit and float scaling, what fails a frame)
 are those of :mod:`stages._imageio`. Ingest adds the pair checks: left and right must have
-the same size, and that size must be the archive's (``FrameContext.image_shape``) when the
-engine knows it. Each conversion becomes a note in the frame's record, and the sha256 of
-both files becomes a per-frame figure.
+the same size, that size must be the archive's (``FrameContext.image_shape``) when the
+engine knows it, and they must differ (one file named for both sides fails the frame).
+Each conversion becomes a note in the frame's record, and the sha256 of both files becomes
+a per-frame figure.
 
 Parameters (catalog ``[params] ingest = {...}`` or ``--set ingest.NAME=VALUE``):
 
@@ -89,6 +90,16 @@ def run_ingest(
         right_path=frame.right_path,
         archive_shape=frame.image_shape,
     )
+    same_file = left.sha256 == right.sha256
+    if same_file or (_varies(left.image) and np.array_equal(left.image, right.image)):
+        # the same file (or a copy) on both sides of the index row ran 'done' with zero
+        # disparity everywhere; two constant frames (a lens cap) are noted as such instead
+        same = "is the same file as" if same_file else "has the same pixels as"
+        raise FrameError(
+            f"frame {frame.frame_id}: left image {frame.left_path} {same} right image "
+            f"{frame.right_path}; a stereo pair needs the two cameras' images: fix the "
+            "frame's row in the index"
+        )
     return StageResult(
         arrays={"left": left.image, "right": right.image},
         figures={"left_sha256": left.sha256, "right_sha256": right.sha256},
@@ -150,6 +161,10 @@ def _check_params(params: Mapping[str, Any]) -> None:
     # the range is checked here rather than by Param bounds, so that the message can say
     # what sample_bits means and how to choose it
     coerce_sample_bits(params["sample_bits"])
+
+
+def _varies(image: np.ndarray) -> bool:
+    return bool(image.size) and bool(np.any(image != image.flat[0]))
 
 
 def _hxw(shape: tuple[int, ...]) -> str:

@@ -227,3 +227,20 @@ def test_frame_under_the_smallest_side_fails_naming_its_files(
     left, right = write(tmp_path / "l.png", image), write(tmp_path / "r.png", image)
     with pytest.raises(FrameError, match=r"l\.png and .*r\.png are .* smaller than the 8x8"):
         ingest(context(left, right, shape=shape))
+
+
+def test_regression_same_image_on_both_sides_ran_done(
+    tmp_path: Path, pair: tuple[np.ndarray, np.ndarray]
+) -> None:
+    # one file named for both sides of an index row (or a copy of it) ran 'done' with zero
+    # disparity everywhere
+    left = write(tmp_path / "l.png", pair[0])
+    copy = write(tmp_path / "copy.tif", pair[0])
+    with pytest.raises(FrameError, match=r"l\.png is the same file as right image .*l\.png"):
+        ingest(context(left, left))
+    with pytest.raises(FrameError, match=r"l\.png has the same pixels as right image .*copy"):
+        ingest(context(left, copy))
+    # two constant frames (a lens cap) are not a catalog mistake: noted, not failed
+    cap_l = write(tmp_path / "cap_l.png", np.zeros((60, 80), np.uint8))
+    cap_r = write(tmp_path / "cap_r.tif", np.zeros((60, 80), np.uint8))
+    assert "constant frame" in " ".join(ingest(context(cap_l, cap_r)).notes)
