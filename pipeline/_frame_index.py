@@ -1,14 +1,15 @@
 """The frame index of a survey catalog: a CSV of stereo pairs, validated row by row.
 
 Columns ``frame_id,left,right`` are required (image paths relative to the CSV's directory, or
-absolute). A column named like a numeric camera field overrides it per frame (an empty cell
-keeps the catalog's value); any other column is metadata, typed per column: int when every
-non-empty cell is an integer, float when every non-empty cell is a number, str otherwise
-(so each column stores cleanly in Parquet); an empty cell is ``None``. A metadata column may
-not take a name of ``frames.parquet``'s own columns (:data:`RESERVED_COLUMNS`; the engine's
-``<stage>_...`` figures are checked by :func:`pipeline.plan.validate_request`, which knows the
-stages): a user's ``notes`` or ``status`` column was dropped without a word, and an ``archive``
-or ``run_id`` column replaced the real ones in ``arroyo query``.
+absolute; a leading ``~`` is the home directory). A column named like a numeric camera field
+overrides it per frame (an empty cell keeps the catalog's value); any other column is
+metadata, typed per column: int when every non-empty cell is an integer, float when every
+non-empty cell is a number, str otherwise (so each column stores cleanly in Parquet); an
+empty cell is ``None``. A metadata column may not take a name of ``frames.parquet``'s own
+columns (:data:`RESERVED_COLUMNS`; the engine's ``<stage>_...`` figures are checked by
+:func:`pipeline.plan.validate_request`, which knows the stages): a user's ``notes`` or
+``status`` column was dropped without a word, and an ``archive`` or ``run_id`` column
+replaced the real ones in ``arroyo query``.
 Every problem raises CatalogError naming the file, the line and the column.
 """
 
@@ -132,7 +133,8 @@ def read_index(path: Path) -> list[IndexRow]:
             cell = cells[columns[side]]
             if "\x00" in cell:
                 raise CatalogError(f"{path}: line {line}: column {side!r} is not a valid path")
-            paths[side] = Path(os.path.abspath(path.parent / cell))
+            # `~/data/x.png` was taken as relative to the CSV: '.../index/~/data/x.png'
+            paths[side] = Path(os.path.abspath(path.parent / os.path.expanduser(cell)))
         metadata = {
             name: None if not cells[columns[name]] else kind(cells[columns[name]])
             for name, kind in metadata_types.items()

@@ -32,8 +32,9 @@ pairs and may carry stage parameter overrides::
     variant = "hard"                # optional
 
 The index CSV has columns ``frame_id,left,right`` (image paths relative to the CSV's
-directory, or absolute). A column named like a numeric camera field (``focal_px``,
-``baseline_m``, ``height_m``, ``pitch_deg``, ``cx``, ``cy``) overrides it for that frame
+directory, or absolute; a leading ``~`` is the home directory, as in ``index`` and ``dir``).
+A column named like a numeric camera field (``focal_px``, ``baseline_m``, ``height_m``,
+``pitch_deg``, ``cx``, ``cy``) overrides it for that frame
 (an empty cell keeps the catalog's value); any other column is frame metadata. A metadata
 column is typed as a whole so that it stores cleanly in Parquet: int when every non-empty
 cell is an integer, float when every non-empty cell is a number, str otherwise; an empty
@@ -324,8 +325,8 @@ def _load_plain(doc: _TomlDoc, *, source: Path) -> Catalog:
         truth = doc.get("truth", "dir", "str", required=True)
         if not truth or "\x00" in truth:
             raise doc.error("truth", "dir", f"expected a directory path, got {truth!r}")
-        truth_dir = Path(os.path.abspath(doc.path.parent / truth))
-    index_path = Path(os.path.abspath(doc.path.parent / index))
+        truth_dir = Path(os.path.abspath(doc.path.parent / os.path.expanduser(truth)))
+    index_path = Path(os.path.abspath(doc.path.parent / os.path.expanduser(index)))
     if not index_path.exists() and not index_path.is_symlink():
         # the index reader's own message named neither the catalog nor the line to fix
         raise doc.error(

@@ -469,3 +469,21 @@ def test_regression_missing_index_named_neither_the_catalog_nor_its_line(tmp_pat
     message = assert_error(path, "cat.toml", "line 13", "[frames] index", "does not exist")
     assert str(tmp_path / "catalogs" / "frames.csv") in message
     assert f"catalog's directory {tmp_path / 'catalogs'}" in message
+
+
+def test_regression_home_relative_paths_were_taken_as_relative_to_the_csv(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # `~/data/l.png` in a user's index read '.../catalog dir/~/data/l.png': missing file
+    home = tmp_path / "home"
+    (home / "survey").mkdir(parents=True)
+    monkeypatch.setenv("HOME", str(home))
+    (home / "survey" / "frames.csv").write_text("frame_id,left,right\nf1,~/data/l.png,r.png\n")
+    toml = VALID_TOML.replace('index = "frames.csv"', 'index = "~/survey/frames.csv"')
+    toml += '\n[truth]\ndir = "~/truth"\n'
+    catalog = load_catalog(write_catalog(tmp_path, toml, csv=None))
+    assert catalog.index_path == home / "survey" / "frames.csv"
+    assert catalog.truth_dir == home / "truth"
+    (frame,) = catalog.frames
+    assert frame.left == home / "data" / "l.png"
+    assert frame.right == home / "survey" / "r.png"
