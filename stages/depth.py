@@ -341,6 +341,37 @@ def _pitch_deg(plane: np.ndarray) -> float:
     return float(math.degrees(math.atan2(-plane[2], -plane[1])))
 
 
+def _pose_notes(camera: Camera, source: str, height_m: float, pitch_deg: float) -> list[str]:
+    """A note when the disparity's ground disagrees with the catalog's camera pose.
+
+    The pose bounds the search (25 % of height, a few degrees of pitch absorbed) and is the
+    ground when it explains the disparity; otherwise the plane is fitted without a word. A
+    user's baseline_m given in millimetres (100) put the ground 1200 m below a camera said to
+    be 1.2 m up, and a focal length 20 % short (430 for 550 px) gave 1.08 m and 45 degrees
+    against 1.2 m and 38: both ran 'done' with every size and range scaled. No frame of
+    runs/eval is noted; of the 192 seed runs' frames one dunes frame (a plane 15.6 m down).
+    """
+    if not camera.has_pose or not (math.isfinite(height_m) and math.isfinite(pitch_deg)):
+        return []
+    assert camera.height_m is not None and camera.pitch_deg is not None
+    ratio = height_m / camera.height_m
+    off = abs(pitch_deg - camera.pitch_deg)
+    if source != "ransac" and abs(ratio - 1.0) <= 0.25 and off <= 5.0:
+        return []
+    units = ""
+    if 300 < ratio < 3000 or 1 / 3000 < ratio < 1 / 300:
+        units = " (a factor near 1000: baseline_m in millimetres?)"
+    used = "the pose was rejected and the fitted plane used" if source == "ransac" else (
+        "the fitted plane is used, but the pose bounded the search"
+    )  # fmt: skip
+    return [
+        f"the disparity's ground lies {height_m:.3g} m below the camera at {pitch_deg:.1f} deg "
+        f"but [camera] says height_m = {camera.height_m:g}, pitch_deg = {camera.pitch_deg:g}"
+        f"{units}; {used}: when most frames say so, check focal_px (px), baseline_m (m) and "
+        "the pose; on a frame alone, its ground is hard to fit"
+    ]
+
+
 _SWAP_CHECK_BELOW = 0.5
 """Valid share under which a frame is checked for exchanged left and right images."""
 
@@ -484,6 +515,7 @@ def run_depth(
     fit = fit_ground_plane(disparity, camera=camera, inlier_px=float(params["ground_inlier_px"]))
     if np.all(np.isfinite(fit.plane)):
         height = height_from_disparity(disparity, fit.plane, camera=camera)
+        notes.extend(_pose_notes(camera, fit.source, float(fit.plane[3]), _pitch_deg(fit.plane)))
     else:
         height = np.full(disparity.shape, np.nan, np.float32)
         notes.append("no ground plane fitted: height is NaN")

@@ -293,3 +293,17 @@ def test_regression_exchanged_left_and_right_were_not_noted():
     # the check itself on the pair as it should be: nothing to say
     assert _swapped_note(left, right, 32) == []
     assert _swapped_note(right, left, 32)
+
+
+def test_regression_camera_pose_disagreeing_with_the_disparity_was_not_noted():
+    # a user's baseline_m in millimetres, or a focal length 20 % short, ran 'done' with
+    # every range and size scaled: the pose was rejected for a fitted plane without a word
+    left, right, _ = _ground_pair()
+    assert _run(left, right).notes == []
+    mm = Camera(focal_px=120.0, baseline_m=100.0, height_m=1.2, pitch_deg=38.0)
+    (note,) = _run(left, right, camera=mm, max_disparity=32).notes
+    assert "the disparity's ground lies 1.2e+03 m below" in note
+    assert "height_m = 1.2, pitch_deg = 38" in note and "millimetres" in note
+    short = Camera(focal_px=120.0, baseline_m=0.1, height_m=1.2, pitch_deg=30.0)
+    (note,) = _run(left, right, camera=short).notes
+    assert "pitch_deg = 30" in note and "millimetres" not in note and "focal_px" in note
