@@ -131,7 +131,8 @@ def check_pair_shapes(
     if tuple(left_shape) != tuple(right_shape):
         raise FrameError(
             f"frame {frame_id}: left image {left_path} is {_hxw(left_shape)} but right image "
-            f"{right_path} is {_hxw(right_shape)} (HxW); a stereo pair must have equal sizes"
+            f"{right_path} is {_hxw(right_shape)} (HxW); a stereo pair must have equal sizes: "
+            "re-export both from the same rectified pair, or remove the frame from the index"
         )
     if min(left_shape) < MIN_SIDE_PX:
         raise FrameError(

@@ -87,6 +87,8 @@ def test_left_right_size_mismatch_names_both(
     message = str(info.value)
     for fragment in (str(left), str(right), "60x80", "50x80", "equal sizes"):
         assert fragment in message
+    # regression: the message said what was wrong but not what to do
+    assert "re-export both from the same rectified pair" in message
 
 
 def test_frame_of_another_size_than_the_archive(
