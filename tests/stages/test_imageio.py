@@ -309,6 +309,21 @@ def test_missing_file_and_directory(tmp_path: Path) -> None:
     assert_frame_error(tmp_path, "is a directory")
 
 
+def test_regression_missing_file_message_did_not_say_where_to_look(
+    tmp_path: Path, gray: np.ndarray
+) -> None:
+    # a user's index said pair01_left.png for PAIR01_LEFT.TIF, or a directory that is not
+    # there: the message named the path only
+    write(tmp_path / "PAIR01_LEFT.TIF", gray)
+    message = assert_frame_error(tmp_path / "pair01_left.png", "missing file")
+    assert f"{tmp_path} holds PAIR01_LEFT.TIF" in message and "case-sensitive" in message
+    message = assert_frame_error(tmp_path / "sol 12" / "a.png", "missing file")
+    assert f"its directory {tmp_path / 'sol 12'} does not exist either" in message
+    assert "relative to the index CSV's directory" in message
+    message = assert_frame_error(tmp_path / "other.png", "missing file")
+    assert message.endswith("fix the path in the index, or remove the frame")
+
+
 def test_zero_bytes_and_too_short(tmp_path: Path) -> None:
     empty = tmp_path / "empty.png"
     empty.write_bytes(b"")
