@@ -142,8 +142,10 @@ def check_pair_shapes(
         )
     if archive_shape is not None and tuple(left_shape) != tuple(archive_shape):
         fix = (
-            f"resize {left_path} and {right_path}, or remove the frame from the index (set "
-            "[frames] shape in the catalog to choose the size)"
+            f"a run holds frames of one size: give frames of this size a catalog of their own "
+            f"(with its camera: the focal length in pixels scales with the size), or resize "
+            f"{left_path} and {right_path}, or remove the frame from the index (set [frames] "
+            "shape in the catalog to choose the size)"
         )
         if tuple(left_shape) == tuple(archive_shape)[::-1]:
             # `shape = [640, 480]` for 640x480 frames failed every frame, each told to

@@ -98,6 +98,9 @@ def test_frame_of_another_size_than_the_archive(
     right = write(tmp_path / "r.png", pair[1])
     with pytest.raises(FrameError, match="frame f1 is 60x80 but the archive's frames are 64x64"):
         ingest(context(left, right, shape=(64, 64)))
+    # regression: a user with two cameras' frames in one index was told only to resize them
+    with pytest.raises(FrameError, match="give frames of this size a catalog of their own"):
+        ingest(context(left, right, shape=(64, 64)))
 
 
 def test_regression_transposed_frames_shape_read_as_wrong_size_frames(
