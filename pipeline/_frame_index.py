@@ -173,9 +173,17 @@ def _csv_rows(path: Path) -> list[tuple[int, list[str]]]:
 def _check_header(path: Path, line: int, header: list[str]) -> None:
     missing = [name for name in _REQUIRED_COLUMNS if name not in header]
     if missing:
+        # a spreadsheet's export with semicolons or tabs read as one column
+        other = next((sep for sep in (";", "\t", "|") if len(header) == 1 and sep in header[0]), "")
+        hint = (
+            f"; the cells are separated by {other!r}: save the index with commas "
+            "(CSV, comma-separated)"
+            if other
+            else ""
+        )
         raise CatalogError(
             f"{path}: line {line}: the frame index lacks the column(s) {', '.join(missing)}; "
-            f"its header must contain frame_id,left,right, got {','.join(header)!r}"
+            f"its header must contain frame_id,left,right, got {','.join(header)!r}{hint}"
         )
     for i, name in enumerate(header):
         if not name:

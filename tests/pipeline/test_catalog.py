@@ -487,3 +487,14 @@ def test_regression_home_relative_paths_were_taken_as_relative_to_the_csv(
     (frame,) = catalog.frames
     assert frame.left == home / "data" / "l.png"
     assert frame.right == home / "survey" / "r.png"
+
+
+@pytest.mark.parametrize("sep", [";", "\t"])
+def test_regression_semicolon_index_from_a_spreadsheet_gave_no_hint(
+    tmp_path: Path, sep: str
+) -> None:
+    # a European spreadsheet's CSV export: the header read as one column
+    csv = sep.join(["frame_id", "left", "right"]) + "\n" + sep.join(["f1", "a", "b"]) + "\n"
+    assert_error(
+        write_catalog(tmp_path, csv=csv), "line 1", f"separated by {sep!r}", "with commas"
+    )
