@@ -367,6 +367,8 @@ def _read_file(path: Path, *, max_bytes: int) -> bytes:
 def _missing_hint(path: Path) -> str:
     """Where a missing image may be: a message that named only the path left a user to
     guess between a wrong directory, a wrong extension and a wrong case."""
+    if "\\" in path.name:
+        return "; the path holds backslashes: write it with / in the index"
     parent = path.parent
     if not parent.is_dir():
         return (

@@ -322,6 +322,8 @@ def test_regression_missing_file_message_did_not_say_where_to_look(
     assert "relative to the index CSV's directory" in message
     message = assert_frame_error(tmp_path / "other.png", "missing file")
     assert message.endswith("fix the path in the index, or remove the frame")
+    message = assert_frame_error(tmp_path / "images\\sol12\\a.png", "missing file")
+    assert "backslashes: write it with / in the index" in message
 
 
 def test_zero_bytes_and_too_short(tmp_path: Path) -> None:
