@@ -60,7 +60,6 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
-import cv2
 import numpy as np
 
 from pipeline.camera import Camera
@@ -68,6 +67,7 @@ from pipeline.errors import ParamError
 from pipeline.stage import FrameContext, Param, Product, Stage, StageResult
 
 from . import _refine, _stereo, _stereo_tiles
+from ._depth_checks import SWAP_CHECK_BELOW, pose_notes, poseless_note, swapped_note
 from ._select import median32
 from .geometry import (
     derive_max_disparity,
@@ -341,107 +341,6 @@ def _pitch_deg(plane: np.ndarray) -> float:
     return float(math.degrees(math.atan2(-plane[2], -plane[1])))
 
 
-def _pose_notes(camera: Camera, source: str, height_m: float, pitch_deg: float) -> list[str]:
-    """A note when the disparity's ground disagrees with the catalog's camera pose.
-
-    The pose bounds the search (25 % of height, a few degrees of pitch absorbed) and is the
-    ground when it explains the disparity; otherwise the plane is fitted without a word. A
-    user's baseline_m given in millimetres (100) put the ground 1200 m below a camera said to
-    be 1.2 m up, and a focal length 20 % short (430 for 550 px) gave 1.08 m and 45 degrees
-    against 1.2 m and 38: both ran 'done' with every size and range scaled. No frame of
-    runs/eval is noted; of the 192 seed runs' frames one dunes frame (a plane 15.6 m down).
-    """
-    if not camera.has_pose or not (math.isfinite(height_m) and math.isfinite(pitch_deg)):
-        return []
-    assert camera.height_m is not None and camera.pitch_deg is not None
-    ratio = height_m / camera.height_m
-    off = abs(pitch_deg - camera.pitch_deg)
-    if source != "ransac" and abs(ratio - 1.0) <= 0.25 and off <= 5.0:
-        return []
-    units = ""
-    if 300 < ratio < 3000 or 1 / 3000 < ratio < 1 / 300:
-        units = " (a factor near 1000: baseline_m in millimetres?)"
-    used = "the pose was rejected and the fitted plane used" if source == "ransac" else (
-        "the fitted plane is used, but the pose bounded the search"
-    )  # fmt: skip
-    return [
-        f"the disparity's ground lies {height_m:.3g} m below the camera at {pitch_deg:.1f} deg "
-        f"but [camera] says height_m = {camera.height_m:g}, pitch_deg = {camera.pitch_deg:g}"
-        f"{units}; {used}: when most frames say so, check focal_px (px), baseline_m (m) and "
-        "the pose; on a frame alone, its ground is hard to fit"
-    ]
-
-
-_SWAP_CHECK_BELOW = 0.5
-"""Valid share under which a frame is checked for exchanged left and right images."""
-
-
-def _swapped_note(left: np.ndarray, right: np.ndarray, hi: int) -> list[str]:
-    """A note when the pair matches far better with left and right exchanged.
-
-    A pair entered the other way round in the index matched 12 % of the frame, and only
-    segment's 'height valid on 12 %' hinted at it. Block matching at half size (OpenCV
-    StereoBM, 4 ms a frame) this way round and exchanged (both mirrored, which turns the
-    exchanged pair into a pair of positive disparities): on the built-in archives 67-88 %
-    against 8-19 %, and the reverse when exchanged; dunes' ripples match either way
-    (0.65-0.76), so the note needs twice as much and at least 30 %.
-    """
-    if min(left.shape) < 64:
-        return []
-    half = [cv2.resize(img, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)
-            for img in (left, right)]  # fmt: skip
-    n_disp = int(min(max(16, 16 * math.ceil(hi / 32)), 16 * ((half[0].shape[1] - 16) // 16)))
-    if n_disp < 16:
-        return []
-    matcher = cv2.StereoBM_create(numDisparities=n_disp, blockSize=15)
-    matcher.setUniquenessRatio(10)
-    matcher.setTextureThreshold(10)
-
-    def matched(a: np.ndarray, b: np.ndarray) -> float:
-        return float(np.mean(matcher.compute(a, b)[:, n_disp:] > 0))
-
-    as_given = matched(*half)
-    exchanged = matched(*(np.ascontiguousarray(img[:, ::-1]) for img in half))
-    if exchanged < 0.3 or exchanged < 2 * as_given:
-        return []
-    return [
-        f"left and right look exchanged: a quick block matching finds {as_given:.0%} of the "
-        f"frame as given and {exchanged:.0%} with the two images exchanged; swap the frame's "
-        "left and right columns in the index"
-    ]
-
-
-_AT_LIMIT_NOTED = 0.01
-"""Share of matches within 1 px of the default search limit above which the note of a frame
-without a pose says nearer ground was likely cut off (1.5 % on 1024x768 frames that needed
-90 px, 0.0 % on 640x480 ones that needed 57)."""
-
-
-def _poseless_note(
-    camera: Camera, disparity: np.ndarray, hi: int, params: Mapping[str, Any]
-) -> str:
-    """What a frame without a camera pose assumed: the ground plane comes from the
-    disparity, and without ``nearest_range_m`` or ``max_disparity`` the search stops at a
-    fixed 64 px, which a larger or nearer camera than the built-in archives' exceeds
-    (1024x768 frames at f = 881 px: 7 % of the bottom 100 rows matched, 93 % with the
-    pose); the share of matches piled up at that limit tells."""
-    note = "no camera pose ([camera] height_m, pitch_deg): ground plane fitted from the disparity"
-    if int(params["max_disparity"]) or float(params["nearest_range_m"]):
-        return note
-    note += (
-        f"; disparities searched up to {hi} px (the default without a pose or "
-        f"depth.nearest_range_m), so nothing nearer than {camera.k_m_px / hi:.2f} m is matched"
-    )
-    valid = disparity[np.isfinite(disparity)]
-    at_limit = float(np.mean(valid >= hi - 1)) if valid.size else 0.0
-    if at_limit < _AT_LIMIT_NOTED:
-        return note
-    return (
-        f"{note}; {at_limit:.1%} of the matches lie within 1 px of that limit, so nearer "
-        "ground was likely cut off: give the pose, depth.nearest_range_m or depth.max_disparity"
-    )
-
-
 def run_depth(
     inputs: dict[str, np.ndarray], *, frame: FrameContext, params: dict[str, Any]
 ) -> StageResult:
@@ -490,9 +389,9 @@ def run_depth(
     if tiled:
         notes.append(f"matched in tiles of {params['tile_px']} px")
     if not camera.has_pose:
-        notes.append(_poseless_note(camera, matching.disparity, hi, params))
-    if matching.valid_fraction < _SWAP_CHECK_BELOW:
-        notes.extend(_swapped_note(left, right, hi))
+        notes.append(poseless_note(camera, matching.disparity, hi, params))
+    if matching.valid_fraction < SWAP_CHECK_BELOW:
+        notes.extend(swapped_note(left, right, hi))
     disparity_m = matching.disparity
     refined_fraction = 0.0
     if params["ground_refine"] and params["method"] != "opencv-sgbm":
@@ -515,7 +414,7 @@ def run_depth(
     fit = fit_ground_plane(disparity, camera=camera, inlier_px=float(params["ground_inlier_px"]))
     if np.all(np.isfinite(fit.plane)):
         height = height_from_disparity(disparity, fit.plane, camera=camera)
-        notes.extend(_pose_notes(camera, fit.source, float(fit.plane[3]), _pitch_deg(fit.plane)))
+        notes.extend(pose_notes(camera, fit.source, float(fit.plane[3]), _pitch_deg(fit.plane)))
     else:
         height = np.full(disparity.shape, np.nan, np.float32)
         notes.append("no ground plane fitted: height is NaN")
