@@ -108,6 +108,10 @@ def poseless_note(
     (1024x768 frames at f = 881 px: 7 % of the bottom 100 rows matched, 93 % with the
     pose); the share of matches piled up at that limit tells."""
     note = "no camera pose ([camera] height_m, pitch_deg): ground plane fitted from the disparity"
+    fields = (("height_m", camera.height_m), ("pitch_deg", camera.pitch_deg))
+    given = [f"{name} = {value:g}" for name, value in fields if value is not None]
+    if given:  # one of the two was given and is not used alone: say so
+        note += f" ({given[0]} alone is not used: a pose needs both)"
     if int(params["max_disparity"]) or float(params["nearest_range_m"]):
         return note
     note += (

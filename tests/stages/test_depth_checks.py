@@ -55,3 +55,14 @@ def test_poseless_note_says_the_limit_only_when_it_is_the_default():
     assert "64" not in poseless_note(BARE, piled, 90, explicit)
     nearest = {**params, "nearest_range_m": 0.5}
     assert "px" not in poseless_note(BARE, piled, 80, nearest)
+
+
+def test_regression_height_without_pitch_was_ignored_without_a_word():
+    # a user who knew the mast height but not the tilt gave height_m alone: it is not used
+    # (a pose needs both) and the note only said 'no camera pose'
+    height_only = Camera(focal_px=400.0, baseline_m=0.1, height_m=1.5)
+    note = poseless_note(height_only, np.full((4, 4), 9.0, np.float32), 64, STAGE.defaults())
+    assert "(height_m = 1.5 alone is not used: a pose needs both)" in note
+    pitch_only = Camera(focal_px=400.0, baseline_m=0.1, pitch_deg=30.0)
+    note = poseless_note(pitch_only, np.full((4, 4), 9.0, np.float32), 64, STAGE.defaults())
+    assert "pitch_deg = 30 alone is not used" in note
