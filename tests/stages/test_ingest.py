@@ -249,3 +249,21 @@ def test_regression_same_image_on_both_sides_ran_done(
     cap_l = write(tmp_path / "cap_l.png", np.zeros((60, 80), np.uint8))
     cap_r = write(tmp_path / "cap_r.tif", np.zeros((60, 80), np.uint8))
     assert "constant frame" in " ".join(ingest(context(cap_l, cap_r)).notes)
+
+
+def test_regression_rectification_fill_became_an_obstacle_without_a_note(
+    tmp_path: Path, pair: tuple[np.ndarray, np.ndarray]
+) -> None:
+    # rectified frames with black wedges along the border: segmentation returned the fill
+    # as one large 'obstacle' per frame, and nothing said why
+    left, right = (np.maximum(image, 1) for image in pair)  # no natural zeros
+    plain = ingest(context(write(tmp_path / "l.png", left), write(tmp_path / "r.png", right)))
+    assert plain.notes == []
+    ys, xs = np.indices(left.shape)
+    wedge = xs < 6 + ys // 10  # about 10 % of the frame along the left border
+    left[wedge], right[wedge] = 0, 0
+    left[20:40, 30:50] = 0  # black inside the frame is content, not fill
+    result = ingest(context(write(tmp_path / "l2.png", left), write(tmp_path / "r2.png", right)))
+    (note,) = result.notes
+    assert note.startswith(f"left and right: {wedge.mean():.1%} of the frame is black (0) fill")
+    assert "crop the frames" in note
