@@ -20,7 +20,14 @@ import numpy as np
 
 from pipeline.camera import Camera
 
-__all__ = ["SWAP_CHECK_BELOW", "pose_notes", "poseless_note", "swapped_note"]
+__all__ = [
+    "SWAP_CHECK_BELOW",
+    "OFFSET_CHECK_BELOW",
+    "pose_notes",
+    "poseless_note",
+    "swapped_note",
+    "offset_note",
+]
 
 
 def pose_notes(camera: Camera, source: str, height_m: float, pitch_deg: float) -> list[str]:
@@ -57,6 +64,11 @@ def pose_notes(camera: Camera, source: str, height_m: float, pitch_deg: float) -
 SWAP_CHECK_BELOW = 0.5
 """Valid share under which a frame is checked for exchanged left and right images."""
 
+OFFSET_CHECK_BELOW = 0.3
+"""Valid share under which a frame is checked for a vertical offset (an unrectified pair):
+mojave and lab pairs 6 or 8 rows off match 13-24 %; no frame of runs/eval and the seed runs
+matches under 56 % (dunes), where the check reads 3 of 240 rectified pairs as offset."""
+
 
 def swapped_note(left: np.ndarray, right: np.ndarray, hi: int) -> list[str]:
     """A note when the pair matches far better with left and right exchanged.
@@ -68,22 +80,13 @@ def swapped_note(left: np.ndarray, right: np.ndarray, hi: int) -> list[str]:
     against 8-19 %, and the reverse when exchanged; dunes' ripples match either way
     (0.65-0.76), so the note needs twice as much and at least 30 %.
     """
-    if min(left.shape) < 64:
+    quick = _QuickMatch.of(left, right, hi)
+    if quick is None:
         return []
-    half = [cv2.resize(img, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)
-            for img in (left, right)]  # fmt: skip
-    n_disp = int(min(max(16, 16 * math.ceil(hi / 32)), 16 * ((half[0].shape[1] - 16) // 16)))
-    if n_disp < 16:
-        return []
-    matcher = cv2.StereoBM_create(numDisparities=n_disp, blockSize=15)
-    matcher.setUniquenessRatio(10)
-    matcher.setTextureThreshold(10)
-
-    def matched(a: np.ndarray, b: np.ndarray) -> float:
-        return float(np.mean(matcher.compute(a, b)[:, n_disp:] > 0))
-
-    as_given = matched(*half)
-    exchanged = matched(*(np.ascontiguousarray(img[:, ::-1]) for img in half))
+    as_given = quick.matched(quick.left, quick.right)
+    exchanged = quick.matched(
+        np.ascontiguousarray(quick.left[:, ::-1]), np.ascontiguousarray(quick.right[:, ::-1])
+    )
     if exchanged < 0.3 or exchanged < 2 * as_given:
         return []
     return [
@@ -91,6 +94,64 @@ def swapped_note(left: np.ndarray, right: np.ndarray, hi: int) -> list[str]:
         f"frame as given and {exchanged:.0%} with the two images exchanged; swap the frame's "
         "left and right columns in the index"
     ]
+
+
+def offset_note(left: np.ndarray, right: np.ndarray, hi: int) -> list[str]:
+    """A note when the pair matches far better with the right image moved up or down.
+
+    Stereo needs rectified pairs, a point on the same row in both images; a right image
+    6 rows low matched 16 % of a mojave frame (3 rows: 55 %, 0: 94 %) without a word. Block
+    matching at half size with the right image moved by -10..10 rows in steps of 2 (11
+    StereoBM runs, ~25 ms, only on frames matched under ``OFFSET_CHECK_BELOW``): on mojave,
+    lab and dunes frames the best shift is the true one for offsets of 6 and -8 rows; the
+    note needs twice the share matched as given and at least 30 %. Of the 240 rectified
+    built-in pairs (12 frames of each cached archive and seed) it reads 3 dunes pairs as
+    offset (ripples match at several shifts), none of which the stage checks.
+    """
+    quick = _QuickMatch.of(left, right, hi)
+    if quick is None:
+        return []
+    margin = 6  # rows lost to the largest shift at half size
+    scores = {
+        2 * s: quick.matched(
+            quick.left[margin:-margin], np.roll(quick.right, -s, axis=0)[margin:-margin]
+        )
+        for s in range(-5, 6)
+    }
+    best = max(scores, key=scores.__getitem__)
+    if best == 0 or scores[best] < 0.3 or scores[best] < 2 * scores[0]:
+        return []
+    where = "lower" if best > 0 else "higher"
+    return [
+        f"the pair looks unrectified: a quick block matching finds {scores[0]:.0%} of the "
+        f"frame as given and {scores[best]:.0%} with the right image about {abs(best)} rows "
+        f"{where} than the left; stereo needs rectified pairs (a point on the same row in "
+        "both images): rectify them, or check that left and right are one exposure"
+    ]
+
+
+class _QuickMatch:
+    """OpenCV block matching of a half-size pair, for the checks above (not the products)."""
+
+    def __init__(self, left: np.ndarray, right: np.ndarray, n_disp: int) -> None:
+        self.left, self.right, self.n_disp = left, right, n_disp
+        self._matcher = cv2.StereoBM_create(numDisparities=n_disp, blockSize=15)
+        self._matcher.setUniquenessRatio(10)
+        self._matcher.setTextureThreshold(10)
+
+    @classmethod
+    def of(cls, left: np.ndarray, right: np.ndarray, hi: int) -> _QuickMatch | None:
+        """The half-size pair and a matcher up to ``hi / 2`` (in 16s), None when too small."""
+        if min(left.shape) < 64:
+            return None
+        half = [cv2.resize(img, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)
+                for img in (left, right)]  # fmt: skip
+        n_disp = int(min(max(16, 16 * math.ceil(hi / 32)), 16 * ((half[0].shape[1] - 16) // 16)))
+        return cls(half[0], half[1], n_disp) if n_disp >= 16 else None
+
+    def matched(self, left: np.ndarray, right: np.ndarray) -> float:
+        """Share of ``left``'s pixels (beyond the first ``n_disp`` columns) matched."""
+        return float(np.mean(self._matcher.compute(left, right)[:, self.n_disp :] > 0))
 
 
 _AT_LIMIT_NOTED = 0.01

@@ -67,7 +67,14 @@ from pipeline.errors import ParamError
 from pipeline.stage import FrameContext, Param, Product, Stage, StageResult
 
 from . import _refine, _stereo, _stereo_tiles
-from ._depth_checks import SWAP_CHECK_BELOW, pose_notes, poseless_note, swapped_note
+from ._depth_checks import (
+    OFFSET_CHECK_BELOW,
+    SWAP_CHECK_BELOW,
+    offset_note,
+    pose_notes,
+    poseless_note,
+    swapped_note,
+)
 from ._select import median32
 from .geometry import (
     derive_max_disparity,
@@ -390,8 +397,6 @@ def run_depth(
         notes.append(f"matched in tiles of {params['tile_px']} px")
     if not camera.has_pose:
         notes.append(poseless_note(camera, matching.disparity, hi, params))
-    if matching.valid_fraction < SWAP_CHECK_BELOW:
-        notes.extend(swapped_note(left, right, hi))
     disparity_m = matching.disparity
     refined_fraction = 0.0
     if params["ground_refine"] and params["method"] != "opencv-sgbm":
@@ -414,10 +419,19 @@ def run_depth(
     fit = fit_ground_plane(disparity, camera=camera, inlier_px=float(params["ground_inlier_px"]))
     if np.all(np.isfinite(fit.plane)):
         height = height_from_disparity(disparity, fit.plane, camera=camera)
-        notes.extend(pose_notes(camera, fit.source, float(fit.plane[3]), _pitch_deg(fit.plane)))
+        mismatch = pose_notes(camera, fit.source, float(fit.plane[3]), _pitch_deg(fit.plane))
     else:
         height = np.full(disparity.shape, np.nan, np.float32)
         notes.append("no ground plane fitted: height is NaN")
+        mismatch = []
+    # a poorly matched frame, or one whose ground disagrees with the pose (sgm fills an
+    # exchanged pair 90 %), is checked for exchanged images; only a frame matched very
+    # poorly for a vertical offset (that check misreads some dunes frames)
+    if matching.valid_fraction < SWAP_CHECK_BELOW or mismatch:
+        notes.extend(swapped_note(left, right, hi))
+    if matching.valid_fraction < OFFSET_CHECK_BELOW:
+        notes.extend(offset_note(left, right, hi))
+    notes.extend(mismatch)
 
     defined = np.isfinite(diff)
     rms = float(np.sqrt(np.mean(np.square(diff[defined])))) if defined.any() else float("nan")

@@ -298,3 +298,14 @@ def test_regression_camera_pose_disagreeing_with_the_disparity_was_not_noted():
     short = Camera(focal_px=120.0, baseline_m=0.1, height_m=1.2, pitch_deg=30.0)
     (note,) = _run(left, right, camera=short).notes
     assert "pitch_deg = 30" in note and "millimetres" not in note and "focal_px" in note
+
+
+def test_regression_unrectified_pair_was_not_noted():
+    # a right image 6-8 rows lower than the left (an unrectified pair) matched 13-24 % of
+    # the frame and ran 'done' without a word
+    left, right, _ = _ground_pair(shape=(160, 200))
+    offset = _run(left, np.roll(right, 8, axis=0))
+    assert offset.figures["valid_fraction"] < 0.3
+    (note,) = [n for n in offset.notes if "unrectified" in n]
+    assert "rows lower than the left" in note and "rectify" in note
+    assert not any("unrectified" in n for n in _run(left, right).notes)

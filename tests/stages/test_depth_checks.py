@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 from scipy import ndimage
 
 from pipeline.camera import Camera
-from stages._depth_checks import pose_notes, poseless_note, swapped_note
+from stages._depth_checks import offset_note, pose_notes, poseless_note, swapped_note
 from stages.depth import STAGE
 
 POSE = Camera(focal_px=400.0, baseline_m=0.1, height_m=1.2, pitch_deg=38.0)
@@ -66,3 +68,13 @@ def test_regression_height_without_pitch_was_ignored_without_a_word():
     pitch_only = Camera(focal_px=400.0, baseline_m=0.1, pitch_deg=30.0)
     note = poseless_note(pitch_only, np.full((4, 4), 9.0, np.float32), 64, STAGE.defaults())
     assert "pitch_deg = 30 alone is not used" in note
+
+
+def test_offset_note_finds_the_rows_the_right_image_is_moved_by():
+    left, right = _pair()
+    assert offset_note(left, right, 32) == []
+    for rows, where in ((6, "lower"), (-8, "higher")):
+        (note,) = offset_note(left, np.roll(right, rows, axis=0), 32)
+        found = re.search(r"right image about (\d+) rows (\w+) than the left", note)
+        assert found and found.group(2) == where, note
+        assert abs(int(found.group(1)) - abs(rows)) <= 2  # steps of 2 rows at half size
