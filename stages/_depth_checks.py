@@ -27,6 +27,7 @@ __all__ = [
     "poseless_note",
     "swapped_note",
     "offset_note",
+    "limit_note",
 ]
 
 
@@ -155,9 +156,37 @@ class _QuickMatch:
 
 
 _AT_LIMIT_NOTED = 0.01
-"""Share of matches within 1 px of the default search limit above which the note of a frame
-without a pose says nearer ground was likely cut off (1.5 % on 1024x768 frames that needed
-90 px, 0.0 % on 640x480 ones that needed 57)."""
+"""Share of matches within 1 px of the search limit above which a note says nearer ground
+was likely cut off (1.5 % on 1024x768 frames that needed 90 px and got 64; 0.0 % on every
+frame of runs/eval and on 640x480 frames that needed 57)."""
+
+
+def _share_at_limit(disparity: np.ndarray, hi: int) -> float:
+    valid = disparity[np.isfinite(disparity)]
+    return float(np.mean(valid >= hi - 1)) if valid.size else 0.0
+
+
+def limit_note(disparity: np.ndarray, hi: int, params: Mapping[str, Any]) -> list[str]:
+    """A note when matches pile up at a search limit that was set or derived from the pose.
+
+    The README's own catalog example sets ``depth = { max_disparity = 64 }``: copied into the
+    catalog of a 1024x768 camera whose near ground needs 90 px, it cut the bottom rows off
+    silently (the default without a pose has :func:`poseless_note`).
+    """
+    share = _share_at_limit(disparity, hi)
+    if share < _AT_LIMIT_NOTED:
+        return []
+    if int(params["max_disparity"]):
+        why, fix = "depth.max_disparity", "raise depth.max_disparity"
+    elif float(params["nearest_range_m"]):
+        why, fix = "f b / depth.nearest_range_m", "lower depth.nearest_range_m"
+    else:
+        why, fix = "from the camera pose", "check the pose, or set depth.max_disparity"
+    # a note that starts with a count reads as a rule's report and is only counted
+    return [
+        f"matches pile up at the search limit: {share:.1%} within 1 px of {hi} px ({why}), "
+        f"so nearer surfaces were likely cut off: {fix}"
+    ]
 
 
 def poseless_note(
@@ -179,8 +208,7 @@ def poseless_note(
         f"; disparities searched up to {hi} px (the default without a pose or "
         f"depth.nearest_range_m), so nothing nearer than {camera.k_m_px / hi:.2f} m is matched"
     )
-    valid = disparity[np.isfinite(disparity)]
-    at_limit = float(np.mean(valid >= hi - 1)) if valid.size else 0.0
+    at_limit = _share_at_limit(disparity, hi)
     if at_limit < _AT_LIMIT_NOTED:
         return note
     return (

@@ -70,6 +70,7 @@ from . import _refine, _stereo, _stereo_tiles
 from ._depth_checks import (
     OFFSET_CHECK_BELOW,
     SWAP_CHECK_BELOW,
+    limit_note,
     offset_note,
     pose_notes,
     poseless_note,
@@ -397,6 +398,8 @@ def run_depth(
         notes.append(f"matched in tiles of {params['tile_px']} px")
     if not camera.has_pose:
         notes.append(poseless_note(camera, matching.disparity, hi, params))
+    if camera.has_pose or int(params["max_disparity"]) or float(params["nearest_range_m"]):
+        notes.extend(limit_note(matching.disparity, hi, params))
     disparity_m = matching.disparity
     refined_fraction = 0.0
     if params["ground_refine"] and params["method"] != "opencv-sgbm":

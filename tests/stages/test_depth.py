@@ -292,7 +292,8 @@ def test_regression_camera_pose_disagreeing_with_the_disparity_was_not_noted():
     left, right, _ = _ground_pair()
     assert _run(left, right).notes == []
     mm = Camera(focal_px=120.0, baseline_m=100.0, height_m=1.2, pitch_deg=38.0)
-    (note,) = _run(left, right, camera=mm, max_disparity=32).notes
+    # (its pose's search band also piles the matches up at the limit: noted apart)
+    (note,) = [n for n in _run(left, right, camera=mm, max_disparity=32).notes if "ground" in n]
     assert "the disparity's ground lies 1.2e+03 m below" in note
     assert "height_m = 1.2, pitch_deg = 38" in note and "millimetres" in note
     short = Camera(focal_px=120.0, baseline_m=0.1, height_m=1.2, pitch_deg=30.0)
@@ -309,3 +310,17 @@ def test_regression_unrectified_pair_was_not_noted():
     (note,) = [n for n in offset.notes if "unrectified" in n]
     assert "rows lower than the left" in note and "rectify" in note
     assert not any("unrectified" in n for n in _run(left, right).notes)
+
+
+def test_regression_a_set_max_disparity_below_the_near_ground_cut_it_silently():
+    # the README's catalog example sets depth.max_disparity = 64; a 1024x768 camera whose
+    # near ground needs 90 px lost its bottom rows without a word
+    left, right = _ramp_pair()  # 40 px at the top to 80 px at the bottom
+    posed = Camera(focal_px=400.0, baseline_m=0.1, height_m=1.0, pitch_deg=30.0)
+    notes = _run(left, right, camera=posed, max_disparity=64, floor_margin=1.0,
+                 ceiling_ratio=0.0).notes  # fmt: skip
+    assert any(n.startswith("matches pile up at the search limit") for n in notes), notes
+    assert "raise depth.max_disparity" in " ".join(notes)
+    notes = _run(left, right, camera=posed, max_disparity=100, floor_margin=1.0,
+                 ceiling_ratio=0.0).notes  # fmt: skip
+    assert not any("search limit" in n for n in notes), notes

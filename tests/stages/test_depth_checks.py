@@ -8,7 +8,13 @@ import numpy as np
 from scipy import ndimage
 
 from pipeline.camera import Camera
-from stages._depth_checks import offset_note, pose_notes, poseless_note, swapped_note
+from stages._depth_checks import (
+    limit_note,
+    offset_note,
+    pose_notes,
+    poseless_note,
+    swapped_note,
+)
 from stages.depth import STAGE
 
 POSE = Camera(focal_px=400.0, baseline_m=0.1, height_m=1.2, pitch_deg=38.0)
@@ -78,3 +84,18 @@ def test_offset_note_finds_the_rows_the_right_image_is_moved_by():
         found = re.search(r"right image about (\d+) rows (\w+) than the left", note)
         assert found and found.group(2) == where, note
         assert abs(int(found.group(1)) - abs(rows)) <= 2  # steps of 2 rows at half size
+
+
+def test_limit_note_names_where_the_limit_came_from():
+    params = STAGE.defaults()
+    flat = np.full((10, 10), 20.0, np.float32)
+    assert limit_note(flat, 64, params) == []
+    piled = flat.copy()
+    piled[:2] = 63.5
+    (note,) = limit_note(piled, 64, {**params, "max_disparity": 64})
+    assert note.startswith("matches pile up at the search limit: 20.0% within 1 px of 64 px")
+    assert "(depth.max_disparity)" in note and "raise depth.max_disparity" in note
+    (note,) = limit_note(piled, 64, {**params, "nearest_range_m": 0.6})
+    assert "lower depth.nearest_range_m" in note
+    (note,) = limit_note(piled, 64, params)
+    assert "from the camera pose" in note
