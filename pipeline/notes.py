@@ -204,7 +204,10 @@ def format_notes(summary: NotesSummary, rundir: str | Path, *, running: bool = F
         if per_stage.get(kind.stage, 0) < _PER_STAGE:
             per_stage[kind.stage] = per_stage.get(kind.stage, 0) + 1
             shown.append(kind)
-    lines = [f"{header}, {_count(len(telling), 'kind')}; the most common, earliest stage first:"]
+    lines = [
+        f"{header}, {_count(len(telling), 'kind')}; earliest stage first, in a stage those "
+        "naming a setting, then the most common:"
+    ]
     width = len(_count(max(kind.frames for kind in shown), "frame"))
     for kind in shown:
         example = f"e.g. {kind.example}" if kind.varies else kind.example

@@ -46,7 +46,7 @@ def test_input_notes_come_before_routine_notes_of_later_stages():
     assert [k.stage for k in summary.kinds] == ["ingest", "depth", *["segment"] * 3]
     text = format_notes(summary, "runs/lab")
     lines = [line.strip() for line in text.splitlines()]
-    assert lines[0].startswith("notes: 9 of 9 frames carry notes, 3 kinds; the most common")
+    assert lines[0].startswith("notes: 9 of 9 frames carry notes, 3 kinds; earliest stage first")
     assert lines[1] == "1 frame  ingest: left: alpha channel ignored"
     assert lines[2] == "1 frame  depth: no ground plane fitted: height is NaN"
     assert lines[3] == (
@@ -108,5 +108,6 @@ def test_regression_note_naming_the_setting_was_hidden_behind_commoner_conversio
     assert summary.kinds[0].example == dark
     text = format_notes(summary, "runs/x")
     assert "set ingest.sample_bits = 12" in text
+    assert "in a stage those naming a setting, then the most common:" in text.splitlines()[0]
     assert "and 1 other kind" in text  # the colour note, the less telling, is the one left out
     assert "colour" not in text
