@@ -144,7 +144,13 @@ def format_evaluation(table: pa.Table, *, width: int = 100) -> str:
 
     tables = evaluation_tables(table)
     if not tables:
-        return "nothing to score: no frame has both products and ground truth\n"
+        # a user's own truth in another layout was read as none, with nothing said about
+        # the layout expected
+        return (
+            "nothing to score: no frame has both products and ground truth (a file "
+            "<[truth] dir>/<frame_id>.npz per frame, as `arroyo synth` writes them: "
+            "docs/synth.md)\n"
+        )
     buffer = io.StringIO()
     console = Console(file=buffer, width=width, force_terminal=False, color_system=None)
     for t in tables:

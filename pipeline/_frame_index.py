@@ -1,10 +1,15 @@
 """The frame index of a survey catalog: a CSV of stereo pairs, validated row by row.
 
 Columns ``frame_id,left,right`` are required (image paths relative to the CSV's directory, or
-absolute). A column named like a numeric camera field overrides it per frame (an empty cell
-keeps the catalog's value); any other column is metadata, typed per column: int when every
-non-empty cell is an integer, float when every non-empty cell is a number, str otherwise
-(so each column stores cleanly in Parquet); an empty cell is ``None``.
+absolute; a leading ``~`` is the home directory). A column named like a numeric camera field
+overrides it per frame (an empty cell keeps the catalog's value); any other column is
+metadata, typed per column: int when every non-empty cell is an integer, float when every
+non-empty cell is a number, str otherwise (so each column stores cleanly in Parquet); an
+empty cell is ``None``. A metadata column may not take a name of ``frames.parquet``'s own
+columns (:data:`RESERVED_COLUMNS`; the engine's ``<stage>_...`` figures are checked by
+:func:`pipeline.plan.validate_request`, which knows the stages): a user's ``notes`` or
+``status`` column was dropped without a word, and an ``archive`` or ``run_id`` column
+replaced the real ones in ``arroyo query``.
 Every problem raises CatalogError naming the file, the line and the column.
 """
 
@@ -21,10 +26,24 @@ from typing import Any
 
 from .errors import CatalogError
 
-__all__ = ["IndexRow", "read_index", "read_bytes", "decode_utf8", "as_float", "OVERRIDABLE"]
+__all__ = [
+    "IndexRow",
+    "read_index",
+    "read_bytes",
+    "decode_utf8",
+    "as_float",
+    "OVERRIDABLE",
+    "RESERVED_COLUMNS",
+]
 
 OVERRIDABLE: tuple[str, ...] = ("focal_px", "baseline_m", "height_m", "pitch_deg", "cx", "cy")
 """Camera fields an index column of the same name overrides per frame."""
+
+RESERVED_COLUMNS: tuple[str, ...] = (
+    "index", "status", "failed_stage", "error", "notes", "archive", "run", "run_id",
+)  # fmt: skip
+"""Columns of ``frames.parquet`` (and of ``arroyo query``'s views) a metadata column may not
+be named."""
 
 _FRAME_ID_RE = re.compile(r"[A-Za-z0-9_.-]+")
 _FRAME_ID_MAX = 200
@@ -114,7 +133,8 @@ def read_index(path: Path) -> list[IndexRow]:
             cell = cells[columns[side]]
             if "\x00" in cell:
                 raise CatalogError(f"{path}: line {line}: column {side!r} is not a valid path")
-            paths[side] = Path(os.path.abspath(path.parent / cell))
+            # `~/data/x.png` was taken as relative to the CSV: '.../index/~/data/x.png'
+            paths[side] = Path(os.path.abspath(path.parent / os.path.expanduser(cell)))
         metadata = {
             name: None if not cells[columns[name]] else kind(cells[columns[name]])
             for name, kind in metadata_types.items()
@@ -153,15 +173,30 @@ def _csv_rows(path: Path) -> list[tuple[int, list[str]]]:
 def _check_header(path: Path, line: int, header: list[str]) -> None:
     missing = [name for name in _REQUIRED_COLUMNS if name not in header]
     if missing:
+        # a spreadsheet's export with semicolons or tabs read as one column
+        other = next((sep for sep in (";", "\t", "|") if len(header) == 1 and sep in header[0]), "")
+        hint = (
+            f"; the cells are separated by {other!r}: save the index with commas "
+            "(CSV, comma-separated)"
+            if other
+            else ""
+        )
         raise CatalogError(
             f"{path}: line {line}: the frame index lacks the column(s) {', '.join(missing)}; "
-            f"its header must contain frame_id,left,right, got {','.join(header)!r}"
+            f"its header must contain frame_id,left,right, got {','.join(header)!r}{hint}"
         )
     for i, name in enumerate(header):
         if not name:
             raise CatalogError(f"{path}: line {line}: header cell {i + 1} is empty; name it")
         if header.index(name) != i:
             raise CatalogError(f"{path}: line {line}: column {name!r} appears twice; rename one")
+        if name in RESERVED_COLUMNS:
+            raise CatalogError(
+                f"{path}: line {line}: column {name!r} is a name frames.parquet uses for its "
+                f"own column (reserved: {', '.join(RESERVED_COLUMNS)}), so this metadata "
+                f"would be lost or would replace the engine's; rename it, e.g. to "
+                f"'my_{name}'"
+            )
 
 
 def _metadata_types(header: list[str], rows: list[tuple[int, list[str]]]) -> dict[str, type]:

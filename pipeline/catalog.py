@@ -32,12 +32,14 @@ pairs and may carry stage parameter overrides::
     variant = "hard"                # optional
 
 The index CSV has columns ``frame_id,left,right`` (image paths relative to the CSV's
-directory, or absolute). A column named like a numeric camera field (``focal_px``,
-``baseline_m``, ``height_m``, ``pitch_deg``, ``cx``, ``cy``) overrides it for that frame
+directory, or absolute; a leading ``~`` is the home directory, as in ``index`` and ``dir``).
+A column named like a numeric camera field (``focal_px``, ``baseline_m``, ``height_m``,
+``pitch_deg``, ``cx``, ``cy``) overrides it for that frame
 (an empty cell keeps the catalog's value); any other column is frame metadata. A metadata
 column is typed as a whole so that it stores cleanly in Parquet: int when every non-empty
 cell is an integer, float when every non-empty cell is a number, str otherwise; an empty
-cell is ``None``.
+cell is ``None``. It may not be named like a column ``frames.parquet`` has itself
+(``notes``, ``status``, ``archive``, ``run_id``..., ``<stage>_...``): rename such a column.
 
 Every problem raises :class:`pipeline.errors.CatalogError` whose message names the file,
 the field (with its line where it can be found), what was expected and how to fix it.
@@ -323,8 +325,16 @@ def _load_plain(doc: _TomlDoc, *, source: Path) -> Catalog:
         truth = doc.get("truth", "dir", "str", required=True)
         if not truth or "\x00" in truth:
             raise doc.error("truth", "dir", f"expected a directory path, got {truth!r}")
-        truth_dir = Path(os.path.abspath(doc.path.parent / truth))
-    index_path = Path(os.path.abspath(doc.path.parent / index))
+        truth_dir = Path(os.path.abspath(doc.path.parent / os.path.expanduser(truth)))
+    index_path = Path(os.path.abspath(doc.path.parent / os.path.expanduser(index)))
+    if not index_path.exists() and not index_path.is_symlink():
+        # the index reader's own message named neither the catalog nor the line to fix
+        raise doc.error(
+            "frames",
+            "index",
+            f"the frame index {index_path} does not exist (a relative path is taken from the "
+            f"catalog's directory {doc.path.parent}); fix the path",
+        )
     frames = _frames(index_path, camera)
     return Catalog(
         path=doc.path,

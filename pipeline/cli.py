@@ -56,6 +56,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
         from .notes import format_notes
 
         print(format_notes(result.notes, result.rundir), end="")
+    from .plan import format_duplicates
+
+    print(format_duplicates(result.duplicates), end="")
     return result.exit_code
 
 

@@ -7,8 +7,11 @@ a success with no rocks. The summary counts the frames with notes and shows the 
 kinds of note: notes are grouped by their text without file names, numbers and ingest's
 ``left:``/``right:``, each kind shown by its first note ("e.g." when the kind's notes
 differ). Kinds are listed in stage order (an input problem explains what the later stages
-found, and segment's routine notes, on nearly every frame, must not push it out), at most
-two per stage and five in all, with the ``arroyo query`` command that lists every note.
+found, and segment's routine notes, on nearly every frame, must not push it out), within a
+stage those that name a parameter to set (``set ingest.sample_bits = 12``) first, at most
+two per stage and five in all, with the ``arroyo query`` command that lists every note: a
+run of 16-bit, colour and 12-bit-in-16-bit frames showed the two plain conversions and hid
+the one note that said what to do as "and 1 other kind".
 A note that starts with a count ("171 px of weak halves joined to their objects", "2 streak(s)
 ... dropped") reports what a rule did, routine on nearly every frame: such kinds are only
 counted, in one line, so a normal run's summary is that line and the command.
@@ -76,7 +79,8 @@ class NotesSummary:
     noted : int
         Of those, frames with at least one note.
     kinds : tuple of NoteKind
-        Every kind, in stage order, then most frames first, then first seen.
+        Every kind, in stage order, then those naming a ``stage.param`` first, then most
+        frames first, then first seen.
     """
 
     frames: int
@@ -123,10 +127,15 @@ def summarize_notes(
             if key not in seen:
                 seen.add(key)
                 entry[2] += 1
-    ranked = sorted(
-        enumerate(kinds.values()),
-        key=lambda item: (order.get(item[1][0], len(order)), -item[1][2], item[0]),
-    )
+    names = "|".join(re.escape(name) for name in stages)
+    advice = re.compile(rf"\b(?:{names})\.[a-z_]+") if names else None
+
+    def rank(item: tuple[int, list]) -> tuple[int, bool, int, int]:
+        first_seen, (stage, example, frames, _varies) = item
+        says_what_to_set = advice is not None and advice.search(example) is not None
+        return (order.get(stage, len(order)), not says_what_to_set, -frames, first_seen)
+
+    ranked = sorted(enumerate(kinds.values()), key=rank)
     return NotesSummary(
         frames=n_frames,
         noted=n_noted,
@@ -195,7 +204,10 @@ def format_notes(summary: NotesSummary, rundir: str | Path, *, running: bool = F
         if per_stage.get(kind.stage, 0) < _PER_STAGE:
             per_stage[kind.stage] = per_stage.get(kind.stage, 0) + 1
             shown.append(kind)
-    lines = [f"{header}, {_count(len(telling), 'kind')}; the most common, earliest stage first:"]
+    lines = [
+        f"{header}, {_count(len(telling), 'kind')}; earliest stage first, in a stage those "
+        "naming a setting, then the most common:"
+    ]
     width = len(_count(max(kind.frames for kind in shown), "frame"))
     for kind in shown:
         example = f"e.g. {kind.example}" if kind.varies else kind.example

@@ -15,6 +15,7 @@ import fnmatch
 import hashlib
 import json
 import os
+import re
 from collections import Counter
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
@@ -22,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from .catalog import Catalog, FrameRecord, load_catalog
-from .errors import ParamError
+from .errors import CatalogError, ParamError
 from .graph import (
     StageGraph,
     build_graph,
@@ -40,6 +41,7 @@ __all__ = [
     "plan_run",
     "frame_keys",
     "format_plan",
+    "format_duplicates",
     "validate_request",
     "default_rundir",
 ]
@@ -73,6 +75,23 @@ class RunPlan:
     input_hashes: dict[str, tuple[str, str]]
     stage_package: str = "stages"
     products: str = ""  # products root (directory or fsspec URL); empty: the run directory
+
+    @property
+    def duplicates(self) -> dict[str, str]:
+        """Selected frames whose two files have the same contents as an earlier selected
+        frame's: frame id -> that earlier frame's id. A pair listed twice under two ids ran
+        twice and its rocks counted twice in every query and fit, without a word."""
+        first: dict[tuple[str, str], str] = {}
+        out: dict[str, str] = {}
+        for frame in self.frames:
+            pair = self.input_hashes.get(frame.frame_id)
+            if pair is None or not all(_HEX64.fullmatch(h) for h in pair):
+                continue  # a missing or unreadable file: ingest fails the frame anyway
+            if pair in first:
+                out[frame.frame_id] = first[pair]
+            else:
+                first[pair] = frame.frame_id
+        return out
 
     @property
     def products_root(self) -> str:
@@ -149,6 +168,8 @@ def _hash_inputs(
     return out
 
 
+_HEX64 = re.compile(r"[0-9a-f]{64}")
+
 _SHAPE_VOTES = 9
 """Right images whose sizes vote for the archive's frame shape (the most common wins)."""
 
@@ -192,6 +213,7 @@ def validate_request(
     catalog = load_catalog(catalog_path)
     package = stage_package_name(stage_package)
     graph = build_graph(discover_stages(package))
+    _check_metadata_names(catalog, graph)
     try:  # the catalog's own [params] first, so that its errors name the catalog
         resolve_stage_params(graph, catalog.params)
     except ParamError as exc:
@@ -215,6 +237,21 @@ def validate_request(
             f"{catalog.source}; frame ids look like {catalog.frames[0].frame_id!r}"
         )
     return RunRequest(catalog, graph, params, selected, package)
+
+
+def _check_metadata_names(catalog: Catalog, graph: StageGraph) -> None:
+    """Raise CatalogError when a metadata column of the index is named like a stage's
+    ``<stage>_...`` column of ``frames.parquet``: the engine's value would win and the
+    user's metadata be dropped without a word (fixed names: ``_frame_index``)."""
+    for name in catalog.frames[0].metadata:
+        for stage in graph.stages:
+            if name.startswith(f"{stage.name}_"):
+                raise CatalogError(
+                    f"{catalog.index_path}: header: column {name!r} is named like the columns "
+                    f"frames.parquet gives the {stage.name!r} stage's times and figures "
+                    f"('{stage.name}_...'), so this metadata could be lost; rename it, e.g. "
+                    f"to 'my_{name}'"
+                )
 
 
 def plan_run(
@@ -281,6 +318,19 @@ def plan_run(
     )
 
 
+def format_duplicates(duplicates: Mapping[str, str]) -> str:
+    """One line naming frames whose images repeat an earlier frame's; empty when none."""
+    if not duplicates:
+        return ""
+    pairs = [f"{fid} = {earlier}" for fid, earlier in list(duplicates.items())[:5]]
+    more = f" and {len(duplicates) - 5} more" if len(duplicates) > 5 else ""
+    return (
+        f"same images as an earlier frame: {', '.join(pairs)}{more}; their rocks count twice "
+        "in queries and fits: remove the repeated rows from the index (for a new --out), or "
+        "leave those frames out of queries (WHERE frame_id NOT IN (...))\n"
+    )
+
+
 def format_plan(plan: RunPlan) -> str:
     """The dry-run table: per stage, how many frames are new, changed, failed or done."""
     lines = [
@@ -298,4 +348,4 @@ def format_plan(plan: RunPlan) -> str:
         f"{work} frame(s) would run; 'changed' = parameters, code version or inputs "
         "differ from the recorded result"
     )
-    return "\n".join(lines) + "\n"
+    return "\n".join(lines) + "\n" + format_duplicates(plan.duplicates)

@@ -58,6 +58,7 @@ class RunSummary:
     failures: dict[str, str] = field(default_factory=dict)
     seconds: float = 0.0
     notes: NotesSummary | None = None  # the selected frames' notes (pipeline.notes)
+    duplicates: dict[str, str] = field(default_factory=dict)  # RunPlan.duplicates
 
     @property
     def exit_code(self) -> int:
@@ -473,6 +474,7 @@ def _execute(
         # in frames.parquet only, the notes went unseen: 12-bit images that came out dark
         # made a run that "succeeded" with no rocks
         notes=run_notes(plan, state),
+        duplicates=plan.duplicates,
     )
     meta.update(
         status="stopped" if fatal else ("interrupted" if interrupted else "finished"),

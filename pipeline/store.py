@@ -387,17 +387,23 @@ def _check_frame_list(path: str, old: list[str], new: list[str]) -> None:
     if len(old) <= len(new) and old == new[: len(old)]:
         return
     if len(old) > len(new) and old[: len(new)] == new:
-        what = f"{len(old)} frames, the catalog's {len(new)} and then {old[len(new)]!r}..."
+        what = (
+            f"{len(old)} frames: the catalog's {len(new)}, then {old[len(new)]!r}..., which "
+            "the catalog no longer lists"
+        )
     else:
         k = next(i for i, (a, b) in enumerate(zip(old, new, strict=False)) if a != b)
         what = (
             f"{len(old)} frames whose frame {k} is {old[k]!r} where the catalog has "
             f"{new[k]!r}"
         )
+    # a user who dropped a bad pair from the index was only told to start over elsewhere
     raise RunDirError(
         f"{path} holds {what}: not the catalog's frame list (a different archive, or frames "
         "removed, renamed or reordered?). A run directory's frames may only be extended at "
-        "the end of the index; use a new --out directory for this catalog"
+        "the end of the index. To leave frames out, keep them in the index and choose the "
+        "others with --frames PATTERN (a failed frame may also stay: it fails alone); to "
+        "drop them for good, use a new --out directory for this catalog"
     )
 
 

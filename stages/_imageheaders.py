@@ -71,6 +71,8 @@ class ImageHeader:
     significant_from : str
         Where ``significant_bits`` was read, for messages (``"its sBIT chunk"``); empty
         when None.
+    more_pages : bool
+        A TIFF whose first image directory links to another: only the first page is decoded.
     """
 
     format: str
@@ -79,6 +81,7 @@ class ImageHeader:
     bit_depth: int = 8
     significant_bits: int | None = None
     significant_from: str = ""
+    more_pages: bool = False
 
 
 def read_header(data: bytes) -> ImageHeader:
@@ -253,6 +256,9 @@ def _tiff_header(data: bytes) -> ImageHeader:
     if int((offsets + counts).max()) > len(data):
         raise _truncated("TIFF", "image data (strips/tiles) lies past the end of the file")
     header = _size("TIFF", int(tags[256][0]), int(tags[257][0]))
+    (following,) = struct.unpack(order + "I", data[ifd + 2 + 12 * count : ifd + 6 + 12 * count])
+    if following:
+        header = dataclasses.replace(header, more_pages=True)
     bits = tags.get(258)
     if bits is None or not len(bits) or int(bits.max()) != 16:
         return header

@@ -203,6 +203,10 @@ def decode_gray(
         image, notes = to_gray_uint8(decoded, sample_bits=sample_bits, name=name)
         if decoded.dtype == np.uint16:
             notes.extend(_declared_bits_notes(header, sample_bits))
+        if header.more_pages:
+            # a stereo camera's left and right as two pages of one file read as a pair of
+            # identical first pages without a word
+            notes.append("the TIFF holds more than one page: only the first is read")
     except ValueError as exc:
         raise FrameError(f"{name}: {exc}") from None
     extension = os.path.splitext(name)[1].lower()
@@ -346,7 +350,9 @@ def _read_file(path: Path, *, max_bytes: int) -> bytes:
         with open(path, "rb") as stream:
             data = stream.read(max_bytes + 1)
     except FileNotFoundError:
-        raise FrameError(f"{path}: missing file (no such file or directory)") from None
+        raise FrameError(
+            f"{path}: missing file (no such file or directory){_missing_hint(path)}"
+        ) from None
     except PermissionError:
         raise FrameError(f"{path}: cannot be read (permission denied)") from None
     except (OSError, ValueError) as exc:
@@ -356,6 +362,29 @@ def _read_file(path: Path, *, max_bytes: int) -> bytes:
     if len(data) > max_bytes:
         raise FrameError(f"{path}: the file grew past {max_bytes} bytes while being read")
     return data
+
+
+def _missing_hint(path: Path) -> str:
+    """Where a missing image may be: a message that named only the path left a user to
+    guess between a wrong directory, a wrong extension and a wrong case."""
+    if "\\" in path.name:
+        return "; the path holds backslashes: write it with / in the index"
+    parent = path.parent
+    if not parent.is_dir():
+        return (
+            f"; its directory {parent} does not exist either: paths in the index are "
+            "relative to the index CSV's directory, or absolute"
+        )
+    try:
+        names = sorted(os.listdir(parent))
+    except OSError:
+        return ""
+    stem, name = path.stem.lower(), path.name.lower()
+    near = [n for n in names if n.lower() == name or os.path.splitext(n)[0].lower() == stem]
+    if not near:
+        return "; fix the path in the index, or remove the frame"
+    shown = ", ".join(near[:3])
+    return f"; {parent} holds {shown}: fix the path in the index (names are case-sensitive)"
 
 
 def to_gray_uint8(

@@ -10,7 +10,10 @@ Search range. ``max_disparity = 0`` (the default) derives it from the camera
 ``nearest_range_m`` is given, else the ground's disparity at the bottom image row (the
 nearest visible ground point, from camera height and pitch) plus 25 % and 2 px for rocks
 standing above it, else 64 px. For the built-in archives (f = 430 px, b = 0.1 m, 1.2 m up,
-pitched 38 deg) that is about 51 px; for the 0.8 m Viking baseline about 380 px.
+pitched 38 deg) that is about 51 px; for the 0.8 m Viking baseline about 380 px. A frame
+without a pose notes that its ground plane comes from the disparity and, at the 64 px
+default, the range that limit cuts off, saying so when over 1 % of the matches pile up
+within 1 px of it (a larger or nearer camera than the built-in archives' needs more).
 
 Search band (``adaptive``). The windows after the first are there for the weakly textured
 ground, whose disparity at each row the pose gives. With a pose they search each row only
@@ -64,6 +67,15 @@ from pipeline.errors import ParamError
 from pipeline.stage import FrameContext, Param, Product, Stage, StageResult
 
 from . import _refine, _stereo, _stereo_tiles
+from ._depth_checks import (
+    OFFSET_CHECK_BELOW,
+    SWAP_CHECK_BELOW,
+    limit_note,
+    offset_note,
+    pose_notes,
+    poseless_note,
+    swapped_note,
+)
 from ._select import median32
 from .geometry import (
     derive_max_disparity,
@@ -92,7 +104,8 @@ PARAMS: tuple[Param, ...] = (
         "max_disparity",
         int,
         0,
-        "largest disparity searched (px); 0 = derive from the camera and nearest_range_m",
+        "largest disparity searched (px); 0 = derive from nearest_range_m, else the camera "
+        "pose, else 64 (noted)",
         minimum=0,
         maximum=2000,
     ),
@@ -383,6 +396,10 @@ def run_depth(
     matching, tiled = _match(reference, other, lo, hi, band, params, gradient)
     if tiled:
         notes.append(f"matched in tiles of {params['tile_px']} px")
+    if not camera.has_pose:
+        notes.append(poseless_note(camera, matching.disparity, hi, params))
+    if camera.has_pose or int(params["max_disparity"]) or float(params["nearest_range_m"]):
+        notes.extend(limit_note(matching.disparity, hi, params))
     disparity_m = matching.disparity
     refined_fraction = 0.0
     if params["ground_refine"] and params["method"] != "opencv-sgbm":
@@ -405,9 +422,19 @@ def run_depth(
     fit = fit_ground_plane(disparity, camera=camera, inlier_px=float(params["ground_inlier_px"]))
     if np.all(np.isfinite(fit.plane)):
         height = height_from_disparity(disparity, fit.plane, camera=camera)
+        mismatch = pose_notes(camera, fit.source, float(fit.plane[3]), _pitch_deg(fit.plane))
     else:
         height = np.full(disparity.shape, np.nan, np.float32)
         notes.append("no ground plane fitted: height is NaN")
+        mismatch = []
+    # a poorly matched frame, or one whose ground disagrees with the pose (sgm fills an
+    # exchanged pair 90 %), is checked for exchanged images; only a frame matched very
+    # poorly for a vertical offset (that check misreads some dunes frames)
+    if matching.valid_fraction < SWAP_CHECK_BELOW or mismatch:
+        notes.extend(swapped_note(left, right, hi))
+    if matching.valid_fraction < OFFSET_CHECK_BELOW:
+        notes.extend(offset_note(left, right, hi))
+    notes.extend(mismatch)
 
     defined = np.isfinite(diff)
     rms = float(np.sqrt(np.mean(np.square(diff[defined])))) if defined.any() else float("nan")

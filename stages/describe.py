@@ -250,7 +250,18 @@ def run_describe(
         ground_plane=inputs.get("ground_plane"),
         **params,
     )
-    return StageResult(tables={"descriptors": desc, "relations": rel}, figures=figures)
+    notes = []
+    if figures["ground_source"] == "none" and desc["object_id"].size:
+        # a frame with neither a camera pose nor a fitted ground plane: every object came
+        # out an 'obstacle' with NaN positions, and only depth's note said why
+        notes.append(
+            "no ground frame (no camera pose and no ground plane fitted): ground positions, "
+            "lengths, ordering relations and the size-frequency fit are missing, and an "
+            "object without a height is classed obstacle; give [camera] height_m and pitch_deg"
+        )
+    return StageResult(
+        tables={"descriptors": desc, "relations": rel}, figures=figures, notes=notes
+    )
 
 
 STAGE = Stage(

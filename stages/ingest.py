@@ -2,9 +2,10 @@
 
 The decoding rules (formats, colour -> gray, 16-bit and float scaling, what fails a frame)
 are those of :mod:`stages._imageio`. Ingest adds the pair checks: left and right must have
-the same size, and that size must be the archive's (``FrameContext.image_shape``) when the
-engine knows it. Each conversion becomes a note in the frame's record, and the sha256 of
-both files becomes a per-frame figure.
+the same size, that size must be the archive's (``FrameContext.image_shape``) when the
+engine knows it, and they must differ (one file named for both sides fails the frame).
+Each conversion becomes a note in the frame's record, and the sha256 of both files becomes
+a per-frame figure.
 
 Parameters (catalog ``[params] ingest = {...}`` or ``--set ingest.NAME=VALUE``):
 
@@ -26,6 +27,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 
 from pipeline.errors import FrameError
@@ -89,6 +91,18 @@ def run_ingest(
         right_path=frame.right_path,
         archive_shape=frame.image_shape,
     )
+    same_file = left.sha256 == right.sha256
+    if same_file or (_varies(left.image) and np.array_equal(left.image, right.image)):
+        # the same file (or a copy) on both sides of the index row ran 'done' with zero
+        # disparity everywhere; two constant frames (a lens cap) are noted as such instead
+        same = "is the same file as" if same_file else "has the same pixels as"
+        raise FrameError(
+            f"frame {frame.frame_id}: left image {frame.left_path} {same} right image "
+            f"{frame.right_path}; a stereo pair needs the two cameras' images: fix the "
+            "frame's row in the index"
+        )
+    for side in (left, right):
+        side.notes.extend(_border_fill_notes(side.image))
     return StageResult(
         arrays={"left": left.image, "right": right.image},
         figures={"left_sha256": left.sha256, "right_sha256": right.sha256},
@@ -120,7 +134,8 @@ def check_pair_shapes(
     if tuple(left_shape) != tuple(right_shape):
         raise FrameError(
             f"frame {frame_id}: left image {left_path} is {_hxw(left_shape)} but right image "
-            f"{right_path} is {_hxw(right_shape)} (HxW); a stereo pair must have equal sizes"
+            f"{right_path} is {_hxw(right_shape)} (HxW); a stereo pair must have equal sizes: "
+            "re-export both from the same rectified pair, or remove the frame from the index"
         )
     if min(left_shape) < MIN_SIDE_PX:
         raise FrameError(
@@ -129,10 +144,22 @@ def check_pair_shapes(
             "works on at least 2x2 sectors of 4x4 px); remove the frame from the index"
         )
     if archive_shape is not None and tuple(left_shape) != tuple(archive_shape):
+        fix = (
+            f"a run holds frames of one size: give frames of this size a catalog of their own "
+            f"(with its camera: the focal length in pixels scales with the size), or resize "
+            f"{left_path} and {right_path}, or remove the frame from the index (set [frames] "
+            "shape in the catalog to choose the size)"
+        )
+        if tuple(left_shape) == tuple(archive_shape)[::-1]:
+            # `shape = [640, 480]` for 640x480 frames failed every frame, each told to
+            # resize its images
+            fix = (
+                "the transpose: [frames] shape in the catalog is [H, W], rows first, so for "
+                f"this frame's size write shape = [{left_shape[0]}, {left_shape[1]}]; else {fix}"
+            )
         raise FrameError(
             f"frame {frame_id} is {_hxw(left_shape)} but the archive's frames are "
-            f"{_hxw(archive_shape)} (HxW); resize {left_path} and {right_path}, or remove "
-            "the frame from the index (set [frames] shape in the catalog to choose the size)"
+            f"{_hxw(archive_shape)} (HxW); {fix}"
         )
 
 
@@ -140,6 +167,38 @@ def _check_params(params: Mapping[str, Any]) -> None:
     # the range is checked here rather than by Param bounds, so that the message can say
     # what sample_bits means and how to choose it
     coerce_sample_bits(params["sample_bits"])
+
+
+_FILL_NOTED = 0.01
+"""Share of a frame in black (0) regions touching its border above which ingest notes a
+rectification's fill: none of the built-in archives' 480 images has any."""
+
+
+def _border_fill_notes(image: np.ndarray) -> list[str]:
+    """A note when black (exactly 0) regions touching the border cover over 1 % of the frame.
+
+    Rectified stereo pairs carry such wedges where no camera pixel maps; a user's frames
+    with 8 % of them had segmentation return the fill as one 21,000 px 'obstacle' per frame,
+    nothing said. Only counted when the frame holds that many zeros (~0.1 ms otherwise).
+    """
+    black = image == 0
+    if np.count_nonzero(black) <= _FILL_NOTED * image.size or not _varies(image):
+        return []  # a constant frame has its own note
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(
+        black.view(np.uint8), connectivity=4
+    )
+    edge = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
+    share = float(stats[edge[edge > 0], cv2.CC_STAT_AREA].sum()) / image.size
+    if share <= _FILL_NOTED:
+        return []
+    return [
+        f"{share:.1%} of the frame is black (0) fill touching its border, as rectification "
+        "leaves: segmentation takes it for an object; crop the frames to the imaged area"
+    ]
+
+
+def _varies(image: np.ndarray) -> bool:
+    return bool(image.size) and bool(np.any(image != image.flat[0]))
 
 
 def _hxw(shape: tuple[int, ...]) -> str:

@@ -5,8 +5,10 @@
 ``quicklooks/<frame_id>/range_contours.png``
     Lines of equal range every ``range_step_m`` metres, labelled in metres, over the
     reference image (Fig. 14 and 17). Range is smoothed by a NaN-aware Gaussian (sigma
-    1.5 px) and quantised to ``floor(range / step)``; the line pixels are where the quantised
-    level changes between 4-neighbours, so no contour runs along the image border.
+    1.5 px) without the pixels under half its 0.5th or over twice its 99.5th percentile
+    (version 4: a few wrong matches at 170 m had widened the step to 5 m) and quantised to
+    ``floor(range / step)``; the line pixels are where the quantised level changes between
+    4-neighbours, so no contour runs along the image border.
 ``quicklooks/<frame_id>/residual.png``
     Left minus right beside left minus pseudo-left (Fig. 15 and 18), both on the same gray
     scale (mid-gray = 0); undefined residual pixels are dark blue. With the camera's
@@ -163,7 +165,9 @@ def range_contours_image(
     g = _coerce_image("gray", gray)
     rng = np.asarray(_check_shape("range", range_m, g.shape), dtype=np.float32)
     out = cv2.cvtColor(g, cv2.COLOR_GRAY2BGR)
-    smooth = _smooth_nan(rng, 1.5)
+    # a few wrong matches (disparity near 0: ranges of 170 m in a 1.4-3.8 m frame) set the
+    # span that widens the step, and a 1024x768 frame got 5.25 m contours, none across it
+    smooth = _smooth_nan(_without_outliers(rng), 1.5)
     lo, hi = _finite_range(smooth)
     if not lo <= hi:  # no finite range at all
         return out
@@ -189,6 +193,27 @@ def range_contours_image(
     out[rows, cols] = colors[which]
     _label_levels(out, rows, cols, which, [f"{lvl * step:.2f} m" for lvl in levels], colors)
     return out
+
+
+_RANGE_QUANTILES = (0.5, 99.5)
+"""Percentiles of a frame's range; a pixel under half the first or over twice the second is
+left out of the contours (none of the built-in archives' pixels is)."""
+
+
+def _without_outliers(range_m: np.ndarray) -> np.ndarray:
+    """``range_m`` with NaN where it lies far outside the frame's bulk (the percentiles of
+    one pixel in 31, 8,000 of a 500x500 frame: ~0.3 ms); ``range_m`` itself when nothing does."""
+    flat = range_m.ravel()
+    sample = flat[::31] if flat.size > 31_000 else flat
+    sample = sample[np.isfinite(sample)]
+    if sample.size == 0:
+        return range_m
+    low, high = np.percentile(sample, _RANGE_QUANTILES)
+    with np.errstate(invalid="ignore"):
+        outside = (range_m < low / 2) | (range_m > 2 * high)
+    if not outside.any():
+        return range_m
+    return np.where(outside, np.float32(np.nan), range_m)
 
 
 @njit(cache=True)
@@ -416,7 +441,7 @@ def run_quicklook(
 
 STAGE = Stage(
     name="quicklook",
-    version="3",
+    version="4",
     inputs=("left", "right", "labels", "range", "residual"),
     outputs=(Product("quicklooks", kind="files"),),
     params=(

@@ -446,3 +446,55 @@ def test_name_of_a_builtin_archive_points_at_its_catalog(tmp_path: Path) -> None
     not exist; the message now gives the shipped catalog's path."""
     shipped = Path(__file__).resolve().parents[2] / "catalogs" / "lab.toml"
     assert_error(tmp_path / "lab", "does not exist", f"catalog is {shipped}")
+
+
+@pytest.mark.parametrize(
+    "column", ["notes", "status", "index", "error", "archive", "run_id", "run"]
+)
+def test_regression_metadata_column_named_like_a_frames_column_was_lost(
+    tmp_path: Path, column: str
+) -> None:
+    # a user's `notes` column was dropped from frames.parquet without a word, and an
+    # `archive` or `run_id` column replaced the real ones in `arroyo query`
+    csv = f"frame_id,left,right,sol,{column}\nf1,a.png,b.png,12,x\n"
+    assert_error(
+        write_catalog(tmp_path, csv=csv), "frames.csv", "line 1", repr(column), f"my_{column}"
+    )
+
+
+def test_regression_missing_index_named_neither_the_catalog_nor_its_line(tmp_path: Path) -> None:
+    # a catalog in another directory than its index: the message named only the CSV path
+    (tmp_path / "catalogs").mkdir()
+    path = write_catalog(tmp_path / "catalogs", csv=None)
+    message = assert_error(path, "cat.toml", "line 13", "[frames] index", "does not exist")
+    assert str(tmp_path / "catalogs" / "frames.csv") in message
+    assert f"catalog's directory {tmp_path / 'catalogs'}" in message
+
+
+def test_regression_home_relative_paths_were_taken_as_relative_to_the_csv(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # `~/data/l.png` in a user's index read '.../catalog dir/~/data/l.png': missing file
+    home = tmp_path / "home"
+    (home / "survey").mkdir(parents=True)
+    monkeypatch.setenv("HOME", str(home))
+    (home / "survey" / "frames.csv").write_text("frame_id,left,right\nf1,~/data/l.png,r.png\n")
+    toml = VALID_TOML.replace('index = "frames.csv"', 'index = "~/survey/frames.csv"')
+    toml += '\n[truth]\ndir = "~/truth"\n'
+    catalog = load_catalog(write_catalog(tmp_path, toml, csv=None))
+    assert catalog.index_path == home / "survey" / "frames.csv"
+    assert catalog.truth_dir == home / "truth"
+    (frame,) = catalog.frames
+    assert frame.left == home / "data" / "l.png"
+    assert frame.right == home / "survey" / "r.png"
+
+
+@pytest.mark.parametrize("sep", [";", "\t"])
+def test_regression_semicolon_index_from_a_spreadsheet_gave_no_hint(
+    tmp_path: Path, sep: str
+) -> None:
+    # a European spreadsheet's CSV export: the header read as one column
+    csv = sep.join(["frame_id", "left", "right"]) + "\n" + sep.join(["f1", "a", "b"]) + "\n"
+    assert_error(
+        write_catalog(tmp_path, csv=csv), "line 1", f"separated by {sep!r}", "with commas"
+    )

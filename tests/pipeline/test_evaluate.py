@@ -485,3 +485,10 @@ def test_a_run_cannot_start_while_evaluate_scores(rundir: Path, monkeypatch):
     assert refused and "in use by arroyo pid" in refused[0]
     with RunLock(rundir):  # released afterwards
         pass
+
+
+def test_regression_empty_truth_directory_did_not_name_the_layout_expected():
+    # a user's [truth] dir without arroyo synth's files: 'nothing to score' and no hint
+    text = format_evaluation(EVALUATION_SCHEMA.empty_table())
+    assert text.startswith("nothing to score") and "<frame_id>.npz" in text
+    assert "docs/synth.md" in text

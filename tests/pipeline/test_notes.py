@@ -46,7 +46,7 @@ def test_input_notes_come_before_routine_notes_of_later_stages():
     assert [k.stage for k in summary.kinds] == ["ingest", "depth", *["segment"] * 3]
     text = format_notes(summary, "runs/lab")
     lines = [line.strip() for line in text.splitlines()]
-    assert lines[0].startswith("notes: 9 of 9 frames carry notes, 3 kinds; the most common")
+    assert lines[0].startswith("notes: 9 of 9 frames carry notes, 3 kinds; earliest stage first")
     assert lines[1] == "1 frame  ingest: left: alpha channel ignored"
     assert lines[2] == "1 frame  depth: no ground plane fitted: height is NaN"
     assert lines[3] == (
@@ -86,3 +86,28 @@ def test_query_command_is_quoted_and_says_allow_running():
     assert argv[:3] == ["arroyo", "query", "--allow-running"]
     assert argv[3] == "/tmp/my runs/lab" and argv[4].startswith("SELECT frame_id, notes FROM")
     assert "--allow-running" not in notes_query("runs/lab")
+
+
+def test_regression_note_naming_the_setting_was_hidden_behind_commoner_conversions():
+    # a user's run: 16-bit frames, colour frames and one 12-bit-in-16-bit pair; the summary
+    # showed the two plain ingest conversions and put the note that says what to set into
+    # "and 1 other kind"
+    dark = (
+        "left and right: 16-bit samples scaled to 8 bits by >> 8 (max 4080 -> 15); the data "
+        "uses only 12 bits, so it comes out dark: if the camera writes 12-bit samples, set "
+        "ingest.sample_bits = 12 (catalog [params] or --set)"
+    )
+    frames = [
+        [("ingest", "left and right: 16-bit samples scaled to 8 bits by >> 8 (max 65535 -> 255)")],
+        [("ingest", "left and right: 16-bit samples scaled to 8 bits by >> 8 (max 65280 -> 255)")],
+        [("ingest", "left and right: 3 identical colour channels reduced to one")],
+        [("ingest", "left and right: 3 identical colour channels reduced to one")],
+        [("ingest", dark)],
+    ]
+    summary = summarize_notes(frames, stages=STAGES)
+    assert summary.kinds[0].example == dark
+    text = format_notes(summary, "runs/x")
+    assert "set ingest.sample_bits = 12" in text
+    assert "in a stage those naming a setting, then the most common:" in text.splitlines()[0]
+    assert "and 1 other kind" in text  # the colour note, the less telling, is the one left out
+    assert "colour" not in text

@@ -14,9 +14,9 @@ import zarr
 from conftest import write_archive
 from pipeline.camera import Camera
 from pipeline.catalog import FrameRecord
-from pipeline.errors import ParamError
+from pipeline.errors import CatalogError, ParamError
 from pipeline.graph import build_graph, discover_stages, resolve_stage_params
-from pipeline.plan import frame_keys
+from pipeline.plan import format_plan, frame_keys
 from pipeline.runner import run
 from pipeline.stage import Param, Stage
 
@@ -133,3 +133,32 @@ def test_bad_sample_bits_stop_the_run_before_any_work(
     for fragment in fragments:
         assert fragment in str(info.value), str(info.value)
     assert not (tmp_path / "run").exists()
+
+
+def test_regression_metadata_column_named_like_a_stage_figure_was_lost(tmp_path: Path) -> None:
+    # frames.parquet kept the engine's `ingest_seconds` and dropped the user's column
+    catalog = write_archive(tmp_path / "archive", frames=1)
+    index = tmp_path / "archive" / "frames.csv"
+    index.write_text(index.read_text().replace(",site", ",ingest_seconds"))
+    with pytest.raises(CatalogError, match="'ingest_seconds'.*'ingest_...'.*my_ingest_seconds"):
+        run(catalog, tmp_path / "run", dry_run=True, stage_package=NEW)
+    assert not (tmp_path / "run").exists()
+    index.write_text(index.read_text().replace(",ingest_seconds", ",ingestseconds"))
+    assert run(catalog, tmp_path / "run", dry_run=True, stage_package=NEW).frames
+
+
+def test_regression_a_pair_listed_twice_ran_twice_without_a_word(tmp_path: Path) -> None:
+    # a user's index listed one pair under two frame ids: both ran and every query and
+    # size-frequency fit counted its rocks twice
+    catalog = write_archive(tmp_path / "archive", frames=3)
+    index = tmp_path / "archive" / "frames.csv"
+    header, *rows = index.read_text().splitlines()
+    rows[2] = rows[0].replace("f000,", "f002,", 1)
+    index.write_text("\n".join([header, *rows]) + "\n")
+    plan = run(catalog, tmp_path / "run", dry_run=True, stage_package=NEW)
+    assert plan.duplicates == {"f002": "f000"}
+    assert "same images as an earlier frame: f002 = f000" in format_plan(plan)
+    summary = run(catalog, tmp_path / "run", scheduler="synchronous", stage_package=NEW)
+    assert summary.duplicates == {"f002": "f000"}
+    (tmp_path / "archive" / "images" / "f000_left.png").unlink()  # unreadable: not a pair
+    assert run(catalog, tmp_path / "run", dry_run=True, stage_package=NEW).duplicates == {}

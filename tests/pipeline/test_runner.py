@@ -311,6 +311,23 @@ def test_other_frame_list_is_refused_by_the_dry_run_too(archive, tmp_path):
     assert _run(archive, out).done == 5
 
 
+def test_regression_frame_removed_from_the_index_was_told_only_to_start_over(archive, tmp_path):
+    # a user who dropped a pair from the index of a run was told only to use a new --out
+    # directory, losing every finished frame; the README's answer is --frames
+    out = tmp_path / "run"
+    _run(archive, out)
+    index = archive.parent / "frames.csv"
+    header, *rows = index.read_text().splitlines()
+    index.write_text("\n".join([header, *rows[:-1]]) + "\n")
+    with pytest.raises(RunDirError) as info:
+        _run(archive, out, dry_run=True)
+    message = str(info.value)
+    assert "the catalog's 3, then 'f003'..., which the catalog no longer lists" in message
+    assert "--frames PATTERN" in message and "new --out" in message
+    index.write_text("\n".join([header, *rows]) + "\n")
+    assert _run(archive, out, frames="f00[0-2]").done == 3
+
+
 def test_two_run_directories_cannot_share_a_products_root(archive, tmp_path):
     """Regression: a second run directory given the same --products rewrote the first's
     maps without a word; the first's descriptors then described other labels and its

@@ -240,3 +240,87 @@ def test_settings_only_the_matcher_checks_fail_at_planning(override, words):
     with pytest.raises(ParamError, match=words):
         STAGE.resolve_params(override)
     assert STAGE.resolve_params({})["windows"] == STAGE.defaults()["windows"]
+
+
+def _ramp_pair(shape=(96, 160), near_px=80.0, far_px=40.0):
+    """A textured slope whose disparity grows from ``far_px`` (top row) to ``near_px``."""
+    h, w = shape
+    ys, xs = np.indices(shape, dtype=float)
+    disparity = far_px + (near_px - far_px) * ys / (h - 1)
+    world = ndimage.gaussian_filter(np.random.default_rng(0).normal(128, 45, (h, w + 90)), 1)
+    right = ndimage.map_coordinates(world, [ys, xs + disparity], order=3)
+    as_u8 = lambda img: np.clip(np.round(img), 0, 255).astype(np.uint8)  # noqa: E731
+    return as_u8(world[:, :w]), as_u8(right)
+
+
+def test_regression_poseless_frame_searched_only_64_px_without_a_note():
+    # a user's 1024x768 frames without height_m/pitch_deg were matched up to the fixed 64 px
+    # only (their near ground needs 90): 7 % of the bottom rows valid, and nothing said so
+    left, right = _ramp_pair()
+    bare = Camera(focal_px=400.0, baseline_m=0.1)
+    result = _run(left, right, camera=bare)
+    assert result.figures["max_disparity"] == 64
+    (note,) = result.notes
+    assert "no camera pose" in note and "ground plane fitted from the disparity" in note
+    assert "up to 64 px" in note and f"{400.0 * 0.1 / 64:.2f} m" in note
+    assert "likely cut off" in note and "depth.max_disparity" in note
+    # an explicit limit: only the ground plane's source is noted
+    (note,) = _run(left, right, camera=bare, max_disparity=90).notes
+    assert "ground plane fitted" in note and "64" not in note
+    # a frame whose matches stay well below the limit is not told it was cut off
+    left, right = _ramp_pair(near_px=40.0, far_px=20.0)
+    (note,) = _run(left, right, camera=bare).notes
+    assert "up to 64 px" in note and "cut off" not in note
+    # with a pose nothing is assumed
+    assert _run(left, right).notes == []
+
+
+def test_regression_exchanged_left_and_right_were_not_noted():
+    # a pair entered the other way round in the index matched 12 % of the frame; only
+    # segment's 'height valid on 12 %' hinted at it
+    left, right, _ = _ground_pair(shape=(128, 160))
+    exchanged = _run(right, left)
+    assert exchanged.figures["valid_fraction"] < 0.5
+    assert any("left and right look exchanged" in note for note in exchanged.notes)
+    assert "swap the frame's left and right columns" in " ".join(exchanged.notes)
+    assert not any("exchanged" in note for note in _run(left, right).notes)
+
+
+def test_regression_camera_pose_disagreeing_with_the_disparity_was_not_noted():
+    # a user's baseline_m in millimetres, or a focal length 20 % short, ran 'done' with
+    # every range and size scaled: the pose was rejected for a fitted plane without a word
+    left, right, _ = _ground_pair()
+    assert _run(left, right).notes == []
+    mm = Camera(focal_px=120.0, baseline_m=100.0, height_m=1.2, pitch_deg=38.0)
+    # (its pose's search band also piles the matches up at the limit: noted apart)
+    (note,) = [n for n in _run(left, right, camera=mm, max_disparity=32).notes if "ground" in n]
+    assert "the disparity's ground lies 1.2e+03 m below" in note
+    assert "height_m = 1.2, pitch_deg = 38" in note and "millimetres" in note
+    short = Camera(focal_px=120.0, baseline_m=0.1, height_m=1.2, pitch_deg=30.0)
+    (note,) = _run(left, right, camera=short).notes
+    assert "pitch_deg = 30" in note and "millimetres" not in note and "focal_px" in note
+
+
+def test_regression_unrectified_pair_was_not_noted():
+    # a right image 6-8 rows lower than the left (an unrectified pair) matched 13-24 % of
+    # the frame and ran 'done' without a word
+    left, right, _ = _ground_pair(shape=(160, 200))
+    offset = _run(left, np.roll(right, 8, axis=0))
+    assert offset.figures["valid_fraction"] < 0.3
+    (note,) = [n for n in offset.notes if "unrectified" in n]
+    assert "rows lower than the left" in note and "rectify" in note
+    assert not any("unrectified" in n for n in _run(left, right).notes)
+
+
+def test_regression_a_set_max_disparity_below_the_near_ground_cut_it_silently():
+    # the README's catalog example sets depth.max_disparity = 64; a 1024x768 camera whose
+    # near ground needs 90 px lost its bottom rows without a word
+    left, right = _ramp_pair()  # 40 px at the top to 80 px at the bottom
+    posed = Camera(focal_px=400.0, baseline_m=0.1, height_m=1.0, pitch_deg=30.0)
+    notes = _run(left, right, camera=posed, max_disparity=64, floor_margin=1.0,
+                 ceiling_ratio=0.0).notes  # fmt: skip
+    assert any(n.startswith("matches pile up at the search limit") for n in notes), notes
+    assert "raise depth.max_disparity" in " ".join(notes)
+    notes = _run(left, right, camera=posed, max_disparity=100, floor_margin=1.0,
+                 ceiling_ratio=0.0).notes  # fmt: skip
+    assert not any("search limit" in n for n in notes), notes

@@ -359,3 +359,25 @@ def test_border_cut_rock_is_classed_from_its_height():
         assert not _row(desc, k)["touches_border"] and _row(desc, k)["size_class"] == "sample"
     (desc, _, _), _ = _run([*whole, (-0.80, 1.6, 0.14, 0.07, 60)], border_height_quantile=0)
     assert _row(desc, 6)["size_class"] == "sample"
+
+
+def test_regression_frame_without_a_ground_frame_gave_obstacles_without_a_note():
+    # no camera pose and no fitted plane: every object came out an 'obstacle' with NaN
+    # positions, and describe said nothing
+    labels, gray, disparity, rng, _ = plate_scene(CAMERA, SHAPE, [(0.0, 1.6, 0.05, 0.05, 60)])
+    inputs = {
+        "right": gray,
+        "labels": labels,
+        "disparity": disparity,
+        "range": rng,
+        "height": np.full(SHAPE, np.nan, np.float32),  # depth's, without a plane
+        "ground_plane": np.full(4, np.nan),
+    }
+    bare = Camera(focal_px=CAMERA.focal_px, baseline_m=CAMERA.baseline_m)
+    frame = FrameContext(frame_id="f0", archive="t", camera=bare)
+    result = STAGE.run(inputs, frame=frame, params=STAGE.defaults())
+    assert result.tables["descriptors"]["size_class"].tolist() == ["obstacle"]
+    (note,) = result.notes
+    assert "no ground frame" in note and "classed obstacle" in note and "pitch_deg" in note
+    with_pose = FrameContext(frame_id="f0", archive="t", camera=CAMERA)
+    assert STAGE.run(inputs, frame=with_pose, params=STAGE.defaults()).notes == []

@@ -277,6 +277,21 @@ def test_constant_and_saturated_frames_decode(tmp_path: Path, value: int) -> Non
     assert decoded.notes == [f"constant frame: every pixel is {value}"]
 
 
+def test_regression_multi_page_tiff_read_its_first_page_without_a_note(
+    tmp_path: Path, gray: np.ndarray
+) -> None:
+    # a camera's left and right as two pages of one TIFF: the catalog names the file for
+    # both sides and ingest read the first page twice, silently
+    path = tmp_path / "pair.tif"
+    assert cv2.imwritemulti(str(path), [gray, 255 - gray])
+    decoded = read_gray(path)
+    np.testing.assert_array_equal(decoded.image, gray)
+    assert decoded.notes == ["the TIFF holds more than one page: only the first is read"]
+    assert read_header(path.read_bytes()).more_pages
+    single = write(tmp_path / "one.tif", gray)
+    assert read_gray(single).notes == [] and not read_header(single.read_bytes()).more_pages
+
+
 def test_extension_mismatch_is_noted(tmp_path: Path, gray: np.ndarray) -> None:
     path = tmp_path / "really_png.jpg"
     path.write_bytes(encoded(".png", gray))
@@ -292,6 +307,23 @@ def test_extension_mismatch_is_noted(tmp_path: Path, gray: np.ndarray) -> None:
 def test_missing_file_and_directory(tmp_path: Path) -> None:
     assert_frame_error(tmp_path / "absent.png", "missing file")
     assert_frame_error(tmp_path, "is a directory")
+
+
+def test_regression_missing_file_message_did_not_say_where_to_look(
+    tmp_path: Path, gray: np.ndarray
+) -> None:
+    # a user's index said pair01_left.png for PAIR01_LEFT.TIF, or a directory that is not
+    # there: the message named the path only
+    write(tmp_path / "PAIR01_LEFT.TIF", gray)
+    message = assert_frame_error(tmp_path / "pair01_left.png", "missing file")
+    assert f"{tmp_path} holds PAIR01_LEFT.TIF" in message and "case-sensitive" in message
+    message = assert_frame_error(tmp_path / "sol 12" / "a.png", "missing file")
+    assert f"its directory {tmp_path / 'sol 12'} does not exist either" in message
+    assert "relative to the index CSV's directory" in message
+    message = assert_frame_error(tmp_path / "other.png", "missing file")
+    assert message.endswith("fix the path in the index, or remove the frame")
+    message = assert_frame_error(tmp_path / "images\\sol12\\a.png", "missing file")
+    assert "backslashes: write it with / in the index" in message
 
 
 def test_zero_bytes_and_too_short(tmp_path: Path) -> None:

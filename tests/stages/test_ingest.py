@@ -87,6 +87,8 @@ def test_left_right_size_mismatch_names_both(
     message = str(info.value)
     for fragment in (str(left), str(right), "60x80", "50x80", "equal sizes"):
         assert fragment in message
+    # regression: the message said what was wrong but not what to do
+    assert "re-export both from the same rectified pair" in message
 
 
 def test_frame_of_another_size_than_the_archive(
@@ -96,6 +98,23 @@ def test_frame_of_another_size_than_the_archive(
     right = write(tmp_path / "r.png", pair[1])
     with pytest.raises(FrameError, match="frame f1 is 60x80 but the archive's frames are 64x64"):
         ingest(context(left, right, shape=(64, 64)))
+    # regression: a user with two cameras' frames in one index was told only to resize them
+    with pytest.raises(FrameError, match="give frames of this size a catalog of their own"):
+        ingest(context(left, right, shape=(64, 64)))
+
+
+def test_regression_transposed_frames_shape_read_as_wrong_size_frames(
+    tmp_path: Path, pair: tuple[np.ndarray, np.ndarray]
+) -> None:
+    # a user's catalog said `shape = [80, 60]` (width first) for 60x80 (HxW) frames: every
+    # frame failed, told to resize its images
+    left = write(tmp_path / "l.png", pair[0])
+    right = write(tmp_path / "r.png", pair[1])
+    with pytest.raises(FrameError) as info:
+        ingest(context(left, right, shape=(80, 60)))
+    message = str(info.value)
+    assert "is 60x80 but the archive's frames are 80x60" in message
+    assert "[H, W], rows first" in message and "shape = [60, 80]" in message
 
 
 def test_bad_file_fails_the_frame_naming_it(
@@ -213,3 +232,38 @@ def test_frame_under_the_smallest_side_fails_naming_its_files(
     left, right = write(tmp_path / "l.png", image), write(tmp_path / "r.png", image)
     with pytest.raises(FrameError, match=r"l\.png and .*r\.png are .* smaller than the 8x8"):
         ingest(context(left, right, shape=shape))
+
+
+def test_regression_same_image_on_both_sides_ran_done(
+    tmp_path: Path, pair: tuple[np.ndarray, np.ndarray]
+) -> None:
+    # one file named for both sides of an index row (or a copy of it) ran 'done' with zero
+    # disparity everywhere
+    left = write(tmp_path / "l.png", pair[0])
+    copy = write(tmp_path / "copy.tif", pair[0])
+    with pytest.raises(FrameError, match=r"l\.png is the same file as right image .*l\.png"):
+        ingest(context(left, left))
+    with pytest.raises(FrameError, match=r"l\.png has the same pixels as right image .*copy"):
+        ingest(context(left, copy))
+    # two constant frames (a lens cap) are not a catalog mistake: noted, not failed
+    cap_l = write(tmp_path / "cap_l.png", np.zeros((60, 80), np.uint8))
+    cap_r = write(tmp_path / "cap_r.tif", np.zeros((60, 80), np.uint8))
+    assert "constant frame" in " ".join(ingest(context(cap_l, cap_r)).notes)
+
+
+def test_regression_rectification_fill_became_an_obstacle_without_a_note(
+    tmp_path: Path, pair: tuple[np.ndarray, np.ndarray]
+) -> None:
+    # rectified frames with black wedges along the border: segmentation returned the fill
+    # as one large 'obstacle' per frame, and nothing said why
+    left, right = (np.maximum(image, 1) for image in pair)  # no natural zeros
+    plain = ingest(context(write(tmp_path / "l.png", left), write(tmp_path / "r.png", right)))
+    assert plain.notes == []
+    ys, xs = np.indices(left.shape)
+    wedge = xs < 6 + ys // 10  # about 10 % of the frame along the left border
+    left[wedge], right[wedge] = 0, 0
+    left[20:40, 30:50] = 0  # black inside the frame is content, not fill
+    result = ingest(context(write(tmp_path / "l2.png", left), write(tmp_path / "r2.png", right)))
+    (note,) = result.notes
+    assert note.startswith(f"left and right: {wedge.mean():.1%} of the frame is black (0) fill")
+    assert "crop the frames" in note

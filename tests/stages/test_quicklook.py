@@ -267,3 +267,17 @@ def test_every_n_draws_about_one_frame_in_n_chosen_by_frame_id():
         assert bool(result.notes) == (fid not in drawn)
     with pytest.raises(ValueError, match="integer >= 1"):
         draws_frame("f0", every=0)
+
+
+def test_regression_a_few_far_outliers_widened_the_contour_step_to_metres():
+    # a 1024x768 frame without a pose: 0.06 % of the pixels wrongly matched near 0 px read
+    # 170 m, the step grew to 5.25 m, and no contour crossed the 1.4-3.8 m ground
+    rows = np.arange(SHAPE[0], dtype=np.float32)[:, None]
+    rng = np.broadcast_to(3.0 - 2.0 * rows / (SHAPE[0] - 1), SHAPE).astype(np.float32).copy()
+    clean = range_contours_image(_gray(), rng, step_m=0.25)
+    rng[-2:, :2] = 170.0  # a 2x2 speck of wrong matches, in a corner
+    out = range_contours_image(_gray(), rng, step_m=0.25)
+    colored_rows = np.flatnonzero((~_is_gray(out))[:, -3:].any(axis=1))
+    for level in (2.75, 2.5, 2.25, 2.0, 1.75, 1.5, 1.25):
+        assert np.min(np.abs(colored_rows - (3.0 - level) / 2.0 * (SHAPE[0] - 1))) <= 1.0
+    np.testing.assert_array_equal(out[:, -3:], clean[:, -3:])
