@@ -27,12 +27,12 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 
 from pipeline.errors import FrameError
 from pipeline.stage import FrameContext, Param, Product, Stage, StageResult
 
+from ._fill import border_fill
 from ._imageio import (
     DEFAULT_MAX_PIXELS,
     DEFAULT_SAMPLE_BITS,
@@ -169,31 +169,20 @@ def _check_params(params: Mapping[str, Any]) -> None:
     coerce_sample_bits(params["sample_bits"])
 
 
-_FILL_NOTED = 0.01
-"""Share of a frame in black (0) regions touching its border above which ingest notes a
-rectification's fill: none of the built-in archives' 480 images has any."""
-
-
 def _border_fill_notes(image: np.ndarray) -> list[str]:
     """A note when black (exactly 0) regions touching the border cover over 1 % of the frame.
 
     Rectified stereo pairs carry such wedges where no camera pixel maps; a user's frames
     with 8 % of them had segmentation return the fill as one 21,000 px 'obstacle' per frame,
-    nothing said. Only counted when the frame holds that many zeros (~0.1 ms otherwise).
+    nothing said. The segment stage now leaves the fill out (:mod:`stages._fill`).
     """
-    black = image == 0
-    if np.count_nonzero(black) <= _FILL_NOTED * image.size or not _varies(image):
-        return []  # a constant frame has its own note
-    count, labels, stats, _ = cv2.connectedComponentsWithStats(
-        black.view(np.uint8), connectivity=4
-    )
-    edge = np.unique(np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]]))
-    share = float(stats[edge[edge > 0], cv2.CC_STAT_AREA].sum()) / image.size
-    if share <= _FILL_NOTED:
+    fill = border_fill(image)
+    if fill is None:
         return []
+    share = np.count_nonzero(fill) / image.size
     return [
         f"{share:.1%} of the frame is black (0) fill touching its border, as rectification "
-        "leaves: segmentation takes it for an object; crop the frames to the imaged area"
+        "leaves: no depth there, and segmentation leaves it out"
     ]
 
 

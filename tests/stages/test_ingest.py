@@ -266,4 +266,4 @@ def test_regression_rectification_fill_became_an_obstacle_without_a_note(
     result = ingest(context(write(tmp_path / "l2.png", left), write(tmp_path / "r2.png", right)))
     (note,) = result.notes
     assert note.startswith(f"left and right: {wedge.mean():.1%} of the frame is black (0) fill")
-    assert "crop the frames" in note
+    assert "segmentation leaves it out" in note
