@@ -48,6 +48,10 @@ ground) is in :mod:`stages._continuity`; ``merge_ratio = 1`` restores the study 
 
 Frames larger than ``tile_px`` on a side get their sector histograms per tile on dask
 (chunks aligned to sector edges); the continuity pass runs on the small sector grid.
+
+Both methods leave a rectified frame's black fill (regions of gray 0 touching the border,
+over 1 % of the frame: :mod:`stages._fill`) out of the sector histograms, the thresholds
+and every object, and say so in a note; frames without fill are segmented as before.
 """
 
 from __future__ import annotations
@@ -71,6 +75,7 @@ from ._depth_rules import (
     gray_contrast,
 )
 from ._depth_rules import _UNUSABLE_SIGMA_M as _USABLE_SIGMA_M
+from ._fill import border_fill, histograms_without_fill
 from ._height_blobs import add_height_blobs
 from ._height_grow import grow_raised_parts
 from ._height_vote import BumpWeights
@@ -377,6 +382,21 @@ def segment_image(
         raise ValueError(
             f"histograms must have shape {(sectors, sectors, N_LEVELS)}, got {histograms.shape}"
         )
+    notes: list[str] = []
+    # a rectified frame's black fill is no ground and no rock: out of the histograms, the
+    # threshold mask and every object (rules may grow into it: cleared again at the end)
+    fill = border_fill(image)
+    if fill is not None:
+        histograms = histograms_without_fill(
+            histograms,
+            fill,
+            row_edges=sector_edges(shape[0], sectors),
+            col_edges=sector_edges(shape[1], sectors),
+        )
+        notes.append(
+            f"{np.count_nonzero(fill) / fill.size:.1%} of the frame is black fill along the "
+            "border: left out"
+        )
     analysis = analyse_sectors(
         histograms,
         smoothing=smoothing,
@@ -390,9 +410,10 @@ def segment_image(
     low = interpolate_sector_grid(analysis.low, shape)
     high = interpolate_sector_grid(analysis.high, shape)
     mask = threshold_mask(image, low, high)
+    if fill is not None:
+        mask &= ~fill
     strong = mask  # past a threshold (R7 grows into the other pixels only)
 
-    notes: list[str] = []
     # R2d's bump-map weights, kept for R8b's map (both read the height map's valid pixels)
     bump_weights = BumpWeights()
     depth_stats = None
@@ -644,6 +665,10 @@ def segment_image(
         )
         if bumps:
             notes.append(f"{bumps} faint blob(s) standing as height bumps added")
+    if fill is not None and np.any(labels[fill]):
+        labels = label_objects(
+            (labels > 0) & ~fill, min_area_px=min_area_px, fill=False, edges=_seams(labels)
+        )
     return Segmentation(
         labels=labels, sectors=analysis, depth=depth_stats, streaks_dropped=streaks, notes=notes
     )
@@ -819,7 +844,7 @@ def _sector_product(name: str, dtype: str, long_name: str, units: str = "") -> P
 
 STAGE = Stage(
     name="segment",
-    version="40",
+    version="41",
     inputs=("left", "right", "disparity", "height"),
     outputs=(
         Product(

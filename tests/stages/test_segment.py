@@ -237,3 +237,22 @@ def test_left_reference_catalog_segments_the_left_image():
     params = STAGE.resolve_params({"method": "sector-histogram", "sectors": 8})
     labels = STAGE.run(inputs, frame=frame, params=params).arrays["labels"]
     assert labels[60, 90] > 0 and labels[60, 40] == 0
+
+
+@pytest.mark.parametrize("method", ["sector-histogram", "sector-histogram+depth"])
+def test_regression_rectification_fill_was_segmented_as_an_obstacle(method):
+    # a rectified frame's black wedges along the border came out as one large dark object
+    # (21,000 px on a user's frame), and skewed the histograms of the sectors they cut
+    rocks = [(60, 70, 12, 40), (110, 120, 10, 40)]
+    plain = scene(rocks=rocks, seed=3)
+    ys, xs = np.indices(plain.shape)
+    wedge = xs + ys < 50
+    filled = plain.copy()
+    filled[wedge] = 0
+    result = segment_image(filled, method=method, sectors=8)
+    assert not np.any(result.labels[wedge])
+    assert result.labels.max() == 2
+    for cy, cx, r, _gray in rocks:
+        assert iou(result.labels == result.labels[cy, cx], disk(plain.shape, cy, cx, r)) > 0.85
+    assert any("black fill along the border" in note for note in result.notes)
+    assert not any("fill" in note for note in segment_image(plain, method=method, sectors=8).notes)
