@@ -7,6 +7,16 @@ frames often do: a frame with 8 % of it in such wedges had its fill segmented as
 21,000 px dark "obstacle". Ingest notes the fill (:func:`stages.ingest.run_ingest`), and the
 segment stage leaves it out of its sector histograms and of every object
 (:func:`stages.segment.segment_image`).
+
+The depth stage matches the two images with their fill smoothly extended from the imaged
+pixels around it (:func:`extend_into_fill`) and gives no disparity on the fill or where a
+match lands in the other image's fill (:func:`disparity_without_fill`). Matched as it
+comes, the fill's edge (at another place in each image) drew every window across it, and
+the fill itself got disparities. ``benchmarks/bench_fill.py runs/eval/mojave`` (6 frames,
+a corner wedge 90 / 100 px deep and a 30 px strip): bad-2 within 0-3 / 3-6 / 6-10 / 10-20
+px of the edge 0.38 / 0.38 / 0.32 / 0.22 as matched before, 0.17 / 0.07 / 0.04 / 0.01 now;
+24,570 fill pixels had a disparity, none now; segmentation F1 with the wedges 0.921, the
+same frames without them 0.923.
 """
 
 from __future__ import annotations
@@ -14,7 +24,13 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-__all__ = ["FILL_MIN_SHARE", "border_fill", "histograms_without_fill"]
+__all__ = [
+    "FILL_MIN_SHARE",
+    "border_fill",
+    "disparity_without_fill",
+    "extend_into_fill",
+    "histograms_without_fill",
+]
 
 FILL_MIN_SHARE = 0.01
 """Share of the frame the black regions touching its border must cover to count as fill:
@@ -88,4 +104,67 @@ def histograms_without_fill(
             "histograms are not of the image the fill was found in; pass both of one image"
         )
     out[..., 0] -= counts
+    return out
+
+
+_EXTEND_SIGMA_PX = 15.0
+"""Gaussian reach of :func:`extend_into_fill`: about the half-width of the matcher's larger
+windows, so a window across the edge sees a smooth continuation, not a step."""
+
+
+def extend_into_fill(image: np.ndarray, fill: np.ndarray) -> np.ndarray:
+    """The image with its fill replaced by a smooth continuation of the pixels around it.
+
+    Parameters
+    ----------
+    image : (M, N) ndarray of uint8
+        Gray image.
+    fill : (M, N) ndarray of bool
+        :func:`border_fill` of the image.
+
+    Returns
+    -------
+    (M, N) ndarray of uint8
+        A copy: outside the fill the same pixels, on it a Gaussian-weighted mean
+        (normalised convolution) of the imaged pixels near each fill pixel, without texture,
+        so the matcher's windows across the edge are driven by the imaged side.
+    """
+    valid = (~fill).astype(np.float32)
+    sums = cv2.GaussianBlur(image.astype(np.float32) * valid, (0, 0), _EXTEND_SIGMA_PX)
+    weights = cv2.GaussianBlur(valid, (0, 0), _EXTEND_SIGMA_PX)
+    mean = float(image[~fill].mean())  # far inside a wide fill the weights underflow
+    smooth = np.where(weights[fill] > 1e-6, sums[fill] / np.maximum(weights[fill], 1e-6), mean)
+    out = image.copy()
+    out[fill] = np.clip(np.rint(smooth), 0, 255).astype(np.uint8)
+    return out
+
+
+def disparity_without_fill(
+    disparity: np.ndarray, fill_reference: np.ndarray | None, fill_other: np.ndarray | None
+) -> np.ndarray:
+    """Disparity with NaN on the reference's fill and where a match lands in the other's.
+
+    Parameters
+    ----------
+    disparity : (M, N) ndarray of float32
+        Reference pixel ``x`` matches the other image's ``x + d`` (the matcher's convention;
+        a left-reference frame is matched mirrored), NaN where invalid.
+    fill_reference, fill_other : (M, N) ndarray of bool or None
+        :func:`border_fill` of the two images as matched; None for no fill.
+
+    Returns
+    -------
+    (M, N) ndarray of float32
+        A copy.
+    """
+    out = np.array(disparity, dtype=np.float32, copy=True)
+    if fill_reference is not None:
+        out[fill_reference] = np.nan
+    if fill_other is not None:
+        rows, cols = np.nonzero(np.isfinite(out))
+        target = np.rint(cols + out[rows, cols]).astype(np.int64)
+        inside = (target >= 0) & (target < out.shape[1])
+        lands = np.zeros(rows.shape, bool)
+        lands[inside] = fill_other[rows[inside], target[inside]]
+        out[rows[lands], cols[lands]] = np.nan
     return out

@@ -76,6 +76,7 @@ from ._depth_checks import (
     poseless_note,
     swapped_note,
 )
+from ._fill import border_fill, disparity_without_fill, extend_into_fill
 from ._select import median32
 from .geometry import (
     derive_max_disparity,
@@ -393,24 +394,41 @@ def run_depth(
     lo, hi = resolve_disparity_range(camera, right.shape, params)
     band = resolve_row_band(camera, right.shape, params)
     gradient = resolve_row_gradient(camera, right.shape, params)
-    matching, tiled = _match(reference, other, lo, hi, band, params, gradient)
+    # rectification fill: matched smoothly extended (its edge would draw every window
+    # across it), then given no disparity (stages._fill)
+    fill_ref, fill_oth = border_fill(reference), border_fill(other)
+    ref_m = reference if fill_ref is None else extend_into_fill(reference, fill_ref)
+    oth_m = other if fill_oth is None else extend_into_fill(other, fill_oth)
+    matching, tiled = _match(ref_m, oth_m, lo, hi, band, params, gradient)
+    disparity_m, valid_fraction = matching.disparity, matching.valid_fraction
+    if fill_ref is not None or fill_oth is not None:
+        disparity_m = disparity_without_fill(disparity_m, fill_ref, fill_oth)
+        imaged = np.ones(reference.shape, bool) if fill_ref is None else ~fill_ref
+        valid_fraction = float(np.mean(np.isfinite(disparity_m[imaged])))
+        notes.append(
+            "black fill along the border: matched smoothly extended, no disparity on it or "
+            "where a match lands on it; valid_fraction counts the imaged pixels only"
+        )
     if tiled:
         notes.append(f"matched in tiles of {params['tile_px']} px")
     if not camera.has_pose:
-        notes.append(poseless_note(camera, matching.disparity, hi, params))
+        notes.append(poseless_note(camera, disparity_m, hi, params))
     if camera.has_pose or int(params["max_disparity"]) or float(params["nearest_range_m"]):
-        notes.extend(limit_note(matching.disparity, hi, params))
-    disparity_m = matching.disparity
+        notes.extend(limit_note(disparity_m, hi, params))
     refined_fraction = 0.0
     if params["ground_refine"] and params["method"] != "opencv-sgbm":
         plane_px = _refine.fit_disparity_plane(disparity_m)
         if plane_px is not None:
             disparity_m, source = _refine.refine_against_ground(
-                reference, other, disparity_m, plane=plane_px
+                ref_m, oth_m, disparity_m, plane=plane_px
             )
+            if fill_ref is not None or fill_oth is not None:
+                disparity_m = disparity_without_fill(disparity_m, fill_ref, fill_oth)
             refined_fraction = float(np.mean(source > 0))
     pseudo = pseudo_left(reference, disparity_m)
     diff = residual(other, pseudo)
+    if fill_oth is not None:
+        diff[fill_oth] = np.nan  # no image to compare with there
     disparity = disparity_m[:, ::-1] if mirrored else disparity_m
     diff = diff[:, ::-1] if mirrored else diff
     disparity = np.ascontiguousarray(disparity, dtype=np.float32)
@@ -430,9 +448,9 @@ def run_depth(
     # a poorly matched frame, or one whose ground disagrees with the pose (sgm fills an
     # exchanged pair 90 %), is checked for exchanged images; only a frame matched very
     # poorly for a vertical offset (that check misreads some dunes frames)
-    if matching.valid_fraction < SWAP_CHECK_BELOW or mismatch:
+    if valid_fraction < SWAP_CHECK_BELOW or mismatch:
         notes.extend(swapped_note(left, right, hi))
-    if matching.valid_fraction < OFFSET_CHECK_BELOW:
+    if valid_fraction < OFFSET_CHECK_BELOW:
         notes.extend(offset_note(left, right, hi))
     notes.extend(mismatch)
 
@@ -441,7 +459,7 @@ def run_depth(
     finite_range = range_m[np.isfinite(range_m)]
     figures = {
         "rms_residual": rms,
-        "valid_fraction": matching.valid_fraction,
+        "valid_fraction": valid_fraction,
         "lr_consistency": float(matching.lr_consistency),
         "ground_fit_inliers": fit.inlier_fraction,
         "ground_fit": fit.source,
@@ -467,7 +485,7 @@ def run_depth(
 
 STAGE = Stage(
     name="depth",
-    version="6",
+    version="7",
     inputs=("left", "right"),
     outputs=OUTPUTS,
     params=PARAMS,

@@ -324,3 +324,24 @@ def test_regression_a_set_max_disparity_below_the_near_ground_cut_it_silently():
     notes = _run(left, right, camera=posed, max_disparity=100, floor_margin=1.0,
                  ceiling_ratio=0.0).notes  # fmt: skip
     assert not any("search limit" in n for n in notes), notes
+
+
+def test_regression_rectification_fill_edge_drew_the_windows_across_it():
+    # black wedges along the border (rectification's fill, at another place in each image)
+    # were matched as they came: the fill got disparities and the windows across its edge
+    # matched that edge, not the ground
+    left, right, truth = _ground_pair(shape=(120, 200), seed=4)
+    ys, xs = np.indices(right.shape)
+    right_fill, left_fill = xs + ys < 40, xs + ys < 46
+    right[right_fill], left[left_fill] = 0, 0
+    result = _run(left, right)
+    disparity = result.arrays["disparity"]
+    assert not np.isfinite(disparity[right_fill]).any()
+    near_edge = ~right_fill & (xs + ys < 40 + 20)
+    found = np.isfinite(disparity[near_edge])
+    assert found.mean() > 0.6
+    assert np.mean(np.abs(disparity[near_edge][found] - truth[near_edge][found]) > 2) < 0.03
+    assert any("black fill along the border" in note for note in result.notes)
+    assert 0.9 < result.figures["valid_fraction"] <= 1.0  # of the imaged pixels
+    plain = _run(*_ground_pair(shape=(120, 200), seed=4)[:2])
+    assert not any("fill" in note for note in plain.notes)

@@ -5,7 +5,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from stages._fill import border_fill, histograms_without_fill
+from stages._fill import (
+    border_fill,
+    disparity_without_fill,
+    extend_into_fill,
+    histograms_without_fill,
+)
 from stages._sectors import sector_edges, sector_histograms
 
 
@@ -72,3 +77,35 @@ def test_histograms_without_fill_count_only_the_imaged_pixels(rows, cols, sector
             block = np.s_[row_edges[i] : row_edges[i + 1], col_edges[j] : col_edges[j + 1]]
             want = np.bincount(image[block][~fill[block]], minlength=256)
             assert np.array_equal(got[i, j], want)
+
+
+def test_extend_into_fill_keeps_the_imaged_pixels_and_continues_them_smoothly() -> None:
+    image = _ground((80, 120))
+    image[:, 60:] = np.clip(image[:, 60:].astype(int) + 60, 0, 255).astype(np.uint8)
+    ys, xs = np.indices(image.shape)
+    fill = ys + xs < 30
+    wedged = image.copy()
+    wedged[fill] = 0
+    out = extend_into_fill(wedged, fill)
+    assert np.array_equal(out[~fill], image[~fill])
+    assert abs(float(out[fill].mean()) - float(image[:30, :30].mean())) < 8
+    assert out[fill].std() < image[:30, :30].std() / 2  # no texture, no step
+    whole = np.zeros((40, 40), bool)
+    whole[:, :36] = True  # a fill far wider than the smoothing reaches
+    narrow = _ground((40, 40))
+    narrow[whole] = 0
+    assert np.all(extend_into_fill(narrow, whole)[whole] > 0)
+
+
+def test_disparity_without_fill_drops_the_fill_and_matches_landing_in_the_other() -> None:
+    disparity = np.full((4, 10), 3.0, np.float32)
+    disparity[0, 0] = np.nan
+    fill_reference = np.zeros((4, 10), bool)
+    fill_reference[:, 0] = True
+    fill_other = np.zeros((4, 10), bool)
+    fill_other[:, 7:] = True  # columns 4-6 land on it; 7-9 land beyond the image
+    out = disparity_without_fill(disparity, fill_reference, fill_other)
+    assert np.isnan(out[:, 0]).all() and np.isnan(out[:, 4:7]).all()
+    assert np.all(out[:, 1:4] == 3.0) and np.all(out[:, 7:] == 3.0)
+    assert np.array_equal(disparity_without_fill(disparity, None, None), disparity, equal_nan=True)
+    assert disparity_without_fill(disparity, None, None) is not disparity
