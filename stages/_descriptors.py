@@ -20,6 +20,7 @@ from scipy import ndimage
 from pipeline.camera import Camera
 
 from ._border import border_largest_bound, height_width_ratio
+from ._fill import border_fill
 from ._footprint import (
     _dilate_diamond,
     bound_footprint_slope,
@@ -421,6 +422,10 @@ def describe_objects(
         raise TypeError(f"camera must be a pipeline.camera.Camera, got {type(camera).__name__}")
     ground = frame_ground(camera, ground_plane)
     has_height_map = bool(np.isfinite(hgt).any())
+    # a rectified frame's black fill (stages._fill) is no ground for the ring, and an object
+    # against it is cut like one at the border
+    fill = border_fill(g) if g.dtype == np.uint8 and g.ndim == 2 else None
+    near_fill = None if fill is None else ndimage.binary_dilation(fill)
     slices = object_slices if object_slices is not None else _object_slices(lab)
     rows_out: list[dict[str, object]] = []
     h_img, w_img = shape = lab.shape
@@ -444,6 +449,8 @@ def describe_objects(
         disp_c[~(disp_c > 0)] = np.nan
         gray_px = gray_c[mask]
         ring = _dilate_diamond(mask, ring_px) & (lab_c == 0)
+        if fill is not None:
+            ring &= ~fill[crop]
         ground_gray = float(_median(gray_c[ring])) if ring.any() else math.nan
         disp_px = disp_c[mask]
         range_px = _float_crop(rng, crop)[mask]
@@ -582,6 +589,7 @@ def describe_objects(
                     or cols.min() == 0
                     or rows.max() == h_img - 1
                     or cols.max() == w_img - 1
+                    or (near_fill is not None and near_fill[rows, cols].any())
                 ),
                 "occluded": jump > _BACKGROUND_OCCLUSION_SHARE,
                 "depth_unreliable": valid_fraction < min_valid_fraction,

@@ -266,7 +266,7 @@ def run_describe(
 
 STAGE = Stage(
     name="describe",
-    version="9",
+    version="10",
     inputs=("left", "right", "labels", "disparity", "range", "height", "ground_plane"),
     outputs=(
         Product(

@@ -288,7 +288,7 @@ def test_size_frequency_figures():
 
 
 def test_stage_declaration_and_run():
-    assert STAGE.name == "describe" and STAGE.version == "9"
+    assert STAGE.name == "describe" and STAGE.version == "10"
     assert STAGE.inputs == (
         "left", "right", "labels", "disparity", "range", "height", "ground_plane"
     )

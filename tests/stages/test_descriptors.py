@@ -217,6 +217,26 @@ def test_describe_objects_empty_gives_typed_columns():
         assert cols[name].dtype.kind == ("U" if kind == "str" else np.dtype(kind).kind)
 
 
+def test_regression_an_object_against_rectification_fill_was_read_as_seen_whole():
+    # a rock cut by a rectified frame's black fill is only partly seen, like one cut by the
+    # border, but was flagged as seen whole, and the fill darkened its ground ring
+    labels = np.zeros((40, 40), dtype=np.int32)
+    labels[10:16, 8:14] = 1  # against the fill
+    labels[25:31, 25:31] = 2  # in the open
+    gray = np.full((40, 40), 100, dtype=np.uint8)
+    gray[labels > 0] = 60
+    fill = np.zeros((40, 40), bool)
+    fill[:, :8] = True  # a strip along the left border, 20 % of the frame
+    nan = _flat((40, 40), np.nan)
+    no_pose = Camera(focal_px=200.0, baseline_m=0.2)
+    plain = describe_objects(labels, gray, nan, nan, nan, camera=no_pose)
+    gray[fill] = 0
+    cut = describe_objects(labels, gray, nan, nan, nan, camera=no_pose)
+    np.testing.assert_array_equal(plain["touches_border"], [False, False])
+    np.testing.assert_array_equal(cut["touches_border"], [True, False])
+    np.testing.assert_array_equal(cut["polarity"], ["darker", "darker"])
+
+
 def test_describe_objects_image_fields_and_appearance():
     labels = np.zeros((20, 20), dtype=np.int32)
     labels[4:8, 2:12] = 1  # 4 x 10 bar, dark
