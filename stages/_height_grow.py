@@ -367,7 +367,8 @@ def _grow(
     """One case of R7f with its thresholds (checked by :func:`grow_raised_parts`).
 
     ``_measures`` (empty at first) keeps :func:`_measure`'s sizes, cores, sides and boxes of
-    ``labels`` for the next case, which must be given this call's result.
+    ``labels`` and its ground's mean contrast for the next case, which must be given this
+    call's result.
     """
     count = int(labels.max())
     if count == 0:
@@ -381,12 +382,9 @@ def _grow(
     candidates = candidates[candidates > 0]
     if candidates.size == 0:
         return labels, 0
-    mean_contrast = _ground_mean(contrast, labels == 0)
     rows, cols = labels.shape
-    disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * open_px + 1,) * 2)
-    out = labels.copy()
-    grown = 0
-    changed = []
+    # the objects that may grow and their windows, highest core first
+    windows = []
     for k in candidates[np.argsort(-core[candidates], kind="stable")]:
         sy, sx = _box_window(boxes[k])
         own = labels[sy, sx] == k
@@ -395,6 +393,17 @@ def _grow(
             continue
         y0, x0 = max(0, sy.start - max_steps), max(0, sx.start - max_steps)
         y1, x1 = min(rows, sy.stop + max_steps), min(cols, sx.stop + max_steps)
+        windows.append((k, sy.start, y0, y1, x0, x1))
+    if not windows:
+        return labels, 0
+    mean_contrast = _kept_ground_mean(
+        _measures, contrast, labels, [(x0, x1) for *_, x0, x1 in windows]
+    )
+    disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * open_px + 1,) * 2)
+    out = labels.copy()
+    grown = 0
+    changed = []
+    for k, top, y0, y1, x0, x1 in windows:
         box = out[y0:y1, x0:x1]
         obj = box == k
         with np.errstate(invalid="ignore"):
@@ -402,7 +411,7 @@ def _grow(
         free &= side[k] * mean_contrast[y0:y1, x0:x1] >= min_contrast
         # not above the object's top row: the stereo windows spread a rock's heights up
         # onto the ground behind it, which the camera sees beyond its top
-        free[: sy.start - y0] = False
+        free[: top - y0] = False
         # up to max_steps 8-connected steps over free pixels (one compiled breadth-first
         # pass: the pixels max_steps rounds of a 3x3 dilation within ``free`` reach)
         reached = obj.copy()
@@ -421,6 +430,8 @@ def _grow(
         return labels, 0
     for k, y0, y1, x0, x1 in changed:
         _remeasure(_measures, out, contrast, relative, k, (y0, y1, x0, x1))
+        # the grown pixels left the ground in these columns
+        _measures["stale"].append((x0, x1))
     return out, grown
 
 
@@ -522,6 +533,44 @@ def _median_row(own: np.ndarray) -> int:
     return (int(np.searchsorted(ends, n // 2 - 1, side="right")) + upper) // 2
 
 
+def _kept_ground_mean(
+    measures: dict, contrast: np.ndarray, labels: np.ndarray, spans: list[tuple[int, int]]
+) -> np.ndarray:
+    """:func:`_ground_mean` of ``labels == 0`` in the columns of ``spans`` ((x0, x1), ends
+    exclusive), kept in ``measures`` for the next case; other columns hold stale or no values.
+
+    A column's means read only the columns within 2 (the 5x5 window; the pass's sums run
+    down each column), so a column is made once, and again only when a case grew within 2
+    columns of it (``measures["stale"]``, (x0, x1) ranges): the same floats as
+    :func:`_ground_mean` of the whole frame where it is read (``test_height_grow.py``).
+    """
+    ground = labels == 0
+    rows, cols = labels.shape
+    if min(rows, cols) < _CONTRAST_WINDOW_PX:
+        # a frame narrower than the window: OpenCV's, whole
+        return _ground_mean(contrast, ground)
+    if "mean" not in measures:
+        measures["mean"] = np.empty((rows, cols), np.float32)
+        measures["fresh"] = np.zeros(cols, bool)
+        measures["stale"] = []
+    mean, fresh = measures["mean"], measures["fresh"]
+    half = _CONTRAST_WINDOW_PX // 2
+    for x0, x1 in measures["stale"]:
+        fresh[max(0, x0 - half) : x1 + half] = False
+    measures["stale"] = []
+    needed = np.zeros(cols, bool)
+    for x0, x1 in spans:
+        needed[x0:x1] = True
+    todo = needed & ~fresh
+    # runs of columns to make: where ``todo`` switches on and off
+    edges = np.flatnonzero(np.diff(np.concatenate(([False], todo, [False]))))
+    values = np.ascontiguousarray(contrast, dtype=np.float32)
+    for c0, c1 in edges.reshape(-1, 2):
+        _ground_mean_pass(values, ground, mean, c0, c1)
+    fresh |= todo
+    return mean
+
+
 def _ground_mean(contrast: np.ndarray, ground: np.ndarray) -> np.ndarray:
     """Mean contrast of the ``ground`` pixels in each pixel's 5x5 window (0 where none):
     a pixel's gray side over a few pixels, since the ground's single pixels scatter both
@@ -543,7 +592,7 @@ def _ground_mean(contrast: np.ndarray, ground: np.ndarray) -> np.ndarray:
         return np.where(share > 0, total / np.maximum(share, np.float32(1e-6)), np.float32(0.0))
     out = np.empty((rows, cols), np.float32)
     _ground_mean_pass(
-        np.ascontiguousarray(contrast, dtype=np.float32), np.ascontiguousarray(ground), out
+        np.ascontiguousarray(contrast, dtype=np.float32), np.ascontiguousarray(ground), out, 0, cols
     )
     return out
 
@@ -559,28 +608,30 @@ def _mirror(i, n):  # pragma: no cover - numba
 
 
 @njit(cache=True)
-def _ground_mean_pass(contrast, ground, out):  # pragma: no cover - numba
+def _ground_mean_pass(contrast, ground, out, c0, c1):  # pragma: no cover - numba
     # cv2.blur's float32 box filter, step by step: each row's 5-sums in double, added left
     # to right (RowSum<float, double>), then down each column a running double sum that
     # adds the new row and subtracts the old one (ColumnSum<double, float>), scaled by 1/25
-    # and rounded to float32; the row sums of the five rows in reach are kept in a ring
+    # and rounded to float32; the row sums of the five rows in reach are kept in a ring.
+    # Columns c0..c1-1 only: each column's floats are the same whatever the range
     rows, cols = contrast.shape
+    width = c1 - c0
     half = _CONTRAST_WINDOW_PX // 2
     scale = 1.0 / (_CONTRAST_WINDOW_PX * _CONTRAST_WINDOW_PX)
-    ring_t = np.empty((_CONTRAST_WINDOW_PX, cols))
-    ring_w = np.empty((_CONTRAST_WINDOW_PX, cols))
-    padded_t = np.empty(cols + 2 * half, np.float32)
-    padded_w = np.empty(cols + 2 * half, np.float32)
+    ring_t = np.empty((_CONTRAST_WINDOW_PX, width))
+    ring_w = np.empty((_CONTRAST_WINDOW_PX, width))
+    padded_t = np.empty(width + 2 * half, np.float32)
+    padded_w = np.empty(width + 2 * half, np.float32)
     floor = np.float32(1e-6)
 
     def row_sums(y):
         slot = y % _CONTRAST_WINDOW_PX
-        for i in range(cols + 2 * half):
-            x = _mirror(i - half, cols)
+        for i in range(width + 2 * half):
+            x = _mirror(c0 + i - half, cols)
             w = np.float32(1.0) if ground[y, x] else np.float32(0.0)
             padded_t[i] = contrast[y, x] * w
             padded_w[i] = w
-        for x in range(cols):
+        for x in range(width):
             t = np.float64(padded_t[x])
             w = np.float64(padded_w[x])
             for j in range(1, _CONTRAST_WINDOW_PX):
@@ -591,11 +642,11 @@ def _ground_mean_pass(contrast, ground, out):  # pragma: no cover - numba
 
     for y in range(min(half + 1, rows)):
         row_sums(y)
-    sum_t = np.zeros(cols)
-    sum_w = np.zeros(cols)
+    sum_t = np.zeros(width)
+    sum_w = np.zeros(width)
     for j in range(_CONTRAST_WINDOW_PX - 1):
         slot = _mirror(j - half, rows) % _CONTRAST_WINDOW_PX
-        for x in range(cols):
+        for x in range(width):
             sum_t[x] += ring_t[slot, x]
             sum_w[x] += ring_w[slot, x]
     for y in range(rows):
@@ -603,11 +654,11 @@ def _ground_mean_pass(contrast, ground, out):  # pragma: no cover - numba
             row_sums(y + half)
         new = _mirror(y + half, rows) % _CONTRAST_WINDOW_PX
         old = _mirror(y - half, rows) % _CONTRAST_WINDOW_PX
-        for x in range(cols):
+        for x in range(width):
             s_t = sum_t[x] + ring_t[new, x]
             s_w = sum_w[x] + ring_w[new, x]
             total = np.float32(s_t * scale)
             share = np.float32(s_w * scale)
-            out[y, x] = total / max(share, floor) if share > 0 else np.float32(0.0)
+            out[y, c0 + x] = total / max(share, floor) if share > 0 else np.float32(0.0)
             sum_t[x] = s_t - ring_t[old, x]
             sum_w[x] = s_w - ring_w[old, x]

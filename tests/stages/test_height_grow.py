@@ -9,6 +9,7 @@ import pytest
 from stages._height_grow import (
     _ground_mean,
     _grow,
+    _kept_ground_mean,
     _measure,
     _median_row,
     _reach_steps,
@@ -216,6 +217,34 @@ def test_ground_mean_equals_its_opencv_twin_bit_for_bit():
         twin = np.where(share > 0, total / np.maximum(share, np.float32(1e-6)), np.float32(0))
         mean = _ground_mean(contrast, ground)
         np.testing.assert_array_equal(mean.view(np.int32), twin.view(np.int32))
+
+
+def test_kept_ground_mean_equals_the_whole_frames_where_asked():
+    # R7f's cases keep the mean between them and make again only the columns near a growth:
+    # where a case reads it, the same bits as the whole frame's mean of its own labels
+    rng = np.random.default_rng(6)
+    for _ in range(30):
+        shape = (int(rng.integers(5, 40)), int(rng.integers(5, 60)))
+        contrast = (rng.normal(0, 1, shape) * 10 ** rng.uniform(-6, 3, shape)).astype(np.float32)
+        labels = (rng.random(shape) < 0.3).astype(np.int32)
+        measures: dict = {}
+        for _case in range(3):
+            spans = []
+            for _span in range(int(rng.integers(1, 4))):
+                x0 = int(rng.integers(0, shape[1]))
+                spans.append((x0, int(rng.integers(x0 + 1, shape[1] + 1))))
+            mean = _kept_ground_mean(measures, contrast, labels, spans)
+            whole = _ground_mean(contrast, labels == 0)
+            for x0, x1 in spans:
+                np.testing.assert_array_equal(
+                    mean[:, x0:x1].view(np.int32), whole[:, x0:x1].view(np.int32)
+                )
+            # a growth inside a few columns, as _grow records it
+            x0 = int(rng.integers(0, shape[1]))
+            x1 = int(rng.integers(x0 + 1, shape[1] + 1))
+            labels = labels.copy()
+            labels[:, x0:x1][rng.random((shape[0], x1 - x0)) < 0.4] = 2
+            measures["stale"].append((x0, x1))
 
 
 def test_median_row_equals_numpys_median_of_the_rows():
