@@ -281,27 +281,66 @@ def _height_bumps(
         NaN-aware Gaussian smoothing at ``_BUMP_INNER_PX`` minus at ``_BUMP_OUTER_PX``,
         divided by its robust sigma on the ground; 0 where the height is invalid.
     """
-    valid = np.isfinite(relative)
-    filled = np.where(valid, relative, np.float32(0.0)).astype(np.float32, copy=False)
+    valid = np.empty(relative.shape, bool)
+    filled = np.empty(relative.shape, np.float32)
+    _fill_invalid(relative, valid, filled)
     weights = _weight_levels(valid) if _weights is None else _weights.levels(valid)
     levels = []
-    for scale, weight in zip((_BUMP_INNER_PX, _BUMP_OUTER_PX), weights, strict=True):
+    for scale in (_BUMP_INNER_PX, _BUMP_OUTER_PX):
         size = _kernel_size(scale)
-        # normalised convolution: invalid heights neither count nor pull the level to 0
-        level = cv2.GaussianBlur(filled, (size, size), scale)
-        level /= weight
-        levels.append(level)
-    bumps = levels[0]
-    bumps -= levels[1]
-    # every other row and column: the map is smooth, a quarter of the values measure its noise
-    # (sampled first: a quarter of the whole-frame temporaries, the same pixels)
-    ground = valid[::2, ::2] & ~mask[::2, ::2]
-    noise = _robust_sigma(bumps[::2, ::2][ground])
+        levels.append(cv2.GaussianBlur(filled, (size, size), scale))
+    # normalised convolutions (invalid heights neither count nor pull the level to 0), their
+    # difference, and the ground's values on every other row and column: the map is smooth,
+    # a quarter of the values measure its noise (MAD)
+    bumps = np.empty(relative.shape, np.float32)
+    ground = np.empty(((relative.shape[0] + 1) // 2) * ((relative.shape[1] + 1) // 2), np.float32)
+    n = _bump_pass(levels[0], weights[0], levels[1], weights[1], valid, mask, bumps, ground)
+    noise = _robust_sigma(ground[:n])
     if not noise > 0:
         return np.zeros(relative.shape, np.float32)
-    bumps *= np.float32(1.0 / noise)
-    bumps[~valid] = 0.0
+    _scale_valid(bumps, valid, np.float32(1.0 / noise))
     return bumps
+
+
+@njit(cache=True)
+def _fill_invalid(relative, valid, filled):  # pragma: no cover - numba
+    """``valid = np.isfinite(relative)`` and ``filled``, float32, 0 where not valid."""
+    rows, cols = relative.shape
+    for y in range(rows):
+        for x in range(cols):
+            value = relative[y, x]
+            ok = np.isfinite(value)
+            valid[y, x] = ok
+            filled[y, x] = np.float32(value) if ok else np.float32(0.0)
+
+
+@njit(cache=True, error_model="numpy")
+def _bump_pass(  # pragma: no cover - numba
+    inner, inner_weight, outer, outer_weight, valid, mask, bumps, ground
+):
+    """``bumps = inner / inner_weight - outer / outer_weight`` in float32, as the in-place
+    numpy steps did it; ``ground`` gets ``bumps[::2, ::2][valid[::2, ::2] &
+    ~mask[::2, ::2]]`` in that order; returns their count (``test_height_vote.py``
+    compares)."""
+    rows, cols = bumps.shape
+    n = 0
+    for y in range(rows):
+        for x in range(cols):
+            value = inner[y, x] / inner_weight[y, x] - outer[y, x] / outer_weight[y, x]
+            bumps[y, x] = value
+            if y % 2 == 0 and x % 2 == 0 and valid[y, x] and not mask[y, x]:
+                ground[n] = value
+                n += 1
+    return n
+
+
+@njit(cache=True)
+def _scale_valid(bumps, valid, factor):  # pragma: no cover - numba
+    """``bumps *= factor; bumps[~valid] = 0``, in place."""
+    rows, cols = bumps.shape
+    for y in range(rows):
+        for x in range(cols):
+            bumps[y, x] = bumps[y, x] * factor if valid[y, x] else np.float32(0.0)
 
 
 def _ring_levels(
