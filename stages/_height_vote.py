@@ -73,7 +73,13 @@ import cv2
 import numpy as np
 from numba import njit
 
-from ._heights import DepthRuleStats, _percentile_by_label, _percentiles_by_label, _robust_sigma
+from ._heights import (
+    DepthRuleStats,
+    _filled,
+    _percentile_by_label,
+    _percentiles_by_label,
+    _robust_sigma,
+)
 from ._regions import _lookup
 
 # Noisy regime: an object lies flat when the 90th percentile of its heights stays below this
@@ -281,9 +287,7 @@ def _height_bumps(
         NaN-aware Gaussian smoothing at ``_BUMP_INNER_PX`` minus at ``_BUMP_OUTER_PX``,
         divided by its robust sigma on the ground; 0 where the height is invalid.
     """
-    valid = np.empty(relative.shape, bool)
-    filled = np.empty(relative.shape, np.float32)
-    _fill_invalid(relative, valid, filled)
+    valid, filled = _filled(relative)
     weights = _weight_levels(valid) if _weights is None else _weights.levels(valid)
     levels = []
     for scale in (_BUMP_INNER_PX, _BUMP_OUTER_PX):
@@ -300,18 +304,6 @@ def _height_bumps(
         return np.zeros(relative.shape, np.float32)
     _scale_valid(bumps, valid, np.float32(1.0 / noise))
     return bumps
-
-
-@njit(cache=True)
-def _fill_invalid(relative, valid, filled):  # pragma: no cover - numba
-    """``valid = np.isfinite(relative)`` and ``filled``, float32, 0 where not valid."""
-    rows, cols = relative.shape
-    for y in range(rows):
-        for x in range(cols):
-            value = relative[y, x]
-            ok = np.isfinite(value)
-            valid[y, x] = ok
-            filled[y, x] = np.float32(value) if ok else np.float32(0.0)
 
 
 @njit(cache=True, error_model="numpy")
