@@ -111,6 +111,7 @@ from ._height_vote import (
 )
 from ._heights import (
     DepthRuleStats,
+    _ground_heights,
     _percentile_by_label,
     _robust_sigma,
     local_ground,
@@ -223,7 +224,7 @@ def apply_depth_rules(
     else:
         relative = _coerce_float_map(relative, mask.shape, "relative")
     valid = np.isfinite(relative)
-    sigma = _robust_sigma(relative[valid & ~mask])
+    sigma = _robust_sigma(_ground_heights(relative, mask))
     if sigma > _UNUSABLE_SIGMA_M:
         stats = DepthRuleStats(
             depth_valid_fraction=float(valid.mean()),
@@ -234,7 +235,7 @@ def apply_depth_rules(
     if sigma > _NOISY_SIGMA_M:
         # the vote reads single unsmoothed heights: measure their noise the same way
         raw_relative = height - local_ground(height, window_px=ground_window_px)
-        raw_sigma = _robust_sigma(raw_relative[np.isfinite(raw_relative) & ~mask])
+        raw_sigma = _robust_sigma(_ground_heights(raw_relative, mask))
         return noisy_depth_rules(
             mask, raw_relative, raw_sigma, contrast=contrast, _weights=_weights
         )

@@ -159,9 +159,7 @@ def noisy_depth_rules(
     if count > 1:
         n_pixels, n_valid = (n[1:] for n in _object_counts(components, valid, count))
         # only objects are voted on: leave the (large) background out of the sort
-        in_object = valid & (components > 0)
-        owners = components[in_object]
-        values = relative[in_object]
+        owners, values = _object_pixels(components, relative, int(n_valid.sum()), heights=True)
         upper, middle = _percentiles_by_label(values, owners, count, (_VOTE_PERCENTILE, 50.0))[
             :, 1:
         ]
@@ -179,10 +177,10 @@ def noisy_depth_rules(
         clear = np.zeros(count - 1)
         if contrast is not None:
             # R2c: the clearer an object's gray level, the less height it needs to stay
-            inside = components > 0
-            clear = _percentile_by_label(
-                np.abs(contrast[inside]), components[inside], count, 50.0
-            )[1:]
+            owners, values = _object_pixels(
+                components, contrast, int(n_pixels.sum()), heights=False
+            )
+            clear = _percentile_by_label(values, owners, count, 50.0)[1:]
             bar = _VOTE_SIGMAS + _CONTRAST_SIGMAS * (_TEXTURE_CONTRAST - clear)
         # R2d: a bump of the matching windows' scale is evidence the percentile misses
         bump = _height_bumps(relative, mask, _weights=_weights)
@@ -204,6 +202,37 @@ def noisy_depth_rules(
         ],
     )
     return mask & ~removed, stats
+
+
+def _object_pixels(
+    components: np.ndarray, values: np.ndarray, size: int, *, heights: bool
+) -> tuple[np.ndarray, np.ndarray]:
+    """Ids and values of the object pixels (``components > 0``) in raster order, as boolean
+    indexing gives them, in one compiled pass: with ``heights`` the finite values only,
+    else the absolute values of all (``size``: how many there are)."""
+    owners = np.empty(size, components.dtype)
+    kept = np.empty(size, values.dtype)
+    _object_pixel_pass(components, values, heights, owners, kept)
+    return owners, kept
+
+
+@njit(cache=True)
+def _object_pixel_pass(components, values, heights, owners, kept):  # pragma: no cover
+    rows, cols = components.shape
+    n = 0
+    for y in range(rows):
+        for x in range(cols):
+            k = components[y, x]
+            if k > 0:
+                value = values[y, x]
+                if heights:
+                    if not np.isfinite(value):
+                        continue
+                else:
+                    value = abs(value)
+                owners[n] = k
+                kept[n] = value
+                n += 1
 
 
 def _object_counts(

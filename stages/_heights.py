@@ -208,6 +208,26 @@ def _median_filter_nearest(image: np.ndarray, *, size: int) -> np.ndarray:
     return np.partition(flat, middle, axis=-1)[..., middle].astype(image.dtype, copy=False)
 
 
+def _ground_heights(relative: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """``relative[np.isfinite(relative) & ~mask]`` (2-D arrays of one shape) in one compiled
+    pass: the heights whose MAD is the ground's noise."""
+    values = np.empty(relative.size, relative.dtype)
+    return values[: _ground_pass(relative, mask, values)]
+
+
+@njit(cache=True)
+def _ground_pass(relative, mask, values):  # pragma: no cover - numba
+    rows, cols = relative.shape
+    n = 0
+    for y in range(rows):
+        for x in range(cols):
+            value = relative[y, x]
+            if np.isfinite(value) and not mask[y, x]:
+                values[n] = value
+                n += 1
+    return n
+
+
 def _robust_sigma(values: np.ndarray) -> float:
     if values.size < 10:
         return 0.0

@@ -236,3 +236,29 @@ def test_height_bumps_equal_their_numpy_twin_bit_for_bit(dtype):
             height_vote._height_bumps(relative, mask).view(np.int32),
             _numpy_height_bumps(relative, mask).view(np.int32),
         )
+
+
+def test_object_pixels_equal_boolean_indexing():
+    # the twins: the boolean-mask gathers the compiled pass replaced
+    rng = np.random.default_rng(23)
+    for _ in range(20):
+        shape = tuple(rng.integers(1, 40, 2))
+        mask = rng.random(shape) < rng.random()
+        count, components = cv2.connectedComponents(mask.view(np.uint8), connectivity=8)
+        values = rng.normal(0, 1, shape).astype(np.float32)
+        values[rng.random(shape) < 0.2] = np.nan
+        values[rng.random(shape) < 0.05] = -0.0
+        in_object = np.isfinite(values) & (components > 0)
+        owners, kept = height_vote._object_pixels(
+            components, values, int(in_object.sum()), heights=True
+        )
+        np.testing.assert_array_equal(owners, components[in_object])
+        np.testing.assert_array_equal(kept.view(np.int32), values[in_object].view(np.int32))
+        inside = components > 0
+        owners, kept = height_vote._object_pixels(
+            components, values, int(inside.sum()), heights=False
+        )
+        np.testing.assert_array_equal(owners, components[inside])
+        np.testing.assert_array_equal(
+            kept.view(np.int32), np.abs(values[inside]).view(np.int32)
+        )

@@ -10,6 +10,7 @@ from hypothesis import strategies as st
 from scipy.ndimage import median_filter
 
 from stages._heights import (
+    _ground_heights,
     _median_filter_nearest,
     _percentile_by_label,
     _percentiles_by_label,
@@ -124,3 +125,14 @@ def test_relative_height_is_the_smoothed_map_minus_its_local_ground_bit_for_bit(
             twin = smoothed - local_ground(smoothed, window_px=36)
             relative = relative_height(height, smoothing_px=window, ground_window_px=36)
             np.testing.assert_array_equal(relative.view(np.int32), twin.view(np.int32))
+
+
+def test_ground_heights_equal_boolean_indexing():
+    rng = np.random.default_rng(10)
+    for dtype in (np.float32, np.float64):
+        height = _heights_with_holes(rng, (30, 40), dtype)
+        mask = rng.random(height.shape) < 0.3
+        expected = height[np.isfinite(height) & ~mask]
+        got = _ground_heights(height, mask)
+        assert got.dtype == expected.dtype
+        np.testing.assert_array_equal(got.view(np.uint8), expected.view(np.uint8))
