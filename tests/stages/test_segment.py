@@ -9,7 +9,7 @@ from pipeline.camera import Camera
 from pipeline.errors import ParamError
 from pipeline.stage import FrameContext
 from stages._sectors import sector_edges, sector_histograms
-from stages.segment import STAGE, segment_image, tiled_sector_histograms
+from stages.segment import STAGE, _seams, segment_image, tiled_sector_histograms
 
 
 def disk(shape, cy, cx, r):
@@ -237,3 +237,18 @@ def test_left_reference_catalog_segments_the_left_image():
     params = STAGE.resolve_params({"method": "sector-histogram", "sectors": 8})
     labels = STAGE.run(inputs, frame=frame, params=params).arrays["labels"]
     assert labels[60, 90] > 0 and labels[60, 40] == 0
+
+
+def test_seams_equal_the_whole_frame_comparisons():
+    # the twin: the neighbour comparisons the compiled pass replaced
+    rng = np.random.default_rng(4)
+    for _ in range(30):
+        labels = rng.integers(0, 4, tuple(rng.integers(1, 30, 2))).astype(np.int32)
+        expected = np.zeros(labels.shape, dtype=bool)
+        for a, b, rows in ((labels[:, 1:], labels[:, :-1], False), (labels[1:], labels[:-1], True)):
+            differ = (a != b) & (a > 0) & (b > 0)
+            if rows:
+                expected[1:, :] |= differ
+            else:
+                expected[:, 1:] |= differ
+        np.testing.assert_array_equal(_seams(labels), expected)
