@@ -478,12 +478,13 @@ def drop_faint_depthless(
     judged[0] = False
     if not judged.any():
         return labels, 0
-    inside = _lookup(judged, labels)
-    ids = labels[inside]
-    medians = [
-        _percentile_by_label(field[inside].astype(np.float32), ids, count, 50.0)
-        for field in (image, background, low, high)
-    ]
+    # the judged objects' ids and four fields (float32), in one raster pass
+    ids = np.empty(int(n_pixels[judged].sum()), labels.dtype)
+    fields = np.empty((4, ids.size), np.float32)
+    _judged_pass(
+        np.ascontiguousarray(labels), judged, image, background, low, high, ids, fields
+    )
+    medians = [_percentile_by_label(field, ids, count, 50.0) for field in fields]
     # objects not judged have no values (+inf): compare the judged ones only
     gray, ground, low_m, high_m = (values[judged] for values in medians)
     band = np.where(gray < ground, ground - low_m, high_m - ground)
@@ -495,4 +496,25 @@ def drop_faint_depthless(
     faint[judged] = np.abs(gray - ground) < min_contrast * np.maximum(band, 1.0)
     if not faint.any():
         return labels, 0
-    return _renumber(np.where(_lookup(faint, labels), 0, labels), 1), int(faint.sum())
+    # the faint objects to 0 (one lookup), then renumbered
+    table = np.where(faint, 0, np.arange(count)).astype(labels.dtype)
+    return _renumber(_lookup(table, labels), 1), int(faint.sum())
+
+
+@njit(cache=True)
+def _judged_pass(labels, judged, image, background, low, high, ids, fields):  # pragma: no cover
+    """``labels[inside]`` and each field's ``field[inside].astype(np.float32)`` for
+    ``inside = judged[labels]``, in raster order as boolean indexing gives them
+    (``test_depth_rules.py`` compares)."""
+    rows, cols = labels.shape
+    n = 0
+    for y in range(rows):
+        for x in range(cols):
+            k = labels[y, x]
+            if judged[k]:
+                ids[n] = k
+                fields[0, n] = np.float32(image[y, x])
+                fields[1, n] = np.float32(background[y, x])
+                fields[2, n] = np.float32(low[y, x])
+                fields[3, n] = np.float32(high[y, x])
+                n += 1
