@@ -387,8 +387,7 @@ def _grow(
     windows = []
     for k in candidates[np.argsort(-core[candidates], kind="stable")]:
         sy, sx = _box_window(boxes[k])
-        own = labels[sy, sx] == k
-        noise = float(row_noise[sy.start + _median_row(own)])
+        noise = float(row_noise[sy.start + _median_row(labels[sy, sx], k)])
         if noise > max_noise_m or core[k] < core_sigmas * noise:
             continue
         y0, x0 = max(0, sy.start - max_steps), max(0, sx.start - max_steps)
@@ -522,15 +521,35 @@ def _nearest_rank(values: np.ndarray, percentile: float) -> float:
     return float(np.partition(values, rank)[rank])
 
 
-def _median_row(own: np.ndarray) -> int:
-    """``int(np.median(np.nonzero(own)[0]))`` from the row counts (own holds a pixel)."""
-    ends = np.cumsum(np.count_nonzero(own, axis=1))
-    n = int(ends[-1])
-    upper = int(np.searchsorted(ends, n // 2, side="right"))
+def _median_row(window: np.ndarray, k: int) -> int:
+    """``int(np.median(np.nonzero(window == k)[0]))`` (``window`` holds a pixel of ``k``)
+    from the row counts, in one compiled pass (``test_height_grow.py`` compares)."""
+    return int(_median_row_pass(window, k))
+
+
+@njit(cache=True)
+def _median_row_pass(window, k):  # pragma: no cover - numba
+    rows, cols = window.shape
+    counts = np.zeros(rows, np.int64)
+    for y in range(rows):
+        for x in range(cols):
+            if window[y, x] == k:
+                counts[y] += 1
+    n = counts.sum()
+    # the rows of the pixels of rank n // 2 (and n // 2 - 1 when n is even) in raster order
+    upper, lower = -1, -1
+    seen = 0
+    for y in range(rows):
+        seen += counts[y]
+        if lower < 0 and seen > n // 2 - 1:
+            lower = y
+        if seen > n // 2:
+            upper = y
+            break
     if n % 2:
         return upper
     # the mean of the two middle rows, truncated as int() truncates np.median's float
-    return (int(np.searchsorted(ends, n // 2 - 1, side="right")) + upper) // 2
+    return (lower + upper) // 2
 
 
 def _kept_ground_mean(

@@ -252,7 +252,8 @@ def test_median_row_equals_numpys_median_of_the_rows():
     for _ in range(200):
         own = rng.random(tuple(rng.integers(1, 12, 2))) < rng.uniform(0.05, 1)
         if own.any():
-            assert _median_row(own) == int(np.median(np.nonzero(own)[0]))
+            window = np.where(own, 3, rng.integers(0, 3, own.shape)).astype(np.int32)
+            assert _median_row(window, 3) == int(np.median(np.nonzero(own)[0]))
 
 
 def test_cases_sharing_their_measures_equal_cases_measuring_again():
