@@ -404,21 +404,30 @@ def _grow(
     changed = []
     for k, top, y0, y1, x0, x1 in windows:
         box = out[y0:y1, x0:x1]
-        obj = box == k
-        with np.errstate(invalid="ignore"):
-            free = (box == 0) & (relative[y0:y1, x0:x1] > fraction * core[k])
-        free &= side[k] * mean_contrast[y0:y1, x0:x1] >= min_contrast
-        # not above the object's top row: the stereo windows spread a rock's heights up
-        # onto the ground behind it, which the camera sees beyond its top
-        free[: top - y0] = False
+        obj = np.empty(box.shape, bool)
+        free = np.empty(box.shape, bool)
+        # the object, and the ground pixels raised enough on its gray side; not above the
+        # object's top row: the stereo windows spread a rock's heights up onto the ground
+        # behind it, which the camera sees beyond its top
+        _window_masks(
+            box,
+            relative[y0:y1, x0:x1],
+            mean_contrast[y0:y1, x0:x1],
+            k,
+            fraction * core[k],
+            side[k],
+            min_contrast,
+            top - y0,
+            obj,
+            free,
+        )
         # up to max_steps 8-connected steps over free pixels (one compiled breadth-first
         # pass: the pixels max_steps rounds of a 3x3 dilation within ``free`` reach)
         reached = obj.copy()
         _reach_steps(reached, free, max_steps)
         # less the tongues a grown object's opening cuts off: a rock's width is its widest
         # spread, and the fringe reaches out in strands
-        reached = obj | cv2.morphologyEx(reached.view(np.uint8), cv2.MORPH_OPEN, disk).view(bool)
-        added = reached & ~obj
+        added = cv2.morphologyEx(reached.view(np.uint8), cv2.MORPH_OPEN, disk).view(bool) & ~obj
         n_added = int(np.count_nonzero(added))
         if n_added == 0 or n_added > max_gain * sizes[k]:
             continue
@@ -432,6 +441,27 @@ def _grow(
         # the grown pixels left the ground in these columns
         _measures["stale"].append((x0, x1))
     return out, grown
+
+
+@njit(cache=True)
+def _window_masks(  # pragma: no cover - numba
+    box, heights, mean, k, level, side, min_contrast, top, obj, free
+):
+    """``obj = box == k`` and ``free = (box == 0) & (heights > level) & (side * mean >=
+    min_contrast)`` below row ``top`` of the window, in one pass (``level`` and ``side``
+    float64: the comparisons numpy makes of float32 maps with float64 scalars; NaN heights
+    are not free; ``test_height_grow.py`` compares)."""
+    rows, cols = box.shape
+    for y in range(rows):
+        for x in range(cols):
+            label = box[y, x]
+            obj[y, x] = label == k
+            free[y, x] = (
+                y >= top
+                and label == 0
+                and heights[y, x] > level
+                and side * mean[y, x] >= min_contrast
+            )
 
 
 @njit(cache=True)

@@ -13,6 +13,7 @@ from stages._height_grow import (
     _measure,
     _median_row,
     _reach_steps,
+    _window_masks,
     grow_raised_parts,
 )
 
@@ -312,3 +313,27 @@ def test_reach_steps_equal_rounds_of_a_dilation_within_the_free_pixels():
         reached = obj.copy()
         _reach_steps(reached, free, steps)
         np.testing.assert_array_equal(reached, twin)
+
+
+def test_window_masks_equal_the_numpy_comparisons():
+    # the twins: the whole-window comparisons the pass replaced (float64 scalars against
+    # float32 maps compare in float64; NaN heights are never free)
+    rng = np.random.default_rng(7)
+    for _ in range(30):
+        shape = tuple(rng.integers(1, 30, 2))
+        box = rng.integers(0, 4, shape).astype(np.int32)
+        heights = rng.normal(0.01, 0.01, shape).astype(np.float32)
+        heights[rng.random(shape) < 0.1] = np.nan
+        mean = rng.normal(0, 0.5, shape).astype(np.float32)
+        level = np.float64(rng.uniform(0, 0.02))
+        side = np.float64(rng.choice([-1.0, 1.0]))
+        top = int(rng.integers(0, shape[0] + 1))
+        obj = np.empty(shape, bool)
+        free = np.empty(shape, bool)
+        _window_masks(box, heights, mean, 2, level, side, 0.25, top, obj, free)
+        with np.errstate(invalid="ignore"):
+            expected = (box == 0) & (heights > level)
+        expected &= side * mean >= 0.25
+        expected[:top] = False
+        np.testing.assert_array_equal(obj, box == 2)
+        np.testing.assert_array_equal(free, expected)
