@@ -138,7 +138,7 @@ import numpy as np
 from numba import njit
 
 from ._heights import _percentiles_by_label, check_height_inputs
-from ._regions import _box_window, _label_areas, _object_boxes
+from ._regions import _box_window
 
 # R7f: rows whose ground height noise is at most this (metres) are read (R7e's 7.5 mm until
 # segment v38: lava's rocks at 2-2.8 m lie in rows of 7.5-10 mm) ...
@@ -499,20 +499,62 @@ def _measure(
 ) -> dict[str, np.ndarray]:
     """Per label 0..count: pixels, core (75th percentile of the valid relative heights,
     -inf without any), the sign of the median contrast, and the inclusive box."""
-    sizes = _label_areas(labels, count + 1)
-    inside = labels > 0
-    judged = inside & np.isfinite(relative)
+    labels = np.ascontiguousarray(labels)
+    sizes = np.zeros(count + 1, np.int64)
+    boxes = np.empty((count + 1, 4), np.int64)
+    boxes[:, 0::2] = np.iinfo(np.int64).max
+    boxes[:, 1::2] = -1
+    # the object pixels' ids, (finite) heights and contrasts, as float32, in raster order
+    owners = np.empty((2, labels.size), labels.dtype)
+    values = np.empty((2, labels.size), np.float32)
+    n_heights, n_pixels = _measure_pass(labels, relative, contrast, sizes, boxes, owners, values)
     core = _percentiles_by_label(
-        relative[judged].astype(np.float32), labels[judged], count + 1, (_CORE_PERCENTILE,)
+        values[0, :n_heights], owners[0, :n_heights], count + 1, (_CORE_PERCENTILE,)
     )[0]
     side = np.sign(
-        _percentiles_by_label(
-            contrast[inside].astype(np.float32), labels[inside], count + 1, (50.0,)
-        )[0]
+        _percentiles_by_label(values[1, :n_pixels], owners[1, :n_pixels], count + 1, (50.0,))[0]
     )
     core[~np.isfinite(core)] = -np.inf
-    # find_objects' boxes from one compiled pass
-    return {"sizes": sizes, "core": core, "side": side, "boxes": _object_boxes(labels, count)}
+    return {"sizes": sizes, "core": core, "side": side, "boxes": boxes}
+
+
+@njit(cache=True)
+def _measure_pass(  # pragma: no cover - numba
+    labels, relative, contrast, sizes, boxes, owners, values
+):
+    """One raster pass for :func:`_measure`: ``_label_areas``' sizes, ``_object_boxes``'
+    boxes, and the gathers ``labels[judged]``, ``relative[judged].astype(np.float32)``
+    (``judged``: object pixels with a finite height) and ``labels[inside]``,
+    ``contrast[inside].astype(np.float32)`` (object pixels) in ``owners`` and ``values``
+    rows 0 and 1; returns the two counts (``test_height_grow.py`` compares)."""
+    rows, cols = labels.shape
+    n_heights = 0
+    n_pixels = 0
+    ground = 0
+    for y in range(rows):
+        for x in range(cols):
+            k = labels[y, x]
+            if k == 0:
+                ground += 1
+                continue
+            sizes[k] += 1
+            if y < boxes[k, 0]:
+                boxes[k, 0] = y
+            boxes[k, 1] = y  # rows come in order
+            if x < boxes[k, 2]:
+                boxes[k, 2] = x
+            if x > boxes[k, 3]:
+                boxes[k, 3] = x
+            height = relative[y, x]
+            if np.isfinite(height):
+                owners[0, n_heights] = k
+                values[0, n_heights] = np.float32(height)
+                n_heights += 1
+            owners[1, n_pixels] = k
+            values[1, n_pixels] = np.float32(contrast[y, x])
+            n_pixels += 1
+    sizes[0] += ground
+    return n_heights, n_pixels
 
 
 def _remeasure(
@@ -528,18 +570,45 @@ def _remeasure(
     percentile of one label is the value of that rank among its own values alone (selected
     here; at most the sign of a zero differs, which no test reads)."""
     y0, y1, x0, x1 = window
-    own = labels[y0:y1, x0:x1] == k
-    rows = np.flatnonzero(own.any(axis=1))
-    cols = np.flatnonzero(own.any(axis=0))
-    measures["boxes"][k] = (y0 + rows[0], y0 + rows[-1], x0 + cols[0], x0 + cols[-1])
-    measures["sizes"][k] = np.count_nonzero(own)
-    # float32 as _measure reads them
-    heights = relative[y0:y1, x0:x1][own].astype(np.float32, copy=False)
-    heights = heights[np.isfinite(heights)]
-    core = _nearest_rank(heights, _CORE_PERCENTILE)
+    box = np.empty(4, np.int64)
+    # its pixels' float32 heights (the finite ones) and contrasts, in raster order
+    heights = np.empty((y1 - y0) * (x1 - x0), np.float32)
+    values = np.empty((y1 - y0) * (x1 - x0), np.float32)
+    window_of = np.s_[y0:y1, x0:x1]
+    n_heights, n_pixels = _remeasure_pass(
+        labels[window_of], relative[window_of], contrast[window_of], k, box, heights, values
+    )
+    measures["boxes"][k] = (y0 + box[0], y0 + box[1], x0 + box[2], x0 + box[3])
+    measures["sizes"][k] = n_pixels
+    core = _nearest_rank(heights[:n_heights], _CORE_PERCENTILE)
     measures["core"][k] = core if np.isfinite(core) else -np.inf
-    values = contrast[y0:y1, x0:x1][own].astype(np.float32, copy=False)
-    measures["side"][k] = np.sign(_nearest_rank(values, 50.0))
+    measures["side"][k] = np.sign(_nearest_rank(values[:n_pixels], 50.0))
+
+
+@njit(cache=True)
+def _remeasure_pass(window, relative, contrast, k, box, heights, values):  # pragma: no cover
+    """Object ``k``'s box in ``window`` (inclusive), and in raster order its pixels'
+    heights as float32 (those finite after the cast) and contrasts as float32; returns the
+    two counts."""
+    rows, cols = window.shape
+    box[0], box[1], box[2], box[3] = rows, -1, cols, -1
+    n_heights = 0
+    n_pixels = 0
+    for y in range(rows):
+        for x in range(cols):
+            if window[y, x] != k:
+                continue
+            box[0] = min(box[0], y)
+            box[1] = y
+            box[2] = min(box[2], x)
+            box[3] = max(box[3], x)
+            height = np.float32(relative[y, x])
+            if np.isfinite(height):
+                heights[n_heights] = height
+                n_heights += 1
+            values[n_pixels] = np.float32(contrast[y, x])
+            n_pixels += 1
+    return n_heights, n_pixels
 
 
 def _nearest_rank(values: np.ndarray, percentile: float) -> float:

@@ -337,3 +337,44 @@ def test_window_masks_equal_the_numpy_comparisons():
         expected[:top] = False
         np.testing.assert_array_equal(obj, box == 2)
         np.testing.assert_array_equal(free, expected)
+
+
+def _measure_twin(labels, contrast, relative, count):
+    # _measure as it was before its compiled pass: whole-frame masks and gathers
+    from stages._heights import _percentiles_by_label
+    from stages._regions import _label_areas, _object_boxes
+
+    inside = labels > 0
+    judged = inside & np.isfinite(relative)
+    core = _percentiles_by_label(
+        relative[judged].astype(np.float32), labels[judged], count + 1, (75.0,)
+    )[0]
+    side = np.sign(
+        _percentiles_by_label(
+            contrast[inside].astype(np.float32), labels[inside], count + 1, (50.0,)
+        )[0]
+    )
+    core[~np.isfinite(core)] = -np.inf
+    return {
+        "sizes": _label_areas(labels, count + 1),
+        "core": core,
+        "side": side,
+        "boxes": _object_boxes(labels, count),
+    }
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_measure_equals_its_whole_frame_twin(dtype):
+    rng = np.random.default_rng(8)
+    for _ in range(20):
+        shape = tuple(rng.integers(1, 40, 2))
+        labels = rng.integers(0, 6, shape).astype(np.int32)
+        labels[rng.random(shape) < 0.4] = 0
+        count = int(labels.max())
+        relative = rng.normal(0, 0.02, shape).astype(dtype)
+        relative[rng.random(shape) < 0.2] = np.nan
+        contrast = rng.normal(0, 1, shape).astype(dtype)
+        got = _measure(labels, contrast, relative, count)
+        want = _measure_twin(labels, contrast, relative, count)
+        for key in ("sizes", "core", "side", "boxes"):
+            np.testing.assert_array_equal(got[key], want[key])
