@@ -314,18 +314,30 @@ def _row_band_sigma(
     sigma : (M,) ndarray of float64
         Metres; the caller takes the larger of this and the frame's noise.
     """
+    # every other column: plenty of heights for a MAD, half the cost
+    return _sampled_row_band_sigma(relative[:, ::2], usable[:, ::2], bands=bands, _memo=_memo)
+
+
+def _sampled_row_band_sigma(
+    relative: np.ndarray,
+    usable: np.ndarray,
+    *,
+    bands: int = _ROW_BANDS,
+    _memo: dict[tuple[int, int], tuple[np.ndarray, float]] | None = None,
+) -> np.ndarray:
+    """:func:`_row_band_sigma` of maps already sampled at every other column (``[:, ::2]``;
+    R7e and R7f's row noise keeps the heights so, contiguous, and samples its mask first)."""
     rows = relative.shape[0]
     edges = np.linspace(0, rows, bands + 1).astype(int)
     centres = (edges[:-1] + edges[1:] - 1) / 2.0
     values = np.zeros(bands)
     for band, (start, stop) in enumerate(zip(edges[:-1], edges[1:], strict=True)):
-        # every other column: plenty of heights for a MAD, half the cost
-        sampled = usable[start:stop, ::2]
+        sampled = usable[start:stop]
         known = _memo.get((start, stop)) if _memo is not None else None
         if known is not None and np.array_equal(known[0], sampled):
             values[band] = known[1]
             continue
-        heights = relative[start:stop, ::2][sampled]
+        heights = relative[start:stop][sampled]
         if heights.size >= 50:
             values[band] = _robust_sigma(heights)
         if _memo is not None:

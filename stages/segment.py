@@ -66,7 +66,7 @@ from ._blobs import add_compact_blobs, blob_scales
 from ._continuity import SectorAnalysis, analyse_sectors
 from ._depth_rules import (
     _NOISY_SIGMA_M,
-    _row_band_sigma,
+    _sampled_row_band_sigma,
     apply_depth_rules,
     drop_faint_depthless,
     gray_contrast,
@@ -656,13 +656,15 @@ class _RowNoise:
 
     def __init__(self, relative: np.ndarray) -> None:
         self.relative = relative
-        self._valid = np.isfinite(relative)
+        # R0b reads every other column: those, contiguous, and only those compared
+        self._sampled = np.ascontiguousarray(relative[:, ::2])
+        self._valid = np.isfinite(self._sampled)
         self._memo: dict[tuple[int, int], tuple[np.ndarray, float]] = {}
 
     def __call__(self, labels: np.ndarray) -> np.ndarray:
         """Per row of ``labels`` (0 ground), the noise of the valid ground heights, m."""
-        usable = self._valid & (labels == 0)
-        return _row_band_sigma(self.relative, usable, _memo=self._memo)
+        usable = self._valid & (labels[:, ::2] == 0)
+        return _sampled_row_band_sigma(self._sampled, usable, _memo=self._memo)
 
 
 def _on_row_heights(
