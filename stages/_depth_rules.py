@@ -111,6 +111,7 @@ from ._height_vote import (
 )
 from ._heights import (
     DepthRuleStats,
+    _fraction,
     _ground_heights,
     _percentile_by_label,
     _robust_sigma,
@@ -227,7 +228,7 @@ def apply_depth_rules(
     sigma = _robust_sigma(_ground_heights(relative, mask))
     if sigma > _UNUSABLE_SIGMA_M:
         stats = DepthRuleStats(
-            depth_valid_fraction=float(valid.mean()),
+            depth_valid_fraction=_fraction(valid),
             ground_sigma_m=sigma,
             notes=[f"height noise {100 * sigma:.1f} cm: heights unusable, intensity rules only"],
         )
@@ -278,7 +279,7 @@ def apply_depth_rules(
     stats = DepthRuleStats(
         raised_added_px=int(np.count_nonzero(raised & ~mask)),
         flat_removed_px=int(np.count_nonzero(removed)),
-        depth_valid_fraction=float(valid.mean()),
+        depth_valid_fraction=_fraction(valid),
         raise_threshold_m=raise_m,
         flat_threshold_m=flat_m,
         ground_sigma_m=sigma,

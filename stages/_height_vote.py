@@ -76,6 +76,7 @@ from numba import njit
 from ._heights import (
     DepthRuleStats,
     _filled,
+    _fraction,
     _percentile_by_label,
     _percentiles_by_label,
     _robust_sigma,
@@ -193,7 +194,7 @@ def noisy_depth_rules(
     removed = _lookup(lying, components)
     stats = DepthRuleStats(
         flat_removed_px=int(np.count_nonzero(removed)),
-        depth_valid_fraction=float(valid.mean()),
+        depth_valid_fraction=_fraction(valid),
         flat_threshold_m=_VOTE_SIGMAS * sigma,
         ground_sigma_m=sigma,
         notes=[

@@ -228,6 +228,12 @@ def _ground_pass(relative, mask, values):  # pragma: no cover - numba
     return n
 
 
+def _fraction(mask: np.ndarray) -> float:
+    """``float(mask.mean())`` of a non-empty boolean mask, without its float64 copy: the
+    mean adds 0s and 1s exactly, so the count over the size is the same float."""
+    return np.count_nonzero(mask) / mask.size
+
+
 def _robust_sigma(values: np.ndarray) -> float:
     if values.size < 10:
         return 0.0

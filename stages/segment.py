@@ -75,7 +75,7 @@ from ._depth_rules import _UNUSABLE_SIGMA_M as _USABLE_SIGMA_M
 from ._height_blobs import add_height_blobs
 from ._height_grow import grow_raised_parts
 from ._height_vote import BumpWeights
-from ._heights import DepthRuleStats, relative_height
+from ._heights import DepthRuleStats, _fraction, relative_height
 from ._outlines import split_at_necks, trim_faint_rims
 from ._regions import depth_edges, label_objects, threshold_mask
 from ._rock_parts import (
@@ -409,7 +409,7 @@ def segment_image(
         contrast = gray_contrast(image, background=background, low=low, high=high)
         height = _coerce_depth(height, shape, "height")
         disparity = _coerce_depth(disparity, shape, "disparity")
-        valid_fraction = float(np.isfinite(height).mean()) if height is not None else 0.0
+        valid_fraction = _fraction(np.isfinite(height)) if height is not None else 0.0
         if height is not None and valid_fraction >= min_depth_valid_fraction:
             # R0's relative heights, read by the depth rules and again by R7e
             relative = relative_height(

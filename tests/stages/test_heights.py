@@ -10,6 +10,7 @@ from hypothesis import strategies as st
 from scipy.ndimage import median_filter
 
 from stages._heights import (
+    _fraction,
     _ground_heights,
     _median_filter_nearest,
     _percentile_by_label,
@@ -136,3 +137,10 @@ def test_ground_heights_equal_boolean_indexing():
         got = _ground_heights(height, mask)
         assert got.dtype == expected.dtype
         np.testing.assert_array_equal(got.view(np.uint8), expected.view(np.uint8))
+
+
+def test_fraction_is_the_mean_of_the_mask_bit_for_bit():
+    rng = np.random.default_rng(11)
+    for _ in range(50):
+        mask = rng.random(tuple(rng.integers(1, 300, 2))) < rng.random()
+        assert _fraction(mask) == float(mask.mean())
