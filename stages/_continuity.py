@@ -179,22 +179,78 @@ _RAMP_BORDER_MODES = 2
 _EDGE_NEIGHBOURS = [(-1, 0), (1, 0), (0, -1), (0, 1)]
 
 
-def _seed_levels(modes, *, seed_dominance: float, continuity_range: float) -> np.ndarray:
-    """Background levels of the unambiguous sectors (NaN elsewhere), inconsistent ones removed."""
-    n = len(modes)
+def _seed_levels(
+    positions: np.ndarray,
+    counts: np.ndarray,
+    smoothed: np.ndarray,
+    *,
+    seed_dominance: float,
+    continuity_range: float,
+) -> np.ndarray:
+    """Background levels of the unambiguous sectors (NaN elsewhere), inconsistent ones removed.
+
+    ``positions`` and ``counts`` as :func:`stages._modes.find_all_modes` gives them, the
+    heights read from ``smoothed``; a sector with one mode is a seed, one with more when
+    its second highest mode is below ``seed_dominance`` times its highest (a tie of the two
+    highest is no seed, whichever the sort puts first).
+    """
+    n = counts.shape[0]
     levels = np.full((n, n), np.nan)
+    _seed_pass(positions, counts, smoothed, float(seed_dominance), levels)
+    return _demote_inconsistent(levels, float(continuity_range))
+
+
+@njit(cache=True)
+def _seed_pass(positions, counts, smoothed, seed_dominance, levels):  # pragma: no cover
+    """The seeds of :func:`_seed_levels` in one compiled loop over the sectors (the
+    per-sector argsort it replaced: ``test_continuity.py`` compares)."""
+    n = counts.shape[0]
     for i in range(n):
         for j in range(n):
-            positions, heights = modes[i][j]
-            if heights.size == 0:
+            size = counts[i, j]
+            if size == 0:
                 continue
-            if heights.size == 1:  # (most sectors: no sort needed)
-                levels[i, j] = positions[0]
+            if size == 1:
+                levels[i, j] = positions[i, j, 0]
                 continue
-            order = np.argsort(heights)[::-1]
-            if heights[order[1]] < seed_dominance * heights[order[0]]:
-                levels[i, j] = positions[order[0]]
-    return _demote_inconsistent(levels, float(continuity_range))
+            # the highest mode and the second highest height
+            top = 0
+            for k in range(1, size):
+                if smoothed[i, j, positions[i, j, k]] > smoothed[i, j, positions[i, j, top]]:
+                    top = k
+            highest = smoothed[i, j, positions[i, j, top]]
+            second = -np.inf
+            for k in range(size):
+                if k != top:
+                    second = max(second, smoothed[i, j, positions[i, j, k]])
+            if second < seed_dominance * highest:
+                levels[i, j] = positions[i, j, top]
+
+
+class _SectorModes:
+    """``modes[i][j]``: the positions (int64) and smoothed heights of sector ``(i, j)``'s
+    modes, read from :func:`stages._modes.find_all_modes`' arrays when asked (the rules
+    read the few undecided sectors' only; no list of 256 pairs made first)."""
+
+    def __init__(self, positions: np.ndarray, counts: np.ndarray, smoothed: np.ndarray) -> None:
+        self._rows = [_ModeRow(positions[i], counts[i], smoothed[i]) for i in range(len(counts))]
+
+    def __len__(self) -> int:
+        return len(self._rows)
+
+    def __getitem__(self, i: int) -> _ModeRow:
+        return self._rows[i]
+
+
+class _ModeRow:
+    """One row of :class:`_SectorModes`."""
+
+    def __init__(self, positions: np.ndarray, counts: np.ndarray, smoothed: np.ndarray) -> None:
+        self._positions, self._counts, self._smoothed = positions, counts, smoothed
+
+    def __getitem__(self, j: int) -> tuple[np.ndarray, np.ndarray]:
+        positions = self._positions[j, : self._counts[j]]
+        return positions, self._smoothed[j][positions]
 
 
 @njit(cache=True)
@@ -307,13 +363,14 @@ def analyse_sectors(
     smoothed = smooth_histograms(hist, passes=smoothing)
     # find_modes of every sector, in one compiled loop instead of 256 scipy calls
     all_positions, counts = find_all_modes(smoothed, prominence=prominence)
-    modes = []
-    for i in range(n):
-        modes.append([])
-        for j in range(n):
-            positions = all_positions[i, j, : counts[i, j]]
-            modes[i].append((positions, smoothed[i, j][positions]))
-    level = _seed_levels(modes, seed_dominance=seed_dominance, continuity_range=continuity_range)
+    modes = _SectorModes(all_positions, counts, smoothed)
+    level = _seed_levels(
+        all_positions,
+        counts,
+        smoothed,
+        seed_dominance=seed_dominance,
+        continuity_range=continuity_range,
+    )
     seed = np.isfinite(level)
     if not seed.any():
         _seed_from_global(level, modes, smoothed, prominence, continuity_range)
@@ -334,7 +391,7 @@ def analyse_sectors(
         fwhm_to_sigma=FWHM_TO_SIGMA,
     )
     _phantom_bands(level, phantom, band_low, band_high, low, high, min_band)
-    n_modes = np.array([[min(len(modes[i][j][0]), 127) for j in range(n)] for i in range(n)])
+    n_modes = np.minimum(counts, 127)
     return SectorAnalysis(
         background=level.astype(np.float32),
         low=low.astype(np.float32),

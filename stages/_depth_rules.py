@@ -111,6 +111,8 @@ from ._height_vote import (
 )
 from ._heights import (
     DepthRuleStats,
+    _fraction,
+    _ground_heights,
     _percentile_by_label,
     _robust_sigma,
     local_ground,
@@ -223,10 +225,10 @@ def apply_depth_rules(
     else:
         relative = _coerce_float_map(relative, mask.shape, "relative")
     valid = np.isfinite(relative)
-    sigma = _robust_sigma(relative[valid & ~mask])
+    sigma = _robust_sigma(_ground_heights(relative, mask))
     if sigma > _UNUSABLE_SIGMA_M:
         stats = DepthRuleStats(
-            depth_valid_fraction=float(valid.mean()),
+            depth_valid_fraction=_fraction(valid),
             ground_sigma_m=sigma,
             notes=[f"height noise {100 * sigma:.1f} cm: heights unusable, intensity rules only"],
         )
@@ -234,7 +236,7 @@ def apply_depth_rules(
     if sigma > _NOISY_SIGMA_M:
         # the vote reads single unsmoothed heights: measure their noise the same way
         raw_relative = height - local_ground(height, window_px=ground_window_px)
-        raw_sigma = _robust_sigma(raw_relative[np.isfinite(raw_relative) & ~mask])
+        raw_sigma = _robust_sigma(_ground_heights(raw_relative, mask))
         return noisy_depth_rules(
             mask, raw_relative, raw_sigma, contrast=contrast, _weights=_weights
         )
@@ -277,7 +279,7 @@ def apply_depth_rules(
     stats = DepthRuleStats(
         raised_added_px=int(np.count_nonzero(raised & ~mask)),
         flat_removed_px=int(np.count_nonzero(removed)),
-        depth_valid_fraction=float(valid.mean()),
+        depth_valid_fraction=_fraction(valid),
         raise_threshold_m=raise_m,
         flat_threshold_m=flat_m,
         ground_sigma_m=sigma,
@@ -313,18 +315,30 @@ def _row_band_sigma(
     sigma : (M,) ndarray of float64
         Metres; the caller takes the larger of this and the frame's noise.
     """
+    # every other column: plenty of heights for a MAD, half the cost
+    return _sampled_row_band_sigma(relative[:, ::2], usable[:, ::2], bands=bands, _memo=_memo)
+
+
+def _sampled_row_band_sigma(
+    relative: np.ndarray,
+    usable: np.ndarray,
+    *,
+    bands: int = _ROW_BANDS,
+    _memo: dict[tuple[int, int], tuple[np.ndarray, float]] | None = None,
+) -> np.ndarray:
+    """:func:`_row_band_sigma` of maps already sampled at every other column (``[:, ::2]``;
+    R7e and R7f's row noise keeps the heights so, contiguous, and samples its mask first)."""
     rows = relative.shape[0]
     edges = np.linspace(0, rows, bands + 1).astype(int)
     centres = (edges[:-1] + edges[1:] - 1) / 2.0
     values = np.zeros(bands)
     for band, (start, stop) in enumerate(zip(edges[:-1], edges[1:], strict=True)):
-        # every other column: plenty of heights for a MAD, half the cost
-        sampled = usable[start:stop, ::2]
+        sampled = usable[start:stop]
         known = _memo.get((start, stop)) if _memo is not None else None
         if known is not None and np.array_equal(known[0], sampled):
             values[band] = known[1]
             continue
-        heights = relative[start:stop, ::2][sampled]
+        heights = relative[start:stop][sampled]
         if heights.size >= 50:
             values[band] = _robust_sigma(heights)
         if _memo is not None:
@@ -477,12 +491,13 @@ def drop_faint_depthless(
     judged[0] = False
     if not judged.any():
         return labels, 0
-    inside = _lookup(judged, labels)
-    ids = labels[inside]
-    medians = [
-        _percentile_by_label(field[inside].astype(np.float32), ids, count, 50.0)
-        for field in (image, background, low, high)
-    ]
+    # the judged objects' ids and four fields (float32), in one raster pass
+    ids = np.empty(int(n_pixels[judged].sum()), labels.dtype)
+    fields = np.empty((4, ids.size), np.float32)
+    _judged_pass(
+        np.ascontiguousarray(labels), judged, image, background, low, high, ids, fields
+    )
+    medians = [_percentile_by_label(field, ids, count, 50.0) for field in fields]
     # objects not judged have no values (+inf): compare the judged ones only
     gray, ground, low_m, high_m = (values[judged] for values in medians)
     band = np.where(gray < ground, ground - low_m, high_m - ground)
@@ -494,4 +509,25 @@ def drop_faint_depthless(
     faint[judged] = np.abs(gray - ground) < min_contrast * np.maximum(band, 1.0)
     if not faint.any():
         return labels, 0
-    return _renumber(np.where(_lookup(faint, labels), 0, labels), 1), int(faint.sum())
+    # the faint objects to 0 (one lookup), then renumbered
+    table = np.where(faint, 0, np.arange(count)).astype(labels.dtype)
+    return _renumber(_lookup(table, labels), 1), int(faint.sum())
+
+
+@njit(cache=True)
+def _judged_pass(labels, judged, image, background, low, high, ids, fields):  # pragma: no cover
+    """``labels[inside]`` and each field's ``field[inside].astype(np.float32)`` for
+    ``inside = judged[labels]``, in raster order as boolean indexing gives them
+    (``test_depth_rules.py`` compares)."""
+    rows, cols = labels.shape
+    n = 0
+    for y in range(rows):
+        for x in range(cols):
+            k = labels[y, x]
+            if judged[k]:
+                ids[n] = k
+                fields[0, n] = np.float32(image[y, x])
+                fields[1, n] = np.float32(background[y, x])
+                fields[2, n] = np.float32(low[y, x])
+                fields[3, n] = np.float32(high[y, x])
+                n += 1

@@ -97,8 +97,11 @@ def detail_ratio(image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         ``around`` is its texture ratio.
     """
     pixels = image.astype(np.float32)
-    fine = pixels - cv2.GaussianBlur(pixels, (0, 0), _DETAIL_PX)
-    detail = np.sqrt(cv2.GaussianBlur(fine * fine, (0, 0), _RMS_PX))
+    # the squared fine detail in one pass (float32, as ``fine * fine`` of the difference)
+    squared = cv2.GaussianBlur(pixels, (0, 0), _DETAIL_PX)
+    _squared_difference(pixels, squared)
+    detail = cv2.GaussianBlur(squared, (0, 0), _RMS_PX)
+    np.sqrt(detail, out=detail)
     rows, cols = image.shape
     if min(rows, cols) < 4 * _AROUND_SHRINK:
         return detail, cv2.GaussianBlur(detail, (0, 0), _AROUND_PX)
@@ -111,6 +114,16 @@ def detail_ratio(image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     small = cv2.GaussianBlur(small, (0, 0), _AROUND_PX / _AROUND_SHRINK)
     around = cv2.resize(small, (cols, rows), interpolation=cv2.INTER_LINEAR)
     return detail, around
+
+
+@njit(cache=True)
+def _squared_difference(pixels, smoothed):  # pragma: no cover - numba
+    """``smoothed = (pixels - smoothed) ** 2`` in float32, in place."""
+    rows, cols = pixels.shape
+    for y in range(rows):
+        for x in range(cols):
+            fine = pixels[y, x] - smoothed[y, x]
+            smoothed[y, x] = fine * fine
 
 
 def add_height_blobs(

@@ -138,7 +138,7 @@ import numpy as np
 from numba import njit
 
 from ._heights import _percentiles_by_label, check_height_inputs
-from ._regions import _box_window, _label_areas, _object_boxes
+from ._regions import _box_window
 
 # R7f: rows whose ground height noise is at most this (metres) are read (R7e's 7.5 mm until
 # segment v38: lava's rocks at 2-2.8 m lie in rows of 7.5-10 mm) ...
@@ -367,7 +367,8 @@ def _grow(
     """One case of R7f with its thresholds (checked by :func:`grow_raised_parts`).
 
     ``_measures`` (empty at first) keeps :func:`_measure`'s sizes, cores, sides and boxes of
-    ``labels`` for the next case, which must be given this call's result.
+    ``labels`` and its ground's mean contrast for the next case, which must be given this
+    call's result.
     """
     count = int(labels.max())
     if count == 0:
@@ -381,36 +382,52 @@ def _grow(
     candidates = candidates[candidates > 0]
     if candidates.size == 0:
         return labels, 0
-    mean_contrast = _ground_mean(contrast, labels == 0)
     rows, cols = labels.shape
-    disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * open_px + 1,) * 2)
-    out = labels.copy()
-    grown = 0
-    changed = []
+    # the objects that may grow and their windows, highest core first
+    windows = []
     for k in candidates[np.argsort(-core[candidates], kind="stable")]:
         sy, sx = _box_window(boxes[k])
-        own = labels[sy, sx] == k
-        noise = float(row_noise[sy.start + _median_row(own)])
+        noise = float(row_noise[sy.start + _median_row(labels[sy, sx], k)])
         if noise > max_noise_m or core[k] < core_sigmas * noise:
             continue
         y0, x0 = max(0, sy.start - max_steps), max(0, sx.start - max_steps)
         y1, x1 = min(rows, sy.stop + max_steps), min(cols, sx.stop + max_steps)
+        windows.append((k, sy.start, y0, y1, x0, x1))
+    if not windows:
+        return labels, 0
+    mean_contrast = _kept_ground_mean(
+        _measures, contrast, labels, [(x0, x1) for *_, x0, x1 in windows]
+    )
+    disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * open_px + 1,) * 2)
+    out = labels.copy()
+    grown = 0
+    changed = []
+    for k, top, y0, y1, x0, x1 in windows:
         box = out[y0:y1, x0:x1]
-        obj = box == k
-        with np.errstate(invalid="ignore"):
-            free = (box == 0) & (relative[y0:y1, x0:x1] > fraction * core[k])
-        free &= side[k] * mean_contrast[y0:y1, x0:x1] >= min_contrast
-        # not above the object's top row: the stereo windows spread a rock's heights up
-        # onto the ground behind it, which the camera sees beyond its top
-        free[: sy.start - y0] = False
+        obj = np.empty(box.shape, bool)
+        free = np.empty(box.shape, bool)
+        # the object, and the ground pixels raised enough on its gray side; not above the
+        # object's top row: the stereo windows spread a rock's heights up onto the ground
+        # behind it, which the camera sees beyond its top
+        _window_masks(
+            box,
+            relative[y0:y1, x0:x1],
+            mean_contrast[y0:y1, x0:x1],
+            k,
+            fraction * core[k],
+            side[k],
+            min_contrast,
+            top - y0,
+            obj,
+            free,
+        )
         # up to max_steps 8-connected steps over free pixels (one compiled breadth-first
         # pass: the pixels max_steps rounds of a 3x3 dilation within ``free`` reach)
         reached = obj.copy()
         _reach_steps(reached, free, max_steps)
         # less the tongues a grown object's opening cuts off: a rock's width is its widest
         # spread, and the fringe reaches out in strands
-        reached = obj | cv2.morphologyEx(reached.view(np.uint8), cv2.MORPH_OPEN, disk).view(bool)
-        added = reached & ~obj
+        added = cv2.morphologyEx(reached.view(np.uint8), cv2.MORPH_OPEN, disk).view(bool) & ~obj
         n_added = int(np.count_nonzero(added))
         if n_added == 0 or n_added > max_gain * sizes[k]:
             continue
@@ -421,7 +438,30 @@ def _grow(
         return labels, 0
     for k, y0, y1, x0, x1 in changed:
         _remeasure(_measures, out, contrast, relative, k, (y0, y1, x0, x1))
+        # the grown pixels left the ground in these columns
+        _measures["stale"].append((x0, x1))
     return out, grown
+
+
+@njit(cache=True)
+def _window_masks(  # pragma: no cover - numba
+    box, heights, mean, k, level, side, min_contrast, top, obj, free
+):
+    """``obj = box == k`` and ``free = (box == 0) & (heights > level) & (side * mean >=
+    min_contrast)`` below row ``top`` of the window, in one pass (``level`` and ``side``
+    float64: the comparisons numpy makes of float32 maps with float64 scalars; NaN heights
+    are not free; ``test_height_grow.py`` compares)."""
+    rows, cols = box.shape
+    for y in range(rows):
+        for x in range(cols):
+            label = box[y, x]
+            obj[y, x] = label == k
+            free[y, x] = (
+                y >= top
+                and label == 0
+                and heights[y, x] > level
+                and side * mean[y, x] >= min_contrast
+            )
 
 
 @njit(cache=True)
@@ -459,20 +499,62 @@ def _measure(
 ) -> dict[str, np.ndarray]:
     """Per label 0..count: pixels, core (75th percentile of the valid relative heights,
     -inf without any), the sign of the median contrast, and the inclusive box."""
-    sizes = _label_areas(labels, count + 1)
-    inside = labels > 0
-    judged = inside & np.isfinite(relative)
+    labels = np.ascontiguousarray(labels)
+    sizes = np.zeros(count + 1, np.int64)
+    boxes = np.empty((count + 1, 4), np.int64)
+    boxes[:, 0::2] = np.iinfo(np.int64).max
+    boxes[:, 1::2] = -1
+    # the object pixels' ids, (finite) heights and contrasts, as float32, in raster order
+    owners = np.empty((2, labels.size), labels.dtype)
+    values = np.empty((2, labels.size), np.float32)
+    n_heights, n_pixels = _measure_pass(labels, relative, contrast, sizes, boxes, owners, values)
     core = _percentiles_by_label(
-        relative[judged].astype(np.float32), labels[judged], count + 1, (_CORE_PERCENTILE,)
+        values[0, :n_heights], owners[0, :n_heights], count + 1, (_CORE_PERCENTILE,)
     )[0]
     side = np.sign(
-        _percentiles_by_label(
-            contrast[inside].astype(np.float32), labels[inside], count + 1, (50.0,)
-        )[0]
+        _percentiles_by_label(values[1, :n_pixels], owners[1, :n_pixels], count + 1, (50.0,))[0]
     )
     core[~np.isfinite(core)] = -np.inf
-    # find_objects' boxes from one compiled pass
-    return {"sizes": sizes, "core": core, "side": side, "boxes": _object_boxes(labels, count)}
+    return {"sizes": sizes, "core": core, "side": side, "boxes": boxes}
+
+
+@njit(cache=True)
+def _measure_pass(  # pragma: no cover - numba
+    labels, relative, contrast, sizes, boxes, owners, values
+):
+    """One raster pass for :func:`_measure`: ``_label_areas``' sizes, ``_object_boxes``'
+    boxes, and the gathers ``labels[judged]``, ``relative[judged].astype(np.float32)``
+    (``judged``: object pixels with a finite height) and ``labels[inside]``,
+    ``contrast[inside].astype(np.float32)`` (object pixels) in ``owners`` and ``values``
+    rows 0 and 1; returns the two counts (``test_height_grow.py`` compares)."""
+    rows, cols = labels.shape
+    n_heights = 0
+    n_pixels = 0
+    ground = 0
+    for y in range(rows):
+        for x in range(cols):
+            k = labels[y, x]
+            if k == 0:
+                ground += 1
+                continue
+            sizes[k] += 1
+            if y < boxes[k, 0]:
+                boxes[k, 0] = y
+            boxes[k, 1] = y  # rows come in order
+            if x < boxes[k, 2]:
+                boxes[k, 2] = x
+            if x > boxes[k, 3]:
+                boxes[k, 3] = x
+            height = relative[y, x]
+            if np.isfinite(height):
+                owners[0, n_heights] = k
+                values[0, n_heights] = np.float32(height)
+                n_heights += 1
+            owners[1, n_pixels] = k
+            values[1, n_pixels] = np.float32(contrast[y, x])
+            n_pixels += 1
+    sizes[0] += ground
+    return n_heights, n_pixels
 
 
 def _remeasure(
@@ -488,18 +570,45 @@ def _remeasure(
     percentile of one label is the value of that rank among its own values alone (selected
     here; at most the sign of a zero differs, which no test reads)."""
     y0, y1, x0, x1 = window
-    own = labels[y0:y1, x0:x1] == k
-    rows = np.flatnonzero(own.any(axis=1))
-    cols = np.flatnonzero(own.any(axis=0))
-    measures["boxes"][k] = (y0 + rows[0], y0 + rows[-1], x0 + cols[0], x0 + cols[-1])
-    measures["sizes"][k] = np.count_nonzero(own)
-    # float32 as _measure reads them
-    heights = relative[y0:y1, x0:x1][own].astype(np.float32, copy=False)
-    heights = heights[np.isfinite(heights)]
-    core = _nearest_rank(heights, _CORE_PERCENTILE)
+    box = np.empty(4, np.int64)
+    # its pixels' float32 heights (the finite ones) and contrasts, in raster order
+    heights = np.empty((y1 - y0) * (x1 - x0), np.float32)
+    values = np.empty((y1 - y0) * (x1 - x0), np.float32)
+    window_of = np.s_[y0:y1, x0:x1]
+    n_heights, n_pixels = _remeasure_pass(
+        labels[window_of], relative[window_of], contrast[window_of], k, box, heights, values
+    )
+    measures["boxes"][k] = (y0 + box[0], y0 + box[1], x0 + box[2], x0 + box[3])
+    measures["sizes"][k] = n_pixels
+    core = _nearest_rank(heights[:n_heights], _CORE_PERCENTILE)
     measures["core"][k] = core if np.isfinite(core) else -np.inf
-    values = contrast[y0:y1, x0:x1][own].astype(np.float32, copy=False)
-    measures["side"][k] = np.sign(_nearest_rank(values, 50.0))
+    measures["side"][k] = np.sign(_nearest_rank(values[:n_pixels], 50.0))
+
+
+@njit(cache=True)
+def _remeasure_pass(window, relative, contrast, k, box, heights, values):  # pragma: no cover
+    """Object ``k``'s box in ``window`` (inclusive), and in raster order its pixels'
+    heights as float32 (those finite after the cast) and contrasts as float32; returns the
+    two counts."""
+    rows, cols = window.shape
+    box[0], box[1], box[2], box[3] = rows, -1, cols, -1
+    n_heights = 0
+    n_pixels = 0
+    for y in range(rows):
+        for x in range(cols):
+            if window[y, x] != k:
+                continue
+            box[0] = min(box[0], y)
+            box[1] = y
+            box[2] = min(box[2], x)
+            box[3] = max(box[3], x)
+            height = np.float32(relative[y, x])
+            if np.isfinite(height):
+                heights[n_heights] = height
+                n_heights += 1
+            values[n_pixels] = np.float32(contrast[y, x])
+            n_pixels += 1
+    return n_heights, n_pixels
 
 
 def _nearest_rank(values: np.ndarray, percentile: float) -> float:
@@ -511,15 +620,73 @@ def _nearest_rank(values: np.ndarray, percentile: float) -> float:
     return float(np.partition(values, rank)[rank])
 
 
-def _median_row(own: np.ndarray) -> int:
-    """``int(np.median(np.nonzero(own)[0]))`` from the row counts (own holds a pixel)."""
-    ends = np.cumsum(np.count_nonzero(own, axis=1))
-    n = int(ends[-1])
-    upper = int(np.searchsorted(ends, n // 2, side="right"))
+def _median_row(window: np.ndarray, k: int) -> int:
+    """``int(np.median(np.nonzero(window == k)[0]))`` (``window`` holds a pixel of ``k``)
+    from the row counts, in one compiled pass (``test_height_grow.py`` compares)."""
+    return int(_median_row_pass(window, k))
+
+
+@njit(cache=True)
+def _median_row_pass(window, k):  # pragma: no cover - numba
+    rows, cols = window.shape
+    counts = np.zeros(rows, np.int64)
+    for y in range(rows):
+        for x in range(cols):
+            if window[y, x] == k:
+                counts[y] += 1
+    n = counts.sum()
+    # the rows of the pixels of rank n // 2 (and n // 2 - 1 when n is even) in raster order
+    upper, lower = -1, -1
+    seen = 0
+    for y in range(rows):
+        seen += counts[y]
+        if lower < 0 and seen > n // 2 - 1:
+            lower = y
+        if seen > n // 2:
+            upper = y
+            break
     if n % 2:
         return upper
     # the mean of the two middle rows, truncated as int() truncates np.median's float
-    return (int(np.searchsorted(ends, n // 2 - 1, side="right")) + upper) // 2
+    return (lower + upper) // 2
+
+
+def _kept_ground_mean(
+    measures: dict, contrast: np.ndarray, labels: np.ndarray, spans: list[tuple[int, int]]
+) -> np.ndarray:
+    """:func:`_ground_mean` of ``labels == 0`` in the columns of ``spans`` ((x0, x1), ends
+    exclusive), kept in ``measures`` for the next case; other columns hold stale or no values.
+
+    A column's means read only the columns within 2 (the 5x5 window; the pass's sums run
+    down each column), so a column is made once, and again only when a case grew within 2
+    columns of it (``measures["stale"]``, (x0, x1) ranges): the same floats as
+    :func:`_ground_mean` of the whole frame where it is read (``test_height_grow.py``).
+    """
+    ground = labels == 0
+    rows, cols = labels.shape
+    if min(rows, cols) < _CONTRAST_WINDOW_PX:
+        # a frame narrower than the window: OpenCV's, whole
+        return _ground_mean(contrast, ground)
+    if "mean" not in measures:
+        measures["mean"] = np.empty((rows, cols), np.float32)
+        measures["fresh"] = np.zeros(cols, bool)
+        measures["stale"] = []
+    mean, fresh = measures["mean"], measures["fresh"]
+    half = _CONTRAST_WINDOW_PX // 2
+    for x0, x1 in measures["stale"]:
+        fresh[max(0, x0 - half) : x1 + half] = False
+    measures["stale"] = []
+    needed = np.zeros(cols, bool)
+    for x0, x1 in spans:
+        needed[x0:x1] = True
+    todo = needed & ~fresh
+    # runs of columns to make: where ``todo`` switches on and off
+    edges = np.flatnonzero(np.diff(np.concatenate(([False], todo, [False]))))
+    values = np.ascontiguousarray(contrast, dtype=np.float32)
+    for c0, c1 in edges.reshape(-1, 2):
+        _ground_mean_pass(values, ground, mean, c0, c1)
+    fresh |= todo
+    return mean
 
 
 def _ground_mean(contrast: np.ndarray, ground: np.ndarray) -> np.ndarray:
@@ -543,7 +710,7 @@ def _ground_mean(contrast: np.ndarray, ground: np.ndarray) -> np.ndarray:
         return np.where(share > 0, total / np.maximum(share, np.float32(1e-6)), np.float32(0.0))
     out = np.empty((rows, cols), np.float32)
     _ground_mean_pass(
-        np.ascontiguousarray(contrast, dtype=np.float32), np.ascontiguousarray(ground), out
+        np.ascontiguousarray(contrast, dtype=np.float32), np.ascontiguousarray(ground), out, 0, cols
     )
     return out
 
@@ -559,28 +726,30 @@ def _mirror(i, n):  # pragma: no cover - numba
 
 
 @njit(cache=True)
-def _ground_mean_pass(contrast, ground, out):  # pragma: no cover - numba
+def _ground_mean_pass(contrast, ground, out, c0, c1):  # pragma: no cover - numba
     # cv2.blur's float32 box filter, step by step: each row's 5-sums in double, added left
     # to right (RowSum<float, double>), then down each column a running double sum that
     # adds the new row and subtracts the old one (ColumnSum<double, float>), scaled by 1/25
-    # and rounded to float32; the row sums of the five rows in reach are kept in a ring
+    # and rounded to float32; the row sums of the five rows in reach are kept in a ring.
+    # Columns c0..c1-1 only: each column's floats are the same whatever the range
     rows, cols = contrast.shape
+    width = c1 - c0
     half = _CONTRAST_WINDOW_PX // 2
     scale = 1.0 / (_CONTRAST_WINDOW_PX * _CONTRAST_WINDOW_PX)
-    ring_t = np.empty((_CONTRAST_WINDOW_PX, cols))
-    ring_w = np.empty((_CONTRAST_WINDOW_PX, cols))
-    padded_t = np.empty(cols + 2 * half, np.float32)
-    padded_w = np.empty(cols + 2 * half, np.float32)
+    ring_t = np.empty((_CONTRAST_WINDOW_PX, width))
+    ring_w = np.empty((_CONTRAST_WINDOW_PX, width))
+    padded_t = np.empty(width + 2 * half, np.float32)
+    padded_w = np.empty(width + 2 * half, np.float32)
     floor = np.float32(1e-6)
 
     def row_sums(y):
         slot = y % _CONTRAST_WINDOW_PX
-        for i in range(cols + 2 * half):
-            x = _mirror(i - half, cols)
+        for i in range(width + 2 * half):
+            x = _mirror(c0 + i - half, cols)
             w = np.float32(1.0) if ground[y, x] else np.float32(0.0)
             padded_t[i] = contrast[y, x] * w
             padded_w[i] = w
-        for x in range(cols):
+        for x in range(width):
             t = np.float64(padded_t[x])
             w = np.float64(padded_w[x])
             for j in range(1, _CONTRAST_WINDOW_PX):
@@ -591,11 +760,11 @@ def _ground_mean_pass(contrast, ground, out):  # pragma: no cover - numba
 
     for y in range(min(half + 1, rows)):
         row_sums(y)
-    sum_t = np.zeros(cols)
-    sum_w = np.zeros(cols)
+    sum_t = np.zeros(width)
+    sum_w = np.zeros(width)
     for j in range(_CONTRAST_WINDOW_PX - 1):
         slot = _mirror(j - half, rows) % _CONTRAST_WINDOW_PX
-        for x in range(cols):
+        for x in range(width):
             sum_t[x] += ring_t[slot, x]
             sum_w[x] += ring_w[slot, x]
     for y in range(rows):
@@ -603,11 +772,11 @@ def _ground_mean_pass(contrast, ground, out):  # pragma: no cover - numba
             row_sums(y + half)
         new = _mirror(y + half, rows) % _CONTRAST_WINDOW_PX
         old = _mirror(y - half, rows) % _CONTRAST_WINDOW_PX
-        for x in range(cols):
+        for x in range(width):
             s_t = sum_t[x] + ring_t[new, x]
             s_w = sum_w[x] + ring_w[new, x]
             total = np.float32(s_t * scale)
             share = np.float32(s_w * scale)
-            out[y, x] = total / max(share, floor) if share > 0 else np.float32(0.0)
+            out[y, c0 + x] = total / max(share, floor) if share > 0 else np.float32(0.0)
             sum_t[x] = s_t - ring_t[old, x]
             sum_w[x] = s_w - ring_w[old, x]

@@ -73,7 +73,14 @@ import cv2
 import numpy as np
 from numba import njit
 
-from ._heights import DepthRuleStats, _percentile_by_label, _percentiles_by_label, _robust_sigma
+from ._heights import (
+    DepthRuleStats,
+    _filled,
+    _fraction,
+    _percentile_by_label,
+    _percentiles_by_label,
+    _robust_sigma,
+)
 from ._regions import _lookup
 
 # Noisy regime: an object lies flat when the 90th percentile of its heights stays below this
@@ -153,9 +160,7 @@ def noisy_depth_rules(
     if count > 1:
         n_pixels, n_valid = (n[1:] for n in _object_counts(components, valid, count))
         # only objects are voted on: leave the (large) background out of the sort
-        in_object = valid & (components > 0)
-        owners = components[in_object]
-        values = relative[in_object]
+        owners, values = _object_pixels(components, relative, int(n_valid.sum()), heights=True)
         upper, middle = _percentiles_by_label(values, owners, count, (_VOTE_PERCENTILE, 50.0))[
             :, 1:
         ]
@@ -173,10 +178,10 @@ def noisy_depth_rules(
         clear = np.zeros(count - 1)
         if contrast is not None:
             # R2c: the clearer an object's gray level, the less height it needs to stay
-            inside = components > 0
-            clear = _percentile_by_label(
-                np.abs(contrast[inside]), components[inside], count, 50.0
-            )[1:]
+            owners, values = _object_pixels(
+                components, contrast, int(n_pixels.sum()), heights=False
+            )
+            clear = _percentile_by_label(values, owners, count, 50.0)[1:]
             bar = _VOTE_SIGMAS + _CONTRAST_SIGMAS * (_TEXTURE_CONTRAST - clear)
         # R2d: a bump of the matching windows' scale is evidence the percentile misses
         bump = _height_bumps(relative, mask, _weights=_weights)
@@ -189,7 +194,7 @@ def noisy_depth_rules(
     removed = _lookup(lying, components)
     stats = DepthRuleStats(
         flat_removed_px=int(np.count_nonzero(removed)),
-        depth_valid_fraction=float(valid.mean()),
+        depth_valid_fraction=_fraction(valid),
         flat_threshold_m=_VOTE_SIGMAS * sigma,
         ground_sigma_m=sigma,
         notes=[
@@ -198,6 +203,37 @@ def noisy_depth_rules(
         ],
     )
     return mask & ~removed, stats
+
+
+def _object_pixels(
+    components: np.ndarray, values: np.ndarray, size: int, *, heights: bool
+) -> tuple[np.ndarray, np.ndarray]:
+    """Ids and values of the object pixels (``components > 0``) in raster order, as boolean
+    indexing gives them, in one compiled pass: with ``heights`` the finite values only,
+    else the absolute values of all (``size``: how many there are)."""
+    owners = np.empty(size, components.dtype)
+    kept = np.empty(size, values.dtype)
+    _object_pixel_pass(components, values, heights, owners, kept)
+    return owners, kept
+
+
+@njit(cache=True)
+def _object_pixel_pass(components, values, heights, owners, kept):  # pragma: no cover
+    rows, cols = components.shape
+    n = 0
+    for y in range(rows):
+        for x in range(cols):
+            k = components[y, x]
+            if k > 0:
+                value = values[y, x]
+                if heights:
+                    if not np.isfinite(value):
+                        continue
+                else:
+                    value = abs(value)
+                owners[n] = k
+                kept[n] = value
+                n += 1
 
 
 def _object_counts(
@@ -281,27 +317,52 @@ def _height_bumps(
         NaN-aware Gaussian smoothing at ``_BUMP_INNER_PX`` minus at ``_BUMP_OUTER_PX``,
         divided by its robust sigma on the ground; 0 where the height is invalid.
     """
-    valid = np.isfinite(relative)
-    filled = np.where(valid, relative, np.float32(0.0)).astype(np.float32, copy=False)
+    valid, filled = _filled(relative)
     weights = _weight_levels(valid) if _weights is None else _weights.levels(valid)
     levels = []
-    for scale, weight in zip((_BUMP_INNER_PX, _BUMP_OUTER_PX), weights, strict=True):
+    for scale in (_BUMP_INNER_PX, _BUMP_OUTER_PX):
         size = _kernel_size(scale)
-        # normalised convolution: invalid heights neither count nor pull the level to 0
-        level = cv2.GaussianBlur(filled, (size, size), scale)
-        level /= weight
-        levels.append(level)
-    bumps = levels[0]
-    bumps -= levels[1]
-    # every other row and column: the map is smooth, a quarter of the values measure its noise
-    # (sampled first: a quarter of the whole-frame temporaries, the same pixels)
-    ground = valid[::2, ::2] & ~mask[::2, ::2]
-    noise = _robust_sigma(bumps[::2, ::2][ground])
+        levels.append(cv2.GaussianBlur(filled, (size, size), scale))
+    # normalised convolutions (invalid heights neither count nor pull the level to 0), their
+    # difference, and the ground's values on every other row and column: the map is smooth,
+    # a quarter of the values measure its noise (MAD)
+    bumps = np.empty(relative.shape, np.float32)
+    ground = np.empty(((relative.shape[0] + 1) // 2) * ((relative.shape[1] + 1) // 2), np.float32)
+    n = _bump_pass(levels[0], weights[0], levels[1], weights[1], valid, mask, bumps, ground)
+    noise = _robust_sigma(ground[:n])
     if not noise > 0:
         return np.zeros(relative.shape, np.float32)
-    bumps *= np.float32(1.0 / noise)
-    bumps[~valid] = 0.0
+    _scale_valid(bumps, valid, np.float32(1.0 / noise))
     return bumps
+
+
+@njit(cache=True, error_model="numpy")
+def _bump_pass(  # pragma: no cover - numba
+    inner, inner_weight, outer, outer_weight, valid, mask, bumps, ground
+):
+    """``bumps = inner / inner_weight - outer / outer_weight`` in float32, as the in-place
+    numpy steps did it; ``ground`` gets ``bumps[::2, ::2][valid[::2, ::2] &
+    ~mask[::2, ::2]]`` in that order; returns their count (``test_height_vote.py``
+    compares)."""
+    rows, cols = bumps.shape
+    n = 0
+    for y in range(rows):
+        for x in range(cols):
+            value = inner[y, x] / inner_weight[y, x] - outer[y, x] / outer_weight[y, x]
+            bumps[y, x] = value
+            if y % 2 == 0 and x % 2 == 0 and valid[y, x] and not mask[y, x]:
+                ground[n] = value
+                n += 1
+    return n
+
+
+@njit(cache=True)
+def _scale_valid(bumps, valid, factor):  # pragma: no cover - numba
+    """``bumps *= factor; bumps[~valid] = 0``, in place."""
+    rows, cols = bumps.shape
+    for y in range(rows):
+        for x in range(cols):
+            bumps[y, x] = bumps[y, x] * factor if valid[y, x] else np.float32(0.0)
 
 
 def _ring_levels(

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
+from numba import njit
 from scipy.ndimage import median_filter
 
 from ._select import median_abs_deviation32, median_filter_nearest32
@@ -61,10 +62,10 @@ def smooth_height(height: np.ndarray, *, window: int = 5) -> np.ndarray:
     height = np.asarray(height, dtype=np.float32)
     if window == 1:
         return height
-    valid = np.isfinite(height)
-    filled = np.where(valid, height, np.float32(0.0)).astype(np.float32, copy=False)
+    valid, filled = _filled(height)
     smoothed = cv2.medianBlur(filled, window)
-    return np.where(valid, smoothed, np.float32(np.nan))
+    _set_invalid(smoothed, valid, np.float32(np.nan))
+    return smoothed
 
 
 def local_ground(height: np.ndarray, *, window_px: int = 72) -> np.ndarray:
@@ -85,12 +86,15 @@ def local_ground(height: np.ndarray, *, window_px: int = 72) -> np.ndarray:
     """
     if window_px < 9:
         raise ValueError(f"window_px must be >= 9, got {window_px}")
-    rows, cols = height.shape
+    # invalid pixels vote for the plane itself: the fit already describes the ground
+    return _ground_of_filled(_filled(height)[1], window_px=window_px)
+
+
+def _ground_of_filled(filled: np.ndarray, *, window_px: int) -> np.ndarray:
+    """:func:`local_ground` of a float32 height map whose invalid pixels are 0 already."""
+    rows, cols = filled.shape
     factor = max(1, window_px // 9)
     small_shape = (max(1, rows // factor), max(1, cols // factor))
-    valid = np.isfinite(height)
-    filled = np.where(valid, height, np.float32(0.0)).astype(np.float32, copy=False)
-    # invalid pixels vote for the plane itself: the fit already describes the ground
     small = cv2.resize(filled, small_shape[::-1], interpolation=cv2.INTER_AREA)
     coarse = _median_filter_nearest(small, size=min(9, *small_shape))
     return cv2.resize(coarse, (cols, rows), interpolation=cv2.INTER_LINEAR)
@@ -115,8 +119,69 @@ def relative_height(height: np.ndarray, *, smoothing_px: int, ground_window_px: 
     -------
     (M, N) ndarray of float32
     """
-    smoothed = smooth_height(height, window=smoothing_px)
-    return smoothed - local_ground(smoothed, window_px=ground_window_px)
+    if smoothing_px not in (1, 3, 5):
+        raise ValueError(f"window must be 1, 3 or 5 (OpenCV float median), got {smoothing_px}")
+    if ground_window_px < 9:
+        raise ValueError(f"window_px must be >= 9, got {ground_window_px}")
+    height = np.asarray(height, dtype=np.float32)
+    valid, filled = _filled(height)
+    if smoothing_px > 1:
+        # the smoothed map with its invalid pixels at 0: the local ground's own input
+        filled = cv2.medianBlur(filled, smoothing_px)
+        _set_invalid(filled, valid, np.float32(0.0))
+    ground = _ground_of_filled(filled, window_px=ground_window_px)
+    # ``smooth_height(...) - local_ground(smooth_height(...))`` in one pass: the smoothed
+    # map is the filled one where valid, NaN elsewhere (the input itself when not smoothed)
+    relative = np.empty(height.shape, np.float32)
+    _relative_pass(filled, valid, height, smoothing_px == 1, ground, relative)
+    return relative
+
+
+def _filled(height: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``np.isfinite(height)`` and ``height`` as float32 with 0 where not finite (one
+    compiled pass instead of ``np.where``'s three)."""
+    valid = np.empty(height.shape, bool)
+    filled = np.empty(height.shape, np.float32)
+    _fill_pass(height, valid, filled)
+    return valid, filled
+
+
+@njit(cache=True)
+def _fill_pass(height, valid, filled):  # pragma: no cover - numba
+    rows, cols = height.shape
+    for y in range(rows):
+        for x in range(cols):
+            value = height[y, x]
+            ok = np.isfinite(value)
+            valid[y, x] = ok
+            filled[y, x] = np.float32(value) if ok else np.float32(0.0)
+
+
+@njit(cache=True)
+def _set_invalid(values, valid, fill):  # pragma: no cover - numba
+    """``values[~valid] = fill``, in place."""
+    rows, cols = values.shape
+    for y in range(rows):
+        for x in range(cols):
+            if not valid[y, x]:
+                values[y, x] = fill
+
+
+@njit(cache=True)
+def _relative_pass(filled, valid, source, keep_invalid, ground, out):  # pragma: no cover
+    """``out = smoothed - ground`` in float32, ``smoothed`` being ``filled`` where valid and
+    elsewhere NaN (or ``source``'s own value when ``keep_invalid``: an unsmoothed map)."""
+    rows, cols = out.shape
+    nan = np.float32(np.nan)
+    for y in range(rows):
+        for x in range(cols):
+            if valid[y, x]:
+                value = filled[y, x]
+            elif keep_invalid:
+                value = source[y, x]
+            else:
+                value = nan
+            out[y, x] = value - ground[y, x]
 
 
 def _median_filter_nearest(image: np.ndarray, *, size: int) -> np.ndarray:
@@ -141,6 +206,32 @@ def _median_filter_nearest(image: np.ndarray, *, size: int) -> np.ndarray:
     flat = windows.reshape(image.shape[0], image.shape[1], size * size)
     middle = (size * size) // 2
     return np.partition(flat, middle, axis=-1)[..., middle].astype(image.dtype, copy=False)
+
+
+def _ground_heights(relative: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """``relative[np.isfinite(relative) & ~mask]`` (2-D arrays of one shape) in one compiled
+    pass: the heights whose MAD is the ground's noise."""
+    values = np.empty(relative.size, relative.dtype)
+    return values[: _ground_pass(relative, mask, values)]
+
+
+@njit(cache=True)
+def _ground_pass(relative, mask, values):  # pragma: no cover - numba
+    rows, cols = relative.shape
+    n = 0
+    for y in range(rows):
+        for x in range(cols):
+            value = relative[y, x]
+            if np.isfinite(value) and not mask[y, x]:
+                values[n] = value
+                n += 1
+    return n
+
+
+def _fraction(mask: np.ndarray) -> float:
+    """``float(mask.mean())`` of a non-empty boolean mask, without its float64 copy: the
+    mean adds 0s and 1s exactly, so the count over the size is the same float."""
+    return np.count_nonzero(mask) / mask.size
 
 
 def _robust_sigma(values: np.ndarray) -> float:

@@ -14,6 +14,7 @@ edge appears at sector boundaries (:func:`interpolate_sector_grid`).
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -203,6 +204,15 @@ def _interpolation_weights(length: int, edges: np.ndarray) -> np.ndarray:
     return weights
 
 
+@functools.lru_cache(maxsize=8)
+def _pixel_weights(length: int, sectors: int) -> np.ndarray:
+    """:func:`_interpolation_weights` of ``length`` pixels cut into ``sectors``, made once
+    per size (a frame interpolates three grids of one shape; read only)."""
+    weights = _interpolation_weights(length, sector_edges(length, sectors))
+    weights.flags.writeable = False
+    return weights
+
+
 _SINGLE_THREAD_GEMM = 4 * 65536
 
 
@@ -229,8 +239,8 @@ def interpolate_sector_grid(grid: np.ndarray, shape: tuple[int, int]) -> np.ndar
         raise ValueError("grid must be finite everywhere; decide every sector first")
     rows, cols = (int(v) for v in shape)
     n = grid.shape[0]
-    wy = _interpolation_weights(rows, sector_edges(rows, n))
-    wx = _interpolation_weights(cols, sector_edges(cols, n))
+    wy = _pixel_weights(rows, n)
+    wx = _pixel_weights(cols, n)
     left = wy @ grid
     field = np.empty((rows, cols), dtype=np.float32)
     # row blocks below OpenBLAS's threading threshold (m*n*k <= 4 * 65536): a threaded

@@ -128,7 +128,6 @@ import numpy as np
 from numba import njit
 
 from ._heights import check_height_inputs
-from ._regions import _lookup, _object_boxes
 from ._select import median_u8
 
 __all__ = [
@@ -209,11 +208,29 @@ def anti_sun_direction(
     count = int(labels.max())
     if count == 0:
         return None
-    # per object: pixels, then per side (past the high threshold, past the low one) pixels
-    # and the sums of their rows and columns, in one compiled pass (whole numbers: the
-    # same floats as np.bincount's, in any order; ``test_sun_shadows.py`` compares)
-    sums = np.zeros((7, count + 1))
-    _side_sums(np.ascontiguousarray(labels), np.ascontiguousarray(contrast), sums)
+    sums, _ = _object_sums(labels, contrast, count)
+    return _direction(sums, min_pairs=min_pairs, min_agreement=min_agreement)
+
+
+def _object_sums(
+    labels: np.ndarray, contrast: np.ndarray, count: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per object 0..count (``labels``' ids, count its largest), in one compiled pass: row
+    0 its pixels, then per side (past the high threshold, past the low one) pixels and the
+    sums of their rows and columns (rows 1-6: whole numbers, the same floats as
+    np.bincount's in any order), row 7 the sum of its contrast in raster order (the
+    float64 sum ``np.bincount(owners, weights=...)`` adds); and the boxes of
+    :func:`stages._regions._object_boxes` (``test_sun_shadows.py`` compares all)."""
+    sums = np.zeros((8, count + 1))
+    boxes = np.empty((count + 1, 4), np.int64)
+    boxes[:, 0::2] = np.iinfo(np.int64).max
+    boxes[:, 1::2] = -1
+    _object_pass(np.ascontiguousarray(labels), np.ascontiguousarray(contrast), sums, boxes)
+    return sums, boxes
+
+
+def _direction(sums: np.ndarray, *, min_pairs: int, min_agreement: float) -> np.ndarray | None:
+    """:func:`anti_sun_direction` from :func:`_object_sums`' rows 0-6."""
     size = sums[0]
     centroids = []
     for n, y, x in (sums[1:4], sums[4:7]):
@@ -291,21 +308,18 @@ def trim_sun_shadows(
         return out, 0
     if skip is not None and skip.shape != (count + 1,):
         raise ValueError(f"skip must hold one flag per id 0..{count}, got shape {skip.shape}")
-    away = anti_sun_direction(labels, contrast)
+    # the sun's side, the objects' sizes, darkness and boxes from one pass
+    sums, boxes = _object_sums(labels, contrast, count)
+    away = _direction(sums, min_pairs=_MIN_PAIRS, min_agreement=_MIN_AGREEMENT)
     if away is None:
         return out, 0
     cos_max = float(np.cos(np.radians(max_angle_deg)))
-    # only dark objects large enough are judged: a cheap pass first (mean contrast below 0)
-    inside_all = labels.ravel() > 0
-    owners = labels.ravel()[inside_all]
-    size = np.bincount(owners, minlength=count + 1)
-    darkness = np.bincount(owners, weights=contrast.ravel()[inside_all], minlength=count + 1)
-    judged = (size >= _MIN_PX) & (darkness < 0)
+    # only dark objects large enough are judged (mean contrast below 0)
+    judged = (sums[0] >= _MIN_PX) & (sums[7] < 0)
     if skip is not None:
         judged &= ~skip
     kernel = np.ones((2 * _RING_PX + 1, 2 * _RING_PX + 1), np.uint8)
     rows, cols = labels.shape
-    boxes = _object_boxes(labels, count)
     trimmed = 0
     for k in range(1, count + 1):
         y0, y1, x0, x1 = boxes[k]
@@ -385,24 +399,32 @@ def trim_off_side_pieces(
     count = int(labels.max())
     if count == 0 or not 0 < max_side_deg < 180:
         return labels, 0
-    away = anti_sun_direction(labels, contrast)
+    # the sun's side, the objects' sizes, sides and boxes from one pass
+    sums, boxes = _object_sums(labels, contrast, count)
+    away = _direction(sums, min_pairs=_MIN_PAIRS, min_agreement=_MIN_AGREEMENT)
     if away is None:
         return labels, 0
-    inside = labels.ravel() > 0
-    owners = labels.ravel()[inside]
-    sums = np.bincount(owners, weights=contrast.ravel()[inside], minlength=count + 1)
-    side = np.where(sums >= 0, 1.0, -1.0)
+    side = np.where(sums[7] >= 0, 1.0, -1.0)
     # pixels past the other threshold band of their object's side
     side_of = side.astype(np.float32)
     side_of[0] = 0.0
-    other = (labels > 0) & (contrast * _lookup(side_of, labels) <= -min_bands)
-    has_other = np.bincount(labels[other], minlength=count + 1) > 0
+    other = np.empty(labels.shape, bool)
+    has_other = np.zeros(count + 1, bool)
+    # the bar in contrast's float type, as numpy compares an array with a Python float
+    threshold = np.asarray(-min_bands, dtype=np.result_type(contrast.dtype, np.float32))[()]
+    _other_pass(
+        np.ascontiguousarray(labels),
+        np.ascontiguousarray(contrast),
+        side_of,
+        threshold,
+        other,
+        has_other,
+    )
     # a small object's centroids say little about where its faces lie
-    has_other &= np.bincount(owners, minlength=count + 1) >= _MIN_PX
+    has_other &= sums[0] >= _MIN_PX
     has_other[0] = False
     cos_max = float(np.cos(np.radians(max_side_deg)))
     out = labels.copy()
-    boxes = _object_boxes(labels, count)
     trimmed = 0
     for k in np.flatnonzero(has_other):
         y0, y1, x0, x1 = boxes[k]
@@ -453,7 +475,7 @@ def _shadow_pieces(
 
 
 @njit(cache=True)
-def _side_sums(labels, contrast, sums):  # pragma: no cover - numba
+def _object_pass(labels, contrast, sums, boxes):  # pragma: no cover - numba
     rows, cols = labels.shape
     for y in range(rows):
         for x in range(cols):
@@ -462,6 +484,7 @@ def _side_sums(labels, contrast, sums):  # pragma: no cover - numba
                 continue
             sums[0, k] += 1.0
             value = contrast[y, x]
+            sums[7, k] += np.float64(value)
             if value > 1:
                 sums[1, k] += 1.0
                 sums[2, k] += y
@@ -470,6 +493,28 @@ def _side_sums(labels, contrast, sums):  # pragma: no cover - numba
                 sums[4, k] += 1.0
                 sums[5, k] += y
                 sums[6, k] += x
+            if y < boxes[k, 0]:
+                boxes[k, 0] = y
+            boxes[k, 1] = y  # rows come in order
+            if x < boxes[k, 2]:
+                boxes[k, 2] = x
+            if x > boxes[k, 3]:
+                boxes[k, 3] = x
+
+
+@njit(cache=True)
+def _other_pass(labels, contrast, side_of, threshold, other, has_other):  # pragma: no cover
+    """R7g's pixels past the other threshold band of their object's side: ``(labels > 0)
+    & (contrast * side_of[labels] <= threshold)`` (the product in ``contrast``'s float
+    type, as numpy's), and which objects hold one."""
+    rows, cols = labels.shape
+    for y in range(rows):
+        for x in range(cols):
+            k = labels[y, x]
+            hit = k > 0 and contrast[y, x] * side_of[k] <= threshold
+            other[y, x] = hit
+            if hit:
+                has_other[k] = True
 
 
 def trim_flat_shadow_sides(
@@ -539,31 +584,29 @@ def trim_flat_shadow_sides(
     count = int(labels.max())
     if count == 0 or max_angle_deg == 0 or max_noise_m <= 0:
         return labels, 0
-    away = anti_sun_direction(labels, contrast)
+    # the sun's side, the objects' sizes, darkness and boxes from one pass
+    sums, boxes = _object_sums(labels, contrast, count)
+    away = _direction(sums, min_pairs=_MIN_PAIRS, min_agreement=_MIN_AGREEMENT)
     if away is None:
         return labels, 0
     cos_max = float(np.cos(np.radians(max_angle_deg)))
     sigma = np.where(np.isfinite(row_sigma), row_sigma, np.inf)[:, None]
     flat_m = np.minimum(np.maximum(flat_tol_m, 2 * sigma), np.maximum(min_height_m, 3 * sigma) / 2)
-    precise = np.isfinite(relative) & (sigma <= max_noise_m)
-    # NaN compares False: an invalid height is neither standing nor flat
-    standing_all = precise & (relative >= flat_m)
-    flat_all = precise & (relative < flat_m)
-    inside = labels.ravel() > 0
-    owners = labels.ravel()[inside]
-    size = np.bincount(owners, minlength=count + 1)
-    darkness = np.bincount(owners, weights=contrast.ravel()[inside], minlength=count + 1)
-    judged = (size >= _MIN_PX) & (darkness < 0)
+    precise_rows = sigma <= max_noise_m
+    judged = (sums[0] >= _MIN_PX) & (sums[7] < 0)
     judged[0] = False
     out = labels.copy()
-    boxes = _object_boxes(labels, count)
     trimmed = 0
     for k in np.flatnonzero(judged):
         y0, y1, x0, x1 = boxes[k]
         window = (slice(y0, y1 + 1), slice(x0, x1 + 1))
         inside_k = labels[window] == k
-        standing = inside_k & standing_all[window]
-        flat = inside_k & flat_all[window]
+        # in the object's box only: its standing and flat pixels (NaN compares False: an
+        # invalid height is neither)
+        heights, level = relative[window], flat_m[y0 : y1 + 1]
+        precise = inside_k & np.isfinite(heights) & precise_rows[y0 : y1 + 1]
+        standing = precise & (heights >= level)
+        flat = precise & (heights < level)
         if np.count_nonzero(standing) < min_area_px // 2 or not flat.any():
             continue
         sy, sx = np.nonzero(standing)

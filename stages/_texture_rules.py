@@ -287,8 +287,9 @@ def drop_streaks(
                 streak[k] = False  # R5d
     if not streak.any():
         return labels, 0
-    kept = np.where(_lookup(streak, labels), 0, labels)
-    return _renumber(kept, 1), int(streak.sum())
+    # the streaks to 0 (one lookup), then renumbered
+    table = np.where(streak, 0, np.arange(streak.size)).astype(labels.dtype)
+    return _renumber(_lookup(table, labels), 1), int(streak.sum())
 
 
 def _ring_spreads(image: np.ndarray, labels: np.ndarray, box: np.ndarray, k: int) -> float:

@@ -61,6 +61,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from numba import njit
 
 from pipeline.compute import compute
 from pipeline.stage import FrameContext, Param, Product, Stage, StageResult
@@ -69,7 +70,7 @@ from ._blobs import add_compact_blobs, blob_scales
 from ._continuity import SectorAnalysis, analyse_sectors
 from ._depth_rules import (
     _NOISY_SIGMA_M,
-    _row_band_sigma,
+    _sampled_row_band_sigma,
     apply_depth_rules,
     drop_faint_depthless,
     gray_contrast,
@@ -79,7 +80,7 @@ from ._fill import border_fill, histograms_without_fill
 from ._height_blobs import add_height_blobs
 from ._height_grow import grow_raised_parts
 from ._height_vote import BumpWeights
-from ._heights import DepthRuleStats, relative_height
+from ._heights import DepthRuleStats, _fraction, relative_height
 from ._outlines import split_at_necks, trim_faint_rims
 from ._regions import depth_edges, label_objects, threshold_mask
 from ._rock_parts import (
@@ -429,7 +430,7 @@ def segment_image(
         contrast = gray_contrast(image, background=background, low=low, high=high)
         height = _coerce_depth(height, shape, "height")
         disparity = _coerce_depth(disparity, shape, "disparity")
-        valid_fraction = float(np.isfinite(height).mean()) if height is not None else 0.0
+        valid_fraction = _fraction(np.isfinite(height)) if height is not None else 0.0
         if height is not None and valid_fraction >= min_depth_valid_fraction:
             # R0's relative heights, read by the depth rules and again by R7e
             relative = relative_height(
@@ -680,13 +681,15 @@ class _RowNoise:
 
     def __init__(self, relative: np.ndarray) -> None:
         self.relative = relative
-        self._valid = np.isfinite(relative)
+        # R0b reads every other column: those, contiguous, and only those compared
+        self._sampled = np.ascontiguousarray(relative[:, ::2])
+        self._valid = np.isfinite(self._sampled)
         self._memo: dict[tuple[int, int], tuple[np.ndarray, float]] = {}
 
     def __call__(self, labels: np.ndarray) -> np.ndarray:
         """Per row of ``labels`` (0 ground), the noise of the valid ground heights, m."""
-        usable = self._valid & (labels == 0)
-        return _row_band_sigma(self.relative, usable, _memo=self._memo)
+        usable = self._valid & (labels[:, ::2] == 0)
+        return _sampled_row_band_sigma(self._sampled, usable, _memo=self._memo)
 
 
 def _on_row_heights(
@@ -704,15 +707,23 @@ def _on_row_heights(
 
 
 def _seams(labels: np.ndarray) -> np.ndarray:
-    """Pixels with a 4-neighbour of another object: where touching objects meet."""
-    seams = np.zeros(labels.shape, dtype=bool)
-    for a, b in ((labels[:, 1:], labels[:, :-1]), (labels[1:, :], labels[:-1, :])):
-        differ = (a != b) & (a > 0) & (b > 0)
-        if a.shape[0] < labels.shape[0]:
-            seams[1:, :] |= differ
-        else:
-            seams[:, 1:] |= differ
+    """Pixels with a 4-neighbour of another object: where touching objects meet (the lower
+    or right pixel of each such pair; one compiled pass, ``test_segment.py`` compares it
+    with the whole-frame comparisons it replaced)."""
+    seams = np.empty(labels.shape, dtype=bool)
+    _seam_pass(np.ascontiguousarray(labels), seams)
     return seams
+
+
+@njit(cache=True)
+def _seam_pass(labels, seams):  # pragma: no cover - numba
+    rows, cols = labels.shape
+    for y in range(rows):
+        for x in range(cols):
+            k = labels[y, x]
+            left = labels[y, x - 1] if x > 0 else 0
+            up = labels[y - 1, x] if y > 0 else 0
+            seams[y, x] = k > 0 and ((left > 0 and left != k) or (up > 0 and up != k))
 
 
 def _sector_chunks(edges: np.ndarray, tile_px: int) -> tuple[tuple[int, ...], tuple[int, ...]]:

@@ -7,7 +7,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from stages._continuity import _demote_inconsistent, _plane_level, analyse_sectors
+from stages._continuity import (
+    _demote_inconsistent,
+    _plane_level,
+    _seed_levels,
+    analyse_sectors,
+)
 
 LEVELS = np.arange(256)
 
@@ -401,3 +406,36 @@ def test_nearest_mode_equals_the_pick_of_its_lexsort_twin():
             pick = candidates[np.lexsort((-heights[candidates], distance[candidates]))[0]]
             want = float(positions[pick])
         assert _nearest_mode(positions, heights, predicted, reach) == want
+
+
+def test_seed_levels_equal_the_per_sector_argsort_they_replaced():
+    # the twin: the loop over a list of (positions, heights) pairs, one argsort per sector
+    from stages._modes import find_all_modes
+    from stages._sectors import smooth_histograms
+
+    rng = np.random.default_rng(31)
+    for _ in range(10):
+        n = int(rng.integers(2, 9))
+        hist = rng.poisson(rng.uniform(0, 40, (n, n, 256))).astype(np.int64)
+        hist[rng.random((n, n)) < 0.1] = 0  # sectors without modes
+        smoothed = smooth_histograms(hist, passes=2)
+        smoothed[0, 0, :] = np.round(smoothed[0, 0, :])  # ties between heights
+        positions, counts = find_all_modes(smoothed, prominence=0.05)
+        for dominance in (0.3, 0.7, 1.0):
+            levels = np.full((n, n), np.nan)
+            for i in range(n):
+                for j in range(n):
+                    at = positions[i, j, : counts[i, j]]
+                    heights = smoothed[i, j][at]
+                    if heights.size == 1:
+                        levels[i, j] = at[0]
+                    elif heights.size > 1:
+                        order = np.argsort(heights)[::-1]
+                        if heights[order[1]] < dominance * heights[order[0]]:
+                            levels[i, j] = at[order[0]]
+            np.testing.assert_array_equal(
+                _seed_levels(
+                    positions, counts, smoothed, seed_dominance=dominance, continuity_range=12.0
+                ),
+                _demote_inconsistent(levels, 12.0),
+            )

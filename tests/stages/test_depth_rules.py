@@ -9,6 +9,7 @@ from object_masks import disk
 
 from stages._depth_rules import (
     _frame_bands,
+    _judged_pass,
     _row_band_sigma,
     apply_depth_rules,
     drop_faint_depthless,
@@ -306,3 +307,24 @@ def test_frame_bands_are_the_floats_np_median_gave():
         got = _frame_bands(background, low, high)
         expected = numpy_bands(background, low, high)
         np.testing.assert_array_equal(np.array(got), np.array(expected))
+
+
+def test_judged_pass_gathers_what_boolean_indexing_gives():
+    # the twins: R3b's lookup of the judged objects and its four boolean gathers
+    from stages._regions import _lookup
+
+    rng = np.random.default_rng(15)
+    for _ in range(20):
+        shape = tuple(rng.integers(1, 30, 2))
+        labels = rng.integers(0, 7, shape).astype(np.int32)
+        judged = rng.random(7) < 0.5
+        judged[0] = False
+        image = rng.integers(0, 256, shape).astype(np.uint8)
+        maps = [rng.normal(100, 30, shape) for _ in range(3)]  # float64: rounded to float32
+        inside = _lookup(judged, labels)
+        ids = np.empty(int(inside.sum()), labels.dtype)
+        fields = np.empty((4, ids.size), np.float32)
+        _judged_pass(labels, judged, image, *maps, ids, fields)
+        np.testing.assert_array_equal(ids, labels[inside])
+        for got, field in zip(fields, (image, *maps), strict=True):
+            np.testing.assert_array_equal(got, field[inside].astype(np.float32))

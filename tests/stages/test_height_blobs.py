@@ -171,3 +171,15 @@ def test_shared_blob_scales_give_the_same_blobs():
     for found, added in (shared, stale):
         assert added == alone[1]
         np.testing.assert_array_equal(found, alone[0])
+
+
+def test_detail_ratio_equals_its_numpy_twin_bit_for_bit():
+    # the twin: the whole-frame numpy steps the compiled squared difference replaced
+    rng = np.random.default_rng(9)
+    for shape in ((7, 9), (40, 33), (64, 80)):
+        image = rng.integers(0, 256, shape).astype(np.uint8)
+        pixels = image.astype(np.float32)
+        fine = pixels - cv2.GaussianBlur(pixels, (0, 0), 1.0)
+        twin = np.sqrt(cv2.GaussianBlur(fine * fine, (0, 0), 2.0))
+        detail, _ = detail_ratio(image)
+        np.testing.assert_array_equal(detail.view(np.int32), twin.view(np.int32))

@@ -9,9 +9,11 @@ import pytest
 from stages._height_grow import (
     _ground_mean,
     _grow,
+    _kept_ground_mean,
     _measure,
     _median_row,
     _reach_steps,
+    _window_masks,
     grow_raised_parts,
 )
 
@@ -218,12 +220,41 @@ def test_ground_mean_equals_its_opencv_twin_bit_for_bit():
         np.testing.assert_array_equal(mean.view(np.int32), twin.view(np.int32))
 
 
+def test_kept_ground_mean_equals_the_whole_frames_where_asked():
+    # R7f's cases keep the mean between them and make again only the columns near a growth:
+    # where a case reads it, the same bits as the whole frame's mean of its own labels
+    rng = np.random.default_rng(6)
+    for _ in range(30):
+        shape = (int(rng.integers(5, 40)), int(rng.integers(5, 60)))
+        contrast = (rng.normal(0, 1, shape) * 10 ** rng.uniform(-6, 3, shape)).astype(np.float32)
+        labels = (rng.random(shape) < 0.3).astype(np.int32)
+        measures: dict = {}
+        for _case in range(3):
+            spans = []
+            for _span in range(int(rng.integers(1, 4))):
+                x0 = int(rng.integers(0, shape[1]))
+                spans.append((x0, int(rng.integers(x0 + 1, shape[1] + 1))))
+            mean = _kept_ground_mean(measures, contrast, labels, spans)
+            whole = _ground_mean(contrast, labels == 0)
+            for x0, x1 in spans:
+                np.testing.assert_array_equal(
+                    mean[:, x0:x1].view(np.int32), whole[:, x0:x1].view(np.int32)
+                )
+            # a growth inside a few columns, as _grow records it
+            x0 = int(rng.integers(0, shape[1]))
+            x1 = int(rng.integers(x0 + 1, shape[1] + 1))
+            labels = labels.copy()
+            labels[:, x0:x1][rng.random((shape[0], x1 - x0)) < 0.4] = 2
+            measures["stale"].append((x0, x1))
+
+
 def test_median_row_equals_numpys_median_of_the_rows():
     rng = np.random.default_rng(4)
     for _ in range(200):
         own = rng.random(tuple(rng.integers(1, 12, 2))) < rng.uniform(0.05, 1)
         if own.any():
-            assert _median_row(own) == int(np.median(np.nonzero(own)[0]))
+            window = np.where(own, 3, rng.integers(0, 3, own.shape)).astype(np.int32)
+            assert _median_row(window, 3) == int(np.median(np.nonzero(own)[0]))
 
 
 def test_cases_sharing_their_measures_equal_cases_measuring_again():
@@ -282,3 +313,68 @@ def test_reach_steps_equal_rounds_of_a_dilation_within_the_free_pixels():
         reached = obj.copy()
         _reach_steps(reached, free, steps)
         np.testing.assert_array_equal(reached, twin)
+
+
+def test_window_masks_equal_the_numpy_comparisons():
+    # the twins: the whole-window comparisons the pass replaced (float64 scalars against
+    # float32 maps compare in float64; NaN heights are never free)
+    rng = np.random.default_rng(7)
+    for _ in range(30):
+        shape = tuple(rng.integers(1, 30, 2))
+        box = rng.integers(0, 4, shape).astype(np.int32)
+        heights = rng.normal(0.01, 0.01, shape).astype(np.float32)
+        heights[rng.random(shape) < 0.1] = np.nan
+        mean = rng.normal(0, 0.5, shape).astype(np.float32)
+        level = np.float64(rng.uniform(0, 0.02))
+        side = np.float64(rng.choice([-1.0, 1.0]))
+        top = int(rng.integers(0, shape[0] + 1))
+        obj = np.empty(shape, bool)
+        free = np.empty(shape, bool)
+        _window_masks(box, heights, mean, 2, level, side, 0.25, top, obj, free)
+        with np.errstate(invalid="ignore"):
+            expected = (box == 0) & (heights > level)
+        expected &= side * mean >= 0.25
+        expected[:top] = False
+        np.testing.assert_array_equal(obj, box == 2)
+        np.testing.assert_array_equal(free, expected)
+
+
+def _measure_twin(labels, contrast, relative, count):
+    # _measure as it was before its compiled pass: whole-frame masks and gathers
+    from stages._heights import _percentiles_by_label
+    from stages._regions import _label_areas, _object_boxes
+
+    inside = labels > 0
+    judged = inside & np.isfinite(relative)
+    core = _percentiles_by_label(
+        relative[judged].astype(np.float32), labels[judged], count + 1, (75.0,)
+    )[0]
+    side = np.sign(
+        _percentiles_by_label(
+            contrast[inside].astype(np.float32), labels[inside], count + 1, (50.0,)
+        )[0]
+    )
+    core[~np.isfinite(core)] = -np.inf
+    return {
+        "sizes": _label_areas(labels, count + 1),
+        "core": core,
+        "side": side,
+        "boxes": _object_boxes(labels, count),
+    }
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_measure_equals_its_whole_frame_twin(dtype):
+    rng = np.random.default_rng(8)
+    for _ in range(20):
+        shape = tuple(rng.integers(1, 40, 2))
+        labels = rng.integers(0, 6, shape).astype(np.int32)
+        labels[rng.random(shape) < 0.4] = 0
+        count = int(labels.max())
+        relative = rng.normal(0, 0.02, shape).astype(dtype)
+        relative[rng.random(shape) < 0.2] = np.nan
+        contrast = rng.normal(0, 1, shape).astype(dtype)
+        got = _measure(labels, contrast, relative, count)
+        want = _measure_twin(labels, contrast, relative, count)
+        for key in ("sizes", "core", "side", "boxes"):
+            np.testing.assert_array_equal(got[key], want[key])

@@ -197,3 +197,68 @@ def test_ring_pass_gathers_the_ring_pixels_in_raster_order():
     ring = (components == 0) & (grown > 0) & np.isfinite(relative)
     np.testing.assert_array_equal(owners[:n], grown[ring].astype(np.int64))
     np.testing.assert_array_equal(values[:n], relative[ring])
+
+
+def _numpy_height_bumps(relative, mask):
+    # the whole-frame numpy steps the compiled passes of _height_bumps replaced
+    valid = np.isfinite(relative)
+    filled = np.where(valid, relative, np.float32(0.0)).astype(np.float32, copy=False)
+    levels = []
+    for scale, weight in zip(
+        (height_vote._BUMP_INNER_PX, height_vote._BUMP_OUTER_PX),
+        height_vote._weight_levels(valid),
+        strict=True,
+    ):
+        size = height_vote._kernel_size(scale)
+        level = cv2.GaussianBlur(filled, (size, size), scale)
+        level /= weight
+        levels.append(level)
+    bumps = levels[0]
+    bumps -= levels[1]
+    ground = valid[::2, ::2] & ~mask[::2, ::2]
+    noise = height_vote._robust_sigma(bumps[::2, ::2][ground])
+    if not noise > 0:
+        return np.zeros(relative.shape, np.float32)
+    bumps *= np.float32(1.0 / noise)
+    bumps[~valid] = 0.0
+    return bumps
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_height_bumps_equal_their_numpy_twin_bit_for_bit(dtype):
+    rng = np.random.default_rng(21)
+    for _ in range(12):
+        shape = tuple(rng.integers(3, 60, 2))
+        relative = (rng.normal(0, 0.01, shape) * rng.uniform(0.1, 10)).astype(dtype)
+        relative[rng.random(shape) < rng.uniform(0, 0.5)] = np.nan
+        mask = rng.random(shape) < rng.uniform(0, 0.6)
+        np.testing.assert_array_equal(
+            height_vote._height_bumps(relative, mask).view(np.int32),
+            _numpy_height_bumps(relative, mask).view(np.int32),
+        )
+
+
+def test_object_pixels_equal_boolean_indexing():
+    # the twins: the boolean-mask gathers the compiled pass replaced
+    rng = np.random.default_rng(23)
+    for _ in range(20):
+        shape = tuple(rng.integers(1, 40, 2))
+        mask = rng.random(shape) < rng.random()
+        count, components = cv2.connectedComponents(mask.view(np.uint8), connectivity=8)
+        values = rng.normal(0, 1, shape).astype(np.float32)
+        values[rng.random(shape) < 0.2] = np.nan
+        values[rng.random(shape) < 0.05] = -0.0
+        in_object = np.isfinite(values) & (components > 0)
+        owners, kept = height_vote._object_pixels(
+            components, values, int(in_object.sum()), heights=True
+        )
+        np.testing.assert_array_equal(owners, components[in_object])
+        np.testing.assert_array_equal(kept.view(np.int32), values[in_object].view(np.int32))
+        inside = components > 0
+        owners, kept = height_vote._object_pixels(
+            components, values, int(inside.sum()), heights=False
+        )
+        np.testing.assert_array_equal(owners, components[inside])
+        np.testing.assert_array_equal(
+            kept.view(np.int32), np.abs(values[inside]).view(np.int32)
+        )

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 from hypothesis import given
@@ -9,9 +10,13 @@ from hypothesis import strategies as st
 from scipy.ndimage import median_filter
 
 from stages._heights import (
+    _fraction,
+    _ground_heights,
     _median_filter_nearest,
     _percentile_by_label,
     _percentiles_by_label,
+    local_ground,
+    relative_height,
     smooth_height,
 )
 
@@ -81,3 +86,61 @@ def test_percentiles_by_label_of_float32_values_equal_numpys_lower_percentile(pa
         for row, q in zip(result, (90, 50, 0, 100), strict=True):
             expected = np.percentile(chosen, q, method="lower") if chosen.size else np.inf
             assert row[label] == expected
+
+
+def _heights_with_holes(rng, shape, dtype):
+    height = rng.normal(0, 0.02, shape).astype(dtype)
+    height[rng.random(shape) < rng.uniform(0, 0.4)] = np.nan
+    height[rng.random(shape) < 0.01] = np.inf
+    height[rng.random(shape) < 0.01] = -0.0
+    return height
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_smooth_height_and_local_ground_equal_their_numpy_twins(dtype):
+    # the twins: the np.where steps the compiled passes replaced
+    rng = np.random.default_rng(8)
+    for _ in range(10):
+        height = _heights_with_holes(rng, tuple(rng.integers(9, 80, 2)), dtype)
+        valid = np.isfinite(height)
+        filled = np.where(valid, height, np.float32(0.0)).astype(np.float32, copy=False)
+        for window in (3, 5):
+            twin = np.where(valid, cv2.medianBlur(filled, window), np.float32(np.nan))
+            np.testing.assert_array_equal(
+                smooth_height(height, window=window).view(np.int32), twin.view(np.int32)
+            )
+        small_shape = (filled.shape[1] // 8, filled.shape[0] // 8)  # 72 px: a factor of 8
+        small = cv2.resize(filled, small_shape, interpolation=cv2.INTER_AREA)
+        coarse = _median_filter_nearest(small, size=min(9, *small.shape))
+        twin = cv2.resize(coarse, filled.shape[::-1], interpolation=cv2.INTER_LINEAR)
+        np.testing.assert_array_equal(local_ground(height, window_px=72), twin)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_relative_height_is_the_smoothed_map_minus_its_local_ground_bit_for_bit(dtype):
+    rng = np.random.default_rng(9)
+    for _ in range(10):
+        height = _heights_with_holes(rng, tuple(rng.integers(9, 80, 2)), dtype)
+        for window in (1, 3, 5):
+            smoothed = smooth_height(height, window=window)
+            twin = smoothed - local_ground(smoothed, window_px=36)
+            relative = relative_height(height, smoothing_px=window, ground_window_px=36)
+            np.testing.assert_array_equal(relative.view(np.int32), twin.view(np.int32))
+
+
+def test_ground_heights_equal_boolean_indexing():
+    rng = np.random.default_rng(10)
+    for dtype in (np.float32, np.float64):
+        height = _heights_with_holes(rng, (30, 40), dtype)
+        mask = rng.random(height.shape) < 0.3
+        expected = height[np.isfinite(height) & ~mask]
+        got = _ground_heights(height, mask)
+        assert got.dtype == expected.dtype
+        np.testing.assert_array_equal(got.view(np.uint8), expected.view(np.uint8))
+
+
+def test_fraction_is_the_mean_of_the_mask_bit_for_bit():
+    rng = np.random.default_rng(11)
+    for _ in range(50):
+        mask = rng.random(tuple(rng.integers(1, 300, 2))) < rng.random()
+        assert _fraction(mask) == float(mask.mean())

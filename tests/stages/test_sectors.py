@@ -143,3 +143,14 @@ def test_interpolation_of_a_constant_is_constant_and_validates():
     np.testing.assert_allclose(interpolate_sector_grid(np.full((4, 4), 7.0), (37, 53)), 7.0)
     with pytest.raises(ValueError, match="finite"):
         interpolate_sector_grid(np.full((4, 4), np.nan), (40, 40))
+
+
+def test_cached_pixel_weights_equal_fresh_ones_and_are_read_only():
+    from stages._sectors import _interpolation_weights, _pixel_weights, sector_edges
+
+    for length, sectors in ((500, 16), (37, 5), (500, 16)):
+        weights = _pixel_weights(length, sectors)
+        np.testing.assert_array_equal(
+            weights, _interpolation_weights(length, sector_edges(length, sectors))
+        )
+        assert not weights.flags.writeable

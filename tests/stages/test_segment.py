@@ -8,8 +8,15 @@ import pytest
 from pipeline.camera import Camera
 from pipeline.errors import ParamError
 from pipeline.stage import FrameContext
+from stages._depth_rules import _row_band_sigma
 from stages._sectors import sector_edges, sector_histograms
-from stages.segment import STAGE, segment_image, tiled_sector_histograms
+from stages.segment import (
+    STAGE,
+    _RowNoise,
+    _seams,
+    segment_image,
+    tiled_sector_histograms,
+)
 
 
 def disk(shape, cy, cx, r):
@@ -256,3 +263,33 @@ def test_regression_rectification_fill_was_segmented_as_an_obstacle(method):
         assert iou(result.labels == result.labels[cy, cx], disk(plain.shape, cy, cx, r)) > 0.85
     assert any("black fill along the border" in note for note in result.notes)
     assert not any("fill" in note for note in segment_image(plain, method=method, sectors=8).notes)
+
+
+def test_seams_equal_the_whole_frame_comparisons():
+    # the twin: the neighbour comparisons the compiled pass replaced
+    rng = np.random.default_rng(4)
+    for _ in range(30):
+        labels = rng.integers(0, 4, tuple(rng.integers(1, 30, 2))).astype(np.int32)
+        expected = np.zeros(labels.shape, dtype=bool)
+        for a, b, rows in ((labels[:, 1:], labels[:, :-1], False), (labels[1:], labels[:-1], True)):
+            differ = (a != b) & (a > 0) & (b > 0)
+            if rows:
+                expected[1:, :] |= differ
+            else:
+                expected[:, 1:] |= differ
+        np.testing.assert_array_equal(_seams(labels), expected)
+
+
+def test_row_noise_equals_the_row_band_sigma_of_each_labelling():
+    # R7e and R7f's row noise samples the heights once and remembers the bands: the same
+    # values as R0b's row noise of each labelling measured afresh
+    rng = np.random.default_rng(6)
+    relative = rng.normal(0, 0.005, (120, 97)).astype(np.float32)
+    relative[rng.random(relative.shape) < 0.1] = np.nan
+    noise = _RowNoise(relative)
+    labels = np.zeros(relative.shape, np.int32)
+    for _ in range(4):
+        y, x = rng.integers(0, 100), rng.integers(0, 80)
+        labels[y : y + 20, x : x + 15] = 1  # an object grows in one band or two
+        usable = np.isfinite(relative) & (labels == 0)
+        np.testing.assert_array_equal(noise(labels), _row_band_sigma(relative, usable))

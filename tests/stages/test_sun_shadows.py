@@ -279,3 +279,48 @@ def test_r6c_refuses_bad_arguments():
         trim_flat_shadow_sides(labels, contrast, relative, sigma[:-1], **_R6C)
     with pytest.raises(ValueError, match="max_angle_deg"):
         trim_flat_shadow_sides(labels, contrast, relative, sigma, max_angle_deg=95, **_R6C)
+
+
+def test_object_sums_hold_the_bincounts_and_boxes_they_replaced():
+    # R6b, R6c and R7g read sizes, darkness (np.bincount's float64 sums) and boxes from
+    # the sun direction's pass; the twins: the whole-frame bincounts and _object_boxes
+    from stages._regions import _object_boxes
+    from stages._sun_shadows import _object_sums
+
+    rng = np.random.default_rng(13)
+    for _ in range(20):
+        shape = tuple(rng.integers(1, 40, 2))
+        labels = rng.integers(0, 7, shape).astype(np.int32)
+        labels[rng.random(shape) < 0.4] = 0
+        contrast = (rng.normal(0, 2, shape) * 10 ** rng.uniform(-6, 3, shape)).astype(np.float32)
+        count = int(labels.max())
+        sums, boxes = _object_sums(labels, contrast, count)
+        inside = labels.ravel() > 0
+        owners = labels.ravel()[inside]
+        np.testing.assert_array_equal(sums[0], np.bincount(owners, minlength=count + 1))
+        darkness = np.bincount(owners, weights=contrast.ravel()[inside], minlength=count + 1)
+        np.testing.assert_array_equal(sums[7], darkness)
+        np.testing.assert_array_equal(boxes, _object_boxes(labels, count))
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_other_pass_equals_the_whole_frame_comparison(dtype):
+    from stages._regions import _lookup
+    from stages._sun_shadows import _other_pass
+
+    rng = np.random.default_rng(14)
+    for _ in range(20):
+        shape = tuple(rng.integers(1, 40, 2))
+        labels = rng.integers(0, 6, shape).astype(np.int32)
+        contrast = rng.normal(0, 1.2, shape).astype(dtype)
+        contrast[rng.random(shape) < 0.05] = np.nan
+        side_of = np.where(rng.random(6) < 0.5, 1.0, -1.0).astype(np.float32)
+        side_of[0] = 0.0
+        min_bands = float(rng.uniform(0.3, 1.7))
+        expected = (labels > 0) & (contrast * _lookup(side_of, labels) <= -min_bands)
+        other = np.empty(shape, bool)
+        has_other = np.zeros(6, bool)
+        threshold = np.asarray(-min_bands, dtype=np.result_type(dtype, np.float32))[()]
+        _other_pass(labels, contrast, side_of, threshold, other, has_other)
+        np.testing.assert_array_equal(other, expected)
+        np.testing.assert_array_equal(has_other, np.bincount(labels[expected], minlength=6) > 0)
