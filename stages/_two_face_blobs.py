@@ -239,11 +239,24 @@ def add_two_faced_blobs(
 @njit(cache=True)
 def _face_counts(blob_ids, dark, light, ring, counts):  # pragma: no cover - numba
     rows, cols = blob_ids.shape
+    # blob 0 (most pixels) counted in registers: ``counts[0, 0] += 1`` on most pixels makes
+    # each wait for the last store (see stages._regions._drop_specks)
+    ground = ground_dark = ground_light = ground_ring = 0
     for y in range(rows):
         for x in range(cols):
             k = blob_ids[y, x]
             # the masks added as 0 or 1: no branch to mispredict
+            if k == 0:
+                ground += 1
+                ground_dark += dark[y, x]
+                ground_light += light[y, x]
+                ground_ring += ring[y, x]
+                continue
             counts[0, k] += 1
             counts[1, k] += dark[y, x]
             counts[2, k] += light[y, x]
             counts[3, k] += ring[y, x]
+    counts[0, 0] += ground
+    counts[1, 0] += ground_dark
+    counts[2, 0] += ground_light
+    counts[3, 0] += ground_ring
