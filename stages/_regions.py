@@ -163,22 +163,23 @@ def _drop_specks(labels, count, min_area_px):  # pragma: no cover - numba
 
 
 def _split_at_edges(labels: np.ndarray, edges: np.ndarray, min_area_px: int) -> np.ndarray:
-    """Split objects holding several depth-separated cores; returns new (not dense) labels."""
+    """Split objects holding several depth-separated cores; returns new (not dense) labels
+    (of ``labels``' dtype, ids up to ``labels.max()`` plus the number of cores)."""
     # 4-connected cores: a one-pixel staircase of edge pixels must be a closed cut
     cores = _dense_components((labels > 0) & ~edges, min_area_px, connectivity=4)
-    n_cores = int(cores.max())
+    # parent object of each core (one compiled pass), and how many cores each object has
+    parent = _core_parents(cores, labels)
+    n_cores = parent.size - 1
     if n_cores < 2:
         return labels
-    # parent object of each core, and how many cores each object has
-    core_pixels = cores > 0
-    parent = np.zeros(n_cores + 1, dtype=np.int64)
-    parent[cores[core_pixels]] = labels[core_pixels]
-    cores_per_object = np.bincount(parent[1:], minlength=int(labels.max()) + 1)
+    offset = int(labels.max())
+    cores_per_object = np.bincount(parent[1:], minlength=offset + 1)
     split_objects = np.flatnonzero(cores_per_object >= 2)
     if split_objects.size == 0:
         return labels
-    result = labels.astype(np.int64)
-    offset = int(labels.max())
+    core_pixels = cores > 0
+    # offset + a core's id stays below 2**31 (both count pixels)
+    result = labels.copy()
     boxes = _object_boxes(labels, offset)
     h, w = labels.shape
     for k in split_objects:
@@ -204,6 +205,28 @@ def _split_at_edges(labels: np.ndarray, edges: np.ndarray, min_area_px: int) -> 
         mine = (labels[ys, xs] == k) & (parent[nearest] == k)
         result[ys, xs][mine] = offset + nearest[mine]
     return result
+
+
+def _core_parents(cores: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """Per core 0..n (``cores`` numbered 1..n densely, each inside one object of
+    ``labels``): its object's id (core 0: 0), as ``parent[cores[cores > 0]] =
+    labels[cores > 0]`` sets it, in one compiled pass (``test_regions.py`` compares)."""
+    return _parents_pass(np.ascontiguousarray(cores), np.ascontiguousarray(labels))
+
+
+@njit(cache=True)
+def _parents_pass(cores, labels):  # pragma: no cover - numba
+    rows, cols = cores.shape
+    n = 0
+    for y in range(rows):
+        for x in range(cols):
+            n = max(n, cores[y, x])
+    parent = np.zeros(n + 1, np.int64)
+    for y in range(rows):
+        for x in range(cols):
+            if cores[y, x] > 0:
+                parent[cores[y, x]] = labels[y, x]
+    return parent
 
 
 def label_objects(

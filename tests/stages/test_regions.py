@@ -10,6 +10,7 @@ from scipy.ndimage import distance_transform_edt, find_objects
 
 from stages._regions import (
     _box_window,
+    _core_parents,
     _dense_components,
     _label_areas,
     _label_sums,
@@ -218,3 +219,16 @@ def test_split_at_edges_crops_equal_the_whole_frame_transform():
         np.testing.assert_array_equal(result, _split_at_edges_twin(labels, edges, 5))
         splits += result is not labels
     assert splits > 50
+
+
+def test_core_parents_equal_the_masked_scatter():
+    # the compiled pass against the numpy scatter it replaced in _split_at_edges
+    rng = np.random.default_rng(23)
+    for _ in range(100):
+        shape = tuple(rng.integers(1, 40, 2))
+        noise = rng.random(shape).astype(np.float32)
+        labels = _dense_components(cv2.GaussianBlur(noise, (0, 0), 1.5) > 0.5, 1)
+        cores = _dense_components((labels > 0) & (rng.random(shape) > 0.1), 2, connectivity=4)
+        expected = np.zeros(int(cores.max()) + 1, np.int64)
+        expected[cores[cores > 0]] = labels[cores > 0]
+        np.testing.assert_array_equal(_core_parents(cores, labels), expected)
