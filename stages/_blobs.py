@@ -71,6 +71,7 @@ from numba import njit
 
 from ._regions import _box_window
 from ._sectors import sector_edges
+from ._select import _kth
 
 __all__ = ["BlobScales", "add_compact_blobs", "blob_scales"]
 
@@ -382,16 +383,17 @@ def _tile_spread(
         # the unchanged tiles copied at once; the loop visits the (few) changed ones
         todo = changed
         grid[~changed] = known[~changed]
-    for i, j in zip(*np.nonzero(todo), strict=True):
-        r0, r1 = row_edges[i], row_edges[i + 1]
-        c0, c1 = col_edges[j], col_edges[j + 1]
-        # every other row and column: the spread of tens of thousands of pixels is
-        # stable on a quarter of them
-        sample = values[r0:r1:2, c0:c1:2][use[r0:r1:2, c0:c1:2]]
-        if sample.size >= _MIN_TILE_PX:
-            # the values are already measured from the ground: MAD about 0
-            middle = sample.size // 2
-            grid[i, j] = 1.4826 * np.partition(np.abs(sample), middle)[middle]
+    # the tiles' spreads in one compiled pass (per tile: a sample, its absolute values and
+    # np.partition cost 10-15 us, 1.2 ms for a frame's 100 tiles)
+    _tile_mads(
+        np.ascontiguousarray(values),
+        np.ascontiguousarray(use),
+        row_edges,
+        col_edges,
+        todo,
+        values.dtype.type(1.4826),
+        grid,
+    )
     if _memo is not None:
         _memo.update(tile_px=tile_px, use=use.copy(), grid=grid.copy())
     if np.isnan(grid).all():
@@ -401,6 +403,36 @@ def _tile_spread(
         # (nanmedian costs 0.1 ms even when no tile is empty)
         grid[empty] = np.nanmedian(grid)
     return cv2.resize(grid, (cols, rows), interpolation=cv2.INTER_LINEAR)
+
+
+@njit(cache=True)
+def _tile_mads(values, use, row_edges, col_edges, todo, scale, grid):  # pragma: no cover
+    """``grid[i, j] = scale * median`` of the absolute ``values`` over ``use`` on every other
+    row and column of each tile ``todo`` says (the values are already measured from the
+    ground: MAD about 0); a tile with fewer than ``_MIN_TILE_PX`` such pixels is left.
+    The median is the upper middle order statistic, as ``np.partition`` selects it, and
+    ``scale`` has the values' dtype: numpy's product of a Python float and a float32."""
+    largest = 0
+    for i in range(row_edges.size - 1):
+        for j in range(col_edges.size - 1):
+            rows = (row_edges[i + 1] - row_edges[i] + 1) // 2
+            cols = (col_edges[j + 1] - col_edges[j] + 1) // 2
+            largest = max(largest, rows * cols)
+    sample = np.empty(largest, values.dtype)
+    for i in range(row_edges.size - 1):
+        for j in range(col_edges.size - 1):
+            if not todo[i, j]:
+                continue
+            # every other row and column: the spread of tens of thousands of pixels is
+            # stable on a quarter of them
+            n = 0
+            for y in range(row_edges[i], row_edges[i + 1], 2):
+                for x in range(col_edges[j], col_edges[j + 1], 2):
+                    if use[y, x]:
+                        sample[n] = abs(values[y, x])
+                        n += 1
+            if n >= _MIN_TILE_PX:
+                grid[i, j] = scale * _kth(sample[:n], n // 2)
 
 
 def _grow(

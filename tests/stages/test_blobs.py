@@ -15,6 +15,7 @@ from stages._blobs import (
     add_compact_blobs,
 )
 from stages._regions import _label_sums, _object_boxes
+from stages._sectors import sector_edges
 
 SHAPE = (160, 160)
 
@@ -174,6 +175,41 @@ def test_tile_spread_memo_measures_changed_tiles_alike():
     np.testing.assert_array_equal(
         _tile_spread(values, use, 20, _memo=memo), _tile_spread(values, use, 20)
     )
+
+
+def _tile_spread_numpy(values, use, tile_px):
+    """_tile_spread's numpy twin: per tile, np.partition of the sample's absolute values."""
+    rows, cols = values.shape
+    row_edges = sector_edges(rows, max(1, round(rows / tile_px)))
+    col_edges = sector_edges(cols, max(1, round(cols / tile_px)))
+    grid = np.full((row_edges.size - 1, col_edges.size - 1), np.nan, np.float32)
+    for i in range(grid.shape[0]):
+        for j in range(grid.shape[1]):
+            r0, r1 = row_edges[i], row_edges[i + 1]
+            c0, c1 = col_edges[j], col_edges[j + 1]
+            sample = values[r0:r1:2, c0:c1:2][use[r0:r1:2, c0:c1:2]]
+            if sample.size >= 12:
+                middle = sample.size // 2
+                grid[i, j] = 1.4826 * np.partition(np.abs(sample), middle)[middle]
+    if np.isnan(grid).all():
+        grid[:] = 0.5
+    grid[np.isnan(grid)] = np.nanmedian(grid)
+    return cv2.resize(grid, (cols, rows), interpolation=cv2.INTER_LINEAR)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_tile_spread_equals_its_numpy_twin(dtype):
+    # the compiled tiles against np.partition per tile: ties (rounded values), empty and
+    # sparse tiles, odd and even sample sizes
+    rng = np.random.default_rng(31)
+    for _ in range(40):
+        shape = tuple(rng.integers(8, 130, 2))
+        values = np.round(rng.normal(0, 4, shape), int(rng.integers(0, 3))).astype(dtype)
+        use = rng.random(shape) < rng.uniform(0.0, 1.0)
+        tile_px = int(rng.integers(8, 40))
+        np.testing.assert_array_equal(
+            _tile_spread(values, use, tile_px), _tile_spread_numpy(values, use, tile_px)
+        )
 
 
 def test_seeded_regions_fill_nested_rings_as_the_whole_frame_flood():
