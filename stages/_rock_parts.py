@@ -629,6 +629,8 @@ def join_opposite_halves(
         y0, x0 = max(0, sy.start - gap_px), max(0, sx.start - gap_px)
         y1, x1 = min(rows, sy.stop + gap_px), min(cols, sx.stop + gap_px)
         window = labels[y0:y1, x0:x1]
+        if np.count_nonzero(window) == area[k]:
+            continue  # no other object comes this close (the window holds all of k)
         near = cv2.dilate((window == k).view(np.uint8), kernel).view(bool)
         # np.unique's values and counts, from a bincount (no sort)
         facing = np.bincount(window[near])

@@ -225,8 +225,13 @@ def split_shadow_sides(
         y0, x0 = max(0, sy.start - gap_px), max(0, sx.start - gap_px)
         y1, x1 = min(rows, sy.stop + gap_px), min(cols, sx.stop + gap_px)
         window = out[y0:y1, x0:x1]
-        reach = cv2.dilate((window == k).view(np.uint8), disk).view(bool)
-        for d in np.unique(window[reach]):
+        # the objects within gap_px: none when the window holds k's pixels only (all of
+        # them: a light object loses none and gains only in its turn)
+        neighbours: np.ndarray | tuple = ()
+        if 1 in cases and np.count_nonzero(window) > n_pixels[k]:
+            reach = cv2.dilate((window == k).view(np.uint8), disk).view(bool)
+            neighbours = np.unique(window[reach])
+        for d in neighbours:
             if 1 not in cases or not shadowed[d]:
                 continue
             # a box holding both objects
