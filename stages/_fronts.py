@@ -14,6 +14,7 @@ and a pass for the boxes (0.8 ms -> 0.4 ms a call; ``test_fronts.py`` compares).
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 from numba import njit
 
@@ -33,21 +34,20 @@ def _window_max(front, y, x):  # pragma: no cover - numba
 
 
 @njit(cache=True)
-def _grow(front, weak, max_steps):  # pragma: no cover - numba
+def _grow(front, reach, weak, max_steps):  # pragma: no cover - numba
     rows, cols = front.shape
     size = rows * cols
     queued_y = np.empty(size, np.int64)
     queued_x = np.empty(size, np.int64)
     values = np.empty(size, front.dtype)
     n = 0
-    # the first step: every weak pixel next to an object
+    # the first step: every weak pixel next to an object (``reach``: the 3x3 maximum of
+    # ``front``, one vectorised dilation instead of a window per weak pixel here)
     for y in range(rows):
         for x in range(cols):
-            if weak[y, x]:
-                best = _window_max(front, y, x)
-                if best > 0:
-                    queued_y[n], queued_x[n], values[n] = y, x, best
-                    n += 1
+            if weak[y, x] and reach[y, x] > 0:
+                queued_y[n], queued_x[n], values[n] = y, x, reach[y, x]
+                n += 1
     taken = 0
     m = 0
     previous_y = np.empty(size, np.int64)
@@ -110,7 +110,10 @@ def grow_fronts(front: np.ndarray, weak: np.ndarray, *, max_steps: int) -> int:
         raise ValueError(f"max_steps must be >= 0, got {max_steps}")
     if not (front.flags.c_contiguous and weak.flags.c_contiguous):
         raise ValueError("front and weak must be C-contiguous (they are changed in place)")
-    return int(_grow(front, weak, int(max_steps)))
+    if max_steps == 0:
+        return 0
+    reach = cv2.dilate(front, np.ones((3, 3), np.uint8))
+    return int(_grow(front, reach, weak, int(max_steps)))
 
 
 def merge_fronts(
