@@ -128,6 +128,25 @@ def test_object_boxes_equal_find_objects():
     assert _object_boxes(np.array([[0, 3, 1]]), 1).tolist()[1] == [0, 0, 2, 2]
 
 
+def test_object_boxes_by_runs_equal_find_objects_on_blobs():
+    # the kernel works by runs of one id along the rows: long runs, runs of touching
+    # objects and runs at the frame's edges, ids above count among them
+    rng = np.random.default_rng(16)
+    for _ in range(40):
+        shape = tuple(rng.integers(1, 60, 2))
+        seeds = np.where(rng.random(shape) < 0.02, rng.integers(1, 15, shape), 0)
+        size = tuple(int(v) for v in rng.integers(1, 12, 2))
+        labels = cv2.dilate(seeds.astype(np.uint16), np.ones(size, np.uint8)).astype(np.int32)
+        count = max(int(labels.max()) - int(rng.integers(0, 3)), 0)
+        boxes = _object_boxes(labels, count)
+        spans = find_objects(np.where(labels <= count, labels, 0))
+        for k in range(1, count + 1):
+            if k > len(spans) or spans[k - 1] is None:
+                assert boxes[k, 1] < boxes[k, 0] and boxes[k, 3] < boxes[k, 2]
+            else:
+                assert _box_window(boxes[k]) == spans[k - 1]
+
+
 def test_renumber_equals_its_numpy_twin():
     rng = np.random.default_rng(13)
     for trial in range(30):
