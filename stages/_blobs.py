@@ -149,7 +149,8 @@ def add_compact_blobs(
     Returns
     -------
     labels : (M, N) ndarray of int32
-        The objects, then the added blobs numbered on from ``labels.max() + 1``.
+        The objects, then the added blobs numbered on from ``labels.max() + 1`` (the
+        input itself when none is added and it is int32).
     added : int
     """
     if labels.shape != image.shape or image.ndim != 2:
@@ -175,13 +176,16 @@ def add_compact_blobs(
             "min_solidity, min_interior and max_ring must be in [0, 1], got "
             f"{min_solidity}, {min_interior} and {max_ring}"
         )
-    labels = labels.astype(np.int32, copy=True)
+    labels = labels.astype(np.int32, copy=False)
     if _scales is None or _scales.key != (sigma_px, ground_px) or _scales.image is not image:
         _scales = blob_scales(image, sigma_px=sigma_px, ground_px=ground_px)
     fine = _scales.fine
     z, ring, free = _free_contrast(labels, _scales, margin_px=margin_px, tile_px=tile_px)
     added = 0
     next_id = int(labels.max()) + 1
+    # labels copied once a blob is added (none added: labels as they came, as other rules
+    # that change nothing return them)
+    out = labels
     outside = ~ring
     for sign in (-1.0, 1.0):
         # contrast on this side of the ground positive
@@ -219,10 +223,12 @@ def add_compact_blobs(
                 region, fine[r0:r1, c0:c1], free[r0:r1, c0:c1], max_ring=max_ring, sign=sign
             ):
                 continue
-            labels[r0:r1, c0:c1][region] = next_id
+            if out is labels:
+                out = labels.copy()
+            out[r0:r1, c0:c1][region] = next_id
             next_id += 1
             added += 1
-    return labels, added
+    return out, added
 
 
 @dataclass(frozen=True)
