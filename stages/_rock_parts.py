@@ -306,10 +306,15 @@ def trim_attached_shadows(
             continue  # a light object's shadow is darker than the ground: never merged
         split, _ = cv2.threshold(gray.reshape(1, -1), 0, 255, cv2.THRESH_BINARY + cv2.THRESH_OTSU)
         core = gray <= split
-        share = core.mean()
+        # the shares and means from counts and whole-number sums: the same floats as
+        # numpy's means (exact float64 sums divided by the count), without their overhead
+        n_core = np.count_nonzero(core)
+        share = n_core / gray.size
         if not min_share <= share <= 1 - min_share:
             continue
-        core_mean, shade_mean = float(gray[core].mean()), float(gray[~core].mean())
+        core_sum, total = int(gray[core].sum()), int(gray.sum())
+        core_mean = core_sum / n_core
+        shade_mean = (total - core_sum) / (gray.size - n_core)
         if shade_mean - core_mean < min_gap or not shade_mean < ground:
             continue
         if ground - core_mean < core_ratio * (ground - shade_mean):
