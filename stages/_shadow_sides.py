@@ -195,9 +195,10 @@ def split_shadow_sides(
         return labels, 0
     owners = labels.ravel()
     inside = owners > 0
-    median = _percentile_by_label(
-        contrast.ravel()[inside].astype(np.float64), owners[inside], count + 1, 50.0
-    )
+    # only the medians' signs are read: float32 contrast takes the compiled float32 path
+    # (the exact order statistic; the float64 path's sort of combined label-value keys
+    # gives the same one, 0.4 ms a call slower); other dtypes the float64 path as before
+    median = _percentile_by_label(contrast.ravel()[inside], owners[inside], count + 1, 50.0)
     # a light object in the precise rows (a far one is skipped: its rows are not read)
     n_pixels, n_precise, n_flat = _label_counts(labels, precise, flat, count + 1)
     light = (np.nan_to_num(median) > 0) & (n_precise >= 0.5 * n_pixels)
