@@ -18,6 +18,7 @@ from stages._regions import (
     _object_boxes,
     _renumber,
     _renumber_numpy,
+    _solidity,
     _split_at_edges,
     depth_edges,
     fill_holes,
@@ -251,3 +252,27 @@ def test_core_parents_equal_the_masked_scatter():
         expected = np.zeros(int(cores.max()) + 1, np.int64)
         expected[cores[cores > 0]] = labels[cores > 0]
         np.testing.assert_array_equal(_core_parents(cores, labels), expected)
+
+
+def _solidity_of_all_pixels(mask):
+    """_solidity's twin: the convex hull of every pixel (cv2.findNonZero)."""
+    points = cv2.findNonZero(mask.astype(np.uint8))
+    hull = cv2.convexHull(points)
+    return len(points) / (cv2.contourArea(hull) + 0.5 * cv2.arcLength(hull, True) + 1.0)
+
+
+def test_solidity_from_the_row_ends_equals_the_hull_of_all_pixels():
+    # the hull of each row's first and last pixel: the same vertices, the same float, on
+    # blobs, rings, straight edges (pixels on a hull edge), single pixels and lines
+    rng = np.random.default_rng(29)
+    masks = [np.ones((1, 1), bool), np.ones((1, 7), bool), np.ones((5, 1), bool)]
+    for _ in range(300):
+        shape = tuple(rng.integers(2, 40, 2))
+        noise = cv2.GaussianBlur(rng.random(shape).astype(np.float32), (0, 0), 1.5)
+        masks.append(noise > rng.uniform(0.3, 0.6))
+        square = np.zeros(shape, bool)
+        square[1 : shape[0] - 1, 1 : shape[1] - 1] = rng.random() < 0.5
+        masks.append(square | (rng.random(shape) < 0.05))
+    for mask in masks:
+        if mask.any():
+            assert _solidity(mask) == _solidity_of_all_pixels(mask)
