@@ -10,6 +10,7 @@ from object_masks import disk
 from stages._blobs import (
     _blob_statistics,
     _core_sums,
+    _is_solid,
     _seeded_regions,
     _tile_spread,
     add_compact_blobs,
@@ -277,3 +278,29 @@ def test_core_sums_equal_connected_components_and_label_sums():
         mine, match = pairs[0][order], pairs[1][order]
         np.testing.assert_array_equal(counts[mine], want_counts[match])
         np.testing.assert_array_equal(sums[mine], want_sums[match])
+
+
+def _hull_of_outline_px(region):
+    """_is_solid's former hull: of the region's external contours."""
+    contours, _ = cv2.findContours(
+        region.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE
+    )
+    hull = cv2.convexHull(np.vstack(contours))
+    return cv2.contourArea(hull) + 0.5 * cv2.arcLength(hull, True) + 1
+
+
+def test_is_solid_equals_the_test_on_the_outlines_hull():
+    # the hull of each row's ends against the hull of the outline: the same test at the
+    # very threshold a region's own solidity sets
+    rng = np.random.default_rng(37)
+    for _ in range(300):
+        shape = tuple(rng.integers(2, 40, 2))
+        noise = cv2.GaussianBlur(rng.random(shape).astype(np.float32), (0, 0), 1.5)
+        region = noise > rng.uniform(0.3, 0.6)
+        if not region.any():
+            continue
+        solidity = np.count_nonzero(region) / _hull_of_outline_px(region)
+        for threshold in (solidity, np.nextafter(solidity, 2.0), rng.random()):
+            assert _is_solid(region, min_solidity=threshold) == (
+                np.count_nonzero(region) >= threshold * _hull_of_outline_px(region)
+            )
