@@ -336,10 +336,13 @@ def _ground_level(image: np.ndarray, ground_px: int) -> np.ndarray:
 
 
 def _dilate(mask: np.ndarray, radius: int) -> np.ndarray:
+    """A bool mask dilated by a square of ``radius``; the mask's bytes are the uint8 image
+    and the 0/1 result the bool mask (no converted copies)."""
+    mask = np.ascontiguousarray(mask, dtype=bool)
     if radius == 0:
         return mask.copy()
     kernel = np.ones((2 * radius + 1, 2 * radius + 1), np.uint8)
-    return cv2.dilate(mask.astype(np.uint8), kernel) > 0
+    return cv2.dilate(mask.view(np.uint8), kernel).view(bool)
 
 
 def _free_contrast(
