@@ -464,7 +464,7 @@ def _grow(
     filled = _seeded_regions(cores, reach, contrast, free, sign=sign)
     # blotches of ground texture touching a rock hang off it by a pixel or two
     opened = cv2.morphologyEx(filled.view(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
-    return opened > 0
+    return opened.view(bool)  # 0/1 bytes
 
 
 def _core_sums(

@@ -159,7 +159,9 @@ def _drop_specks(labels, count, min_area_px):  # pragma: no cover - numba
             lookup[k] = kept
     for y in range(rows):
         for x in range(cols):
-            labels[y, x] = lookup[labels[y, x]]
+            k = labels[y, x]
+            if k != 0:  # the ground (most pixels) stays 0: no store
+                labels[y, x] = lookup[k]
 
 
 def _split_at_edges(labels: np.ndarray, edges: np.ndarray, min_area_px: int) -> np.ndarray:
