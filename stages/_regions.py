@@ -185,7 +185,7 @@ def _split_at_edges(labels: np.ndarray, edges: np.ndarray, min_area_px: int) -> 
     boxes = _object_boxes(labels, offset)
     h, w = labels.shape
     for k in split_objects:
-        y0, y1, x0, x1 = (int(v) for v in boxes[k])
+        y0, y1, x0, x1 = boxes[k].tolist()
         # the object's own cores lie in its box: no pixel of it is farther from its nearest
         # core than from its nearest own one, at most ``reach`` (measured in the box), so a
         # crop that much larger holds every core that can be nearest (whole-frame transforms
@@ -428,7 +428,8 @@ def _object_boxes(labels: np.ndarray, count: int) -> np.ndarray:
 
 def _box_window(box: np.ndarray) -> tuple[slice, slice]:
     """The slices of an inclusive (y0, y1, x0, x1) box, as ``find_objects`` gives them."""
-    y0, y1, x0, x1 = (int(v) for v in box)
+    # (tolist: Python ints at a fifth of the cost of int() of each numpy item)
+    y0, y1, x0, x1 = np.asarray(box).tolist()
     return slice(y0, y1 + 1), slice(x0, x1 + 1)
 
 

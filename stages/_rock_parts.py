@@ -288,7 +288,7 @@ def trim_attached_shadows(
     rows, cols = labels.shape
     boxes = _object_boxes(labels, count)
     for k in range(1, count + 1):
-        y0, y1, x0, x1 = boxes[k]
+        y0, y1, x0, x1 = boxes[k].tolist()
         if y1 < y0:
             continue
         y0, x0 = max(0, y0 - ring_px), max(0, x0 - ring_px)

@@ -252,7 +252,7 @@ def add_two_faced_blobs(
     next_id = int(labels.max()) + 1
     added = 0
     for blob in kept:
-        y0, y1, x0, x1 = (int(v) for v in boxes[blob])
+        y0, y1, x0, x1 = boxes[blob].tolist()
         r0, r1 = max(y0 - _PAD_PX, 0), min(y1 + 1 + _PAD_PX, rows)
         c0, c1 = max(x0 - _PAD_PX, 0), min(x1 + 1 + _PAD_PX, cols)
         region = blob_ids[r0:r1, c0:c1] == blob
