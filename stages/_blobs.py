@@ -359,7 +359,12 @@ def _free_contrast(
     taken = labels > 0
     ring = _dilate(taken, margin_px)
     spread = _tile_spread(scales.at_scale, ~ring, tile_px, _memo=scales.tiles)
-    return scales.at_scale / np.maximum(spread, _MIN_SPREAD), ring, ~taken
+    np.maximum(spread, _MIN_SPREAD, out=spread)
+    if scales.at_scale.dtype != spread.dtype:
+        return scales.at_scale / spread, ring, ~taken
+    # in place in the resized spread map (a fresh array of the maps' float32): no two
+    # more whole-frame arrays
+    return np.divide(scales.at_scale, spread, out=spread), ring, ~taken
 
 
 def _tile_spread(
