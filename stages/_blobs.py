@@ -466,7 +466,7 @@ def _grow(
     levels = np.zeros(cores.shape, np.uint8)
     levels.ravel()[at] = np.clip(np.round(level), 0, 255).astype(np.uint8)[owner]
     reach = cv2.dilate(levels, np.ones((2 * grow_px + 1, 2 * grow_px + 1), np.uint8))
-    filled = _seeded_regions(cores, reach, contrast, free, sign=sign)
+    filled = _seeded_regions(cores, reach, contrast, free, sign=sign, at=at)
     # blotches of ground texture touching a rock hang off it by a pixel or two
     opened = cv2.morphologyEx(filled.view(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
     return opened.view(bool)  # 0/1 bytes
@@ -538,6 +538,7 @@ def _seeded_regions(
     free: np.ndarray,
     *,
     sign: float = 1.0,
+    at: np.ndarray | None = None,
 ) -> np.ndarray:
     """The 8-connected parts of the pixels ``reach`` can take (``reach > 0``, ``free`` and
     ``sign * contrast >= 0.5 * reach``, in float32) that hold a pixel of ``cores``, each
@@ -548,11 +549,14 @@ def _seeded_regions(
     One compiled pass: each part is walked from its cores (the reach test read at the
     pixels the walk meets), then flooded in its box, instead of the whole-frame reach
     map, its connected components and the seeded parts' lookup (``test_blobs.py``
-    compares that composition).
+    compares that composition). ``at``: the flat indices of the core pixels in raster
+    order when known (:func:`_core_sums` gives them; no scan of the frame for them).
     """
     filled = np.zeros(reach.shape, bool)
+    if at is None:
+        at = np.flatnonzero(cores)
     _seeded_pass(
-        np.ascontiguousarray(cores),
+        np.ascontiguousarray(at, dtype=np.int64),
         np.ascontiguousarray(reach),
         np.ascontiguousarray(contrast, dtype=np.float32),
         np.float32(sign),
@@ -563,7 +567,7 @@ def _seeded_regions(
 
 
 @njit(cache=True)
-def _seeded_pass(cores, reach, contrast, sign, free, filled):  # pragma: no cover - numba
+def _seeded_pass(at, reach, contrast, sign, free, filled):  # pragma: no cover - numba
     share = np.float32(_GROW_SHARE)
     rows, cols = reach.shape
     # ``filled`` is the only whole-frame map (no map of part ids: zeroing a 1 MB one cost
@@ -572,65 +576,66 @@ def _seeded_pass(cores, reach, contrast, sign, free, filled):  # pragma: no cove
     # diagonal steps pass pixels next to it, so not the other part's), already filled.
     # The part's pixels, walked breadth-first, stay in ``queue[:tail]`` for its pockets
     queue = np.empty(rows * cols + 2 * (rows + cols) + 8, np.int64)
-    for sy in range(rows):
-        for sx in range(cols):
-            if not cores[sy, sx] or filled[sy, sx]:
-                continue
-            r = reach[sy, sx]
-            # the reach test (see _seeded_regions), at this pixel
-            if not (r > 0 and free[sy, sx] and sign * contrast[sy, sx] >= share * np.float32(r)):
-                continue
-            filled[sy, sx] = True
-            y0, y1, x0, x1 = sy, sy, sx, sx
-            queue[0] = sy * cols + sx
-            head, tail = 0, 1
-            while head < tail:
-                y, x = divmod(queue[head], cols)
-                head += 1
-                y0, y1 = min(y0, y), max(y1, y)
-                x0, x1 = min(x0, x), max(x1, x)
-                for ny in range(max(y - 1, 0), min(y + 2, rows)):
-                    for nx in range(max(x - 1, 0), min(x + 2, cols)):
-                        if filled[ny, nx]:
-                            continue
-                        r = reach[ny, nx]
-                        if (
-                            r > 0
-                            and free[ny, nx]
-                            and sign * contrast[ny, nx] >= share * np.float32(r)
-                        ):
-                            filled[ny, nx] = True
-                            queue[tail] = ny * cols + nx
-                            tail += 1
-            # the part's pockets: its box grown by a pixel, flooded
-            # from that edge through 4-steps over pixels not the part's
-            top_row, left = y0 - 1, x0 - 1
-            height, width = y1 - y0 + 3, x1 - x0 + 3
-            mine = np.zeros((height, width), np.bool_)
-            for t in range(tail):
-                y, x = divmod(queue[t], cols)
-                mine[y - top_row, x - left] = True
-            outside = np.zeros((height, width), np.bool_)
-            n_stack = 0
-            for i in range(height):
-                for j in range(width):
-                    if i == 0 or j == 0 or i == height - 1 or j == width - 1:
-                        outside[i, j] = True
-                        queue[n_stack] = i * width + j
+    # the core pixels in raster order: parts numbered as a scan of the frame meets them
+    for t in range(at.size):
+        sy, sx = divmod(at[t], cols)
+        if filled[sy, sx]:
+            continue
+        r = reach[sy, sx]
+        # the reach test (see _seeded_regions), at this pixel
+        if not (r > 0 and free[sy, sx] and sign * contrast[sy, sx] >= share * np.float32(r)):
+            continue
+        filled[sy, sx] = True
+        y0, y1, x0, x1 = sy, sy, sx, sx
+        queue[0] = sy * cols + sx
+        head, tail = 0, 1
+        while head < tail:
+            y, x = divmod(queue[head], cols)
+            head += 1
+            y0, y1 = min(y0, y), max(y1, y)
+            x0, x1 = min(x0, x), max(x1, x)
+            for ny in range(max(y - 1, 0), min(y + 2, rows)):
+                for nx in range(max(x - 1, 0), min(x + 2, cols)):
+                    if filled[ny, nx]:
+                        continue
+                    r = reach[ny, nx]
+                    if (
+                        r > 0
+                        and free[ny, nx]
+                        and sign * contrast[ny, nx] >= share * np.float32(r)
+                    ):
+                        filled[ny, nx] = True
+                        queue[tail] = ny * cols + nx
+                        tail += 1
+        # the part's pockets: its box grown by a pixel, flooded
+        # from that edge through 4-steps over pixels not the part's
+        top_row, left = y0 - 1, x0 - 1
+        height, width = y1 - y0 + 3, x1 - x0 + 3
+        mine = np.zeros((height, width), np.bool_)
+        for u in range(tail):
+            y, x = divmod(queue[u], cols)
+            mine[y - top_row, x - left] = True
+        outside = np.zeros((height, width), np.bool_)
+        n_stack = 0
+        for i in range(height):
+            for j in range(width):
+                if i == 0 or j == 0 or i == height - 1 or j == width - 1:
+                    outside[i, j] = True
+                    queue[n_stack] = i * width + j
+                    n_stack += 1
+        while n_stack > 0:
+            n_stack -= 1
+            i, j = divmod(queue[n_stack], width)
+            for ni, nj in ((i + 1, j), (i - 1, j), (i, j + 1), (i, j - 1)):
+                if 0 <= ni < height and 0 <= nj < width and not outside[ni, nj]:
+                    if not mine[ni, nj]:
+                        outside[ni, nj] = True
+                        queue[n_stack] = ni * width + nj
                         n_stack += 1
-            while n_stack > 0:
-                n_stack -= 1
-                i, j = divmod(queue[n_stack], width)
-                for ni, nj in ((i + 1, j), (i - 1, j), (i, j + 1), (i, j - 1)):
-                    if 0 <= ni < height and 0 <= nj < width and not outside[ni, nj]:
-                        if not mine[ni, nj]:
-                            outside[ni, nj] = True
-                            queue[n_stack] = ni * width + nj
-                            n_stack += 1
-            for i in range(1, height - 1):
-                for j in range(1, width - 1):
-                    if not outside[i, j]:
-                        filled[top_row + i, left + j] = True
+        for i in range(1, height - 1):
+            for j in range(1, width - 1):
+                if not outside[i, j]:
+                    filled[top_row + i, left + j] = True
 
 
 def _is_solid(region: np.ndarray, *, min_solidity: float) -> bool:
