@@ -481,20 +481,16 @@ def _core_sums(
     connected components, their sums and a lookup; the sums are added in raster order,
     the same floats as :func:`stages._regions._label_sums` (``test_blobs.py`` compares;
     the cores may be numbered otherwise)."""
-    return _core_pass(np.ascontiguousarray(cores), np.ascontiguousarray(contrast))
+    cores = np.ascontiguousarray(cores)
+    # the core pixels found by numpy's vectorised search, not a compiled scan
+    at = np.flatnonzero(cores).astype(np.int64, copy=False)
+    return _core_pass(cores, np.ascontiguousarray(contrast), at)
 
 
 @njit(cache=True)
-def _core_pass(cores, contrast):  # pragma: no cover - numba
+def _core_pass(cores, contrast, at):  # pragma: no cover - numba
     rows, cols = cores.shape
-    at = np.empty(cores.size, np.int64)
-    n = 0
-    for y in range(rows):
-        for x in range(cols):
-            if cores[y, x]:
-                at[n] = y * cols + x
-                n += 1
-    at = at[:n]
+    n = at.size
     seen = np.zeros((rows, cols), np.bool_)
     # read only where seen
     ids = np.empty((rows, cols), np.int32)
