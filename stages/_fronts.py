@@ -34,20 +34,18 @@ def _window_max(front, y, x):  # pragma: no cover - numba
 
 
 @njit(cache=True)
-def _grow(front, reach, weak, max_steps):  # pragma: no cover - numba
+def _grow(front, reach, first, weak, max_steps):  # pragma: no cover - numba
     rows, cols = front.shape
     size = rows * cols
     queued_y = np.empty(size, np.int64)
     queued_x = np.empty(size, np.int64)
     values = np.empty(size, front.dtype)
-    n = 0
-    # the first step: every weak pixel next to an object (``reach``: the 3x3 maximum of
-    # ``front``, one vectorised dilation instead of a window per weak pixel here)
-    for y in range(rows):
-        for x in range(cols):
-            if weak[y, x] and reach[y, x] > 0:
-                queued_y[n], queued_x[n], values[n] = y, x, reach[y, x]
-                n += 1
+    # the first step: every weak pixel next to an object (``first``, in raster order;
+    # ``reach``: the 3x3 maximum of ``front``), found by vectorised numpy passes
+    n = first.size
+    for k in range(n):
+        y, x = divmod(first[k], cols)
+        queued_y[k], queued_x[k], values[k] = y, x, reach[y, x]
     taken = 0
     m = 0
     previous_y = np.empty(size, np.int64)
@@ -113,7 +111,8 @@ def grow_fronts(front: np.ndarray, weak: np.ndarray, *, max_steps: int) -> int:
     if max_steps == 0:
         return 0
     reach = cv2.dilate(front, np.ones((3, 3), np.uint8))
-    return int(_grow(front, reach, weak, int(max_steps)))
+    first = np.flatnonzero(weak & (reach > 0)).astype(np.int64, copy=False)
+    return int(_grow(front, reach, first, weak, int(max_steps)))
 
 
 def merge_fronts(
