@@ -69,8 +69,9 @@ import cv2
 import numpy as np
 from numba import njit
 
-from ._regions import _box_window
+from ._regions import _box_window, _row_ends
 from ._sectors import sector_edges
+from ._select import _kth
 
 __all__ = ["BlobScales", "add_compact_blobs", "blob_scales"]
 
@@ -148,7 +149,8 @@ def add_compact_blobs(
     Returns
     -------
     labels : (M, N) ndarray of int32
-        The objects, then the added blobs numbered on from ``labels.max() + 1``.
+        The objects, then the added blobs numbered on from ``labels.max() + 1`` (the
+        input itself when none is added and it is int32).
     added : int
     """
     if labels.shape != image.shape or image.ndim != 2:
@@ -174,13 +176,16 @@ def add_compact_blobs(
             "min_solidity, min_interior and max_ring must be in [0, 1], got "
             f"{min_solidity}, {min_interior} and {max_ring}"
         )
-    labels = labels.astype(np.int32, copy=True)
+    labels = labels.astype(np.int32, copy=False)
     if _scales is None or _scales.key != (sigma_px, ground_px) or _scales.image is not image:
         _scales = blob_scales(image, sigma_px=sigma_px, ground_px=ground_px)
     fine = _scales.fine
     z, ring, free = _free_contrast(labels, _scales, margin_px=margin_px, tile_px=tile_px)
     added = 0
     next_id = int(labels.max()) + 1
+    # labels copied once a blob is added (none added: labels as they came, as other rules
+    # that change nothing return them)
+    out = labels
     outside = ~ring
     for sign in (-1.0, 1.0):
         # contrast on this side of the ground positive
@@ -218,10 +223,12 @@ def add_compact_blobs(
                 region, fine[r0:r1, c0:c1], free[r0:r1, c0:c1], max_ring=max_ring, sign=sign
             ):
                 continue
-            labels[r0:r1, c0:c1][region] = next_id
+            if out is labels:
+                out = labels.copy()
+            out[r0:r1, c0:c1][region] = next_id
             next_id += 1
             added += 1
-    return labels, added
+    return out, added
 
 
 @dataclass(frozen=True)
@@ -329,10 +336,13 @@ def _ground_level(image: np.ndarray, ground_px: int) -> np.ndarray:
 
 
 def _dilate(mask: np.ndarray, radius: int) -> np.ndarray:
+    """A bool mask dilated by a square of ``radius``; the mask's bytes are the uint8 image
+    and the 0/1 result the bool mask (no converted copies)."""
+    mask = np.ascontiguousarray(mask, dtype=bool)
     if radius == 0:
         return mask.copy()
     kernel = np.ones((2 * radius + 1, 2 * radius + 1), np.uint8)
-    return cv2.dilate(mask.astype(np.uint8), kernel) > 0
+    return cv2.dilate(mask.view(np.uint8), kernel).view(bool)
 
 
 def _free_contrast(
@@ -349,7 +359,12 @@ def _free_contrast(
     taken = labels > 0
     ring = _dilate(taken, margin_px)
     spread = _tile_spread(scales.at_scale, ~ring, tile_px, _memo=scales.tiles)
-    return scales.at_scale / np.maximum(spread, _MIN_SPREAD), ring, ~taken
+    np.maximum(spread, _MIN_SPREAD, out=spread)
+    if scales.at_scale.dtype != spread.dtype:
+        return scales.at_scale / spread, ring, ~taken
+    # in place in the resized spread map (a fresh array of the maps' float32): no two
+    # more whole-frame arrays
+    return np.divide(scales.at_scale, spread, out=spread), ring, ~taken
 
 
 def _tile_spread(
@@ -366,10 +381,15 @@ def _tile_spread(
     grid = np.full((row_edges.size - 1, col_edges.size - 1), np.nan, np.float32)
     known = None
     if _memo is not None and _memo.get("tile_px") == tile_px:
-        # per tile: did any of its pixels change (whole-frame, then summed per tile)
-        differ = (use != _memo["use"]).view(np.uint8)
-        by_rows = np.add.reduceat(differ, row_edges[:-1], axis=0, dtype=np.int64)
-        changed = np.add.reduceat(by_rows, col_edges[:-1], axis=1) > 0
+        # per tile: did any of its pixels change -- the tiles of the (few hundred) changed
+        # pixels; summing the whole frame's differences per tile cost 0.5 ms, and so does
+        # a 2-D np.nonzero (the flat one a tenth)
+        changed_rows, changed_cols = np.divmod(np.flatnonzero(use != _memo["use"]), cols)
+        changed = np.zeros(grid.shape, bool)
+        changed[
+            np.searchsorted(row_edges, changed_rows, side="right") - 1,
+            np.searchsorted(col_edges, changed_cols, side="right") - 1,
+        ] = True
         known = _memo["grid"]
     if known is None:
         todo = np.ones(grid.shape, bool)
@@ -377,22 +397,56 @@ def _tile_spread(
         # the unchanged tiles copied at once; the loop visits the (few) changed ones
         todo = changed
         grid[~changed] = known[~changed]
-    for i, j in zip(*np.nonzero(todo), strict=True):
-        r0, r1 = row_edges[i], row_edges[i + 1]
-        c0, c1 = col_edges[j], col_edges[j + 1]
-        # every other row and column: the spread of tens of thousands of pixels is
-        # stable on a quarter of them
-        sample = values[r0:r1:2, c0:c1:2][use[r0:r1:2, c0:c1:2]]
-        if sample.size >= _MIN_TILE_PX:
-            # the values are already measured from the ground: MAD about 0
-            middle = sample.size // 2
-            grid[i, j] = 1.4826 * np.partition(np.abs(sample), middle)[middle]
+    # the tiles' spreads in one compiled pass (per tile: a sample, its absolute values and
+    # np.partition cost 10-15 us, 1.2 ms for a frame's 100 tiles)
+    _tile_mads(
+        np.ascontiguousarray(values),
+        np.ascontiguousarray(use),
+        row_edges,
+        col_edges,
+        todo,
+        values.dtype.type(1.4826),
+        grid,
+    )
     if _memo is not None:
         _memo.update(tile_px=tile_px, use=use.copy(), grid=grid.copy())
     if np.isnan(grid).all():
         grid[:] = _MIN_SPREAD
-    grid[np.isnan(grid)] = np.nanmedian(grid)
+    empty = np.isnan(grid)
+    if empty.any():
+        # (nanmedian costs 0.1 ms even when no tile is empty)
+        grid[empty] = np.nanmedian(grid)
     return cv2.resize(grid, (cols, rows), interpolation=cv2.INTER_LINEAR)
+
+
+@njit(cache=True)
+def _tile_mads(values, use, row_edges, col_edges, todo, scale, grid):  # pragma: no cover
+    """``grid[i, j] = scale * median`` of the absolute ``values`` over ``use`` on every other
+    row and column of each tile ``todo`` says (the values are already measured from the
+    ground: MAD about 0); a tile with fewer than ``_MIN_TILE_PX`` such pixels is left.
+    The median is the upper middle order statistic, as ``np.partition`` selects it, and
+    ``scale`` has the values' dtype: numpy's product of a Python float and a float32."""
+    largest = 0
+    for i in range(row_edges.size - 1):
+        for j in range(col_edges.size - 1):
+            rows = (row_edges[i + 1] - row_edges[i] + 1) // 2
+            cols = (col_edges[j + 1] - col_edges[j] + 1) // 2
+            largest = max(largest, rows * cols)
+    sample = np.empty(largest, values.dtype)
+    for i in range(row_edges.size - 1):
+        for j in range(col_edges.size - 1):
+            if not todo[i, j]:
+                continue
+            # every other row and column: the spread of tens of thousands of pixels is
+            # stable on a quarter of them
+            n = 0
+            for y in range(row_edges[i], row_edges[i + 1], 2):
+                for x in range(col_edges[j], col_edges[j + 1], 2):
+                    if use[y, x]:
+                        sample[n] = abs(values[y, x])
+                        n += 1
+            if n >= _MIN_TILE_PX:
+                grid[i, j] = scale * _kth(sample[:n], n // 2)
 
 
 def _grow(
@@ -412,10 +466,10 @@ def _grow(
     levels = np.zeros(cores.shape, np.uint8)
     levels.ravel()[at] = np.clip(np.round(level), 0, 255).astype(np.uint8)[owner]
     reach = cv2.dilate(levels, np.ones((2 * grow_px + 1, 2 * grow_px + 1), np.uint8))
-    filled = _seeded_regions(cores, reach, contrast, free, sign=sign)
+    filled = _seeded_regions(cores, reach, contrast, free, sign=sign, at=at)
     # blotches of ground texture touching a rock hang off it by a pixel or two
     opened = cv2.morphologyEx(filled.view(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
-    return opened > 0
+    return opened.view(bool)  # 0/1 bytes
 
 
 def _core_sums(
@@ -427,20 +481,16 @@ def _core_sums(
     connected components, their sums and a lookup; the sums are added in raster order,
     the same floats as :func:`stages._regions._label_sums` (``test_blobs.py`` compares;
     the cores may be numbered otherwise)."""
-    return _core_pass(np.ascontiguousarray(cores), np.ascontiguousarray(contrast))
+    cores = np.ascontiguousarray(cores)
+    # the core pixels found by numpy's vectorised search, not a compiled scan
+    at = np.flatnonzero(cores).astype(np.int64, copy=False)
+    return _core_pass(cores, np.ascontiguousarray(contrast), at)
 
 
 @njit(cache=True)
-def _core_pass(cores, contrast):  # pragma: no cover - numba
+def _core_pass(cores, contrast, at):  # pragma: no cover - numba
     rows, cols = cores.shape
-    at = np.empty(cores.size, np.int64)
-    n = 0
-    for y in range(rows):
-        for x in range(cols):
-            if cores[y, x]:
-                at[n] = y * cols + x
-                n += 1
-    at = at[:n]
+    n = at.size
     seen = np.zeros((rows, cols), np.bool_)
     # read only where seen
     ids = np.empty((rows, cols), np.int32)
@@ -484,6 +534,7 @@ def _seeded_regions(
     free: np.ndarray,
     *,
     sign: float = 1.0,
+    at: np.ndarray | None = None,
 ) -> np.ndarray:
     """The 8-connected parts of the pixels ``reach`` can take (``reach > 0``, ``free`` and
     ``sign * contrast >= 0.5 * reach``, in float32) that hold a pixel of ``cores``, each
@@ -494,11 +545,14 @@ def _seeded_regions(
     One compiled pass: each part is walked from its cores (the reach test read at the
     pixels the walk meets), then flooded in its box, instead of the whole-frame reach
     map, its connected components and the seeded parts' lookup (``test_blobs.py``
-    compares that composition).
+    compares that composition). ``at``: the flat indices of the core pixels in raster
+    order when known (:func:`_core_sums` gives them; no scan of the frame for them).
     """
     filled = np.zeros(reach.shape, bool)
+    if at is None:
+        at = np.flatnonzero(cores)
     _seeded_pass(
-        np.ascontiguousarray(cores),
+        np.ascontiguousarray(at, dtype=np.int64),
         np.ascontiguousarray(reach),
         np.ascontiguousarray(contrast, dtype=np.float32),
         np.float32(sign),
@@ -509,82 +563,86 @@ def _seeded_regions(
 
 
 @njit(cache=True)
-def _seeded_pass(cores, reach, contrast, sign, free, filled):  # pragma: no cover - numba
+def _seeded_pass(at, reach, contrast, sign, free, filled):  # pragma: no cover - numba
     share = np.float32(_GROW_SHARE)
     rows, cols = reach.shape
-    # 0: not reached yet; 1.. the parts in the order their first core is met
-    ids = np.zeros((rows, cols), np.int32)
-    stack = np.empty(rows * cols + 2 * (rows + cols) + 8, np.int64)
-    part = 0
-    for sy in range(rows):
-        for sx in range(cols):
-            if not cores[sy, sx] or ids[sy, sx] != 0:
-                continue
-            r = reach[sy, sx]
-            # the reach test (see _seeded_regions), at this pixel
-            if not (r > 0 and free[sy, sx] and sign * contrast[sy, sx] >= share * np.float32(r)):
-                continue
-            part += 1
-            ids[sy, sx] = part
-            filled[sy, sx] = True
-            y0, y1, x0, x1 = sy, sy, sx, sx
-            stack[0] = sy * cols + sx
-            n_stack = 1
-            while n_stack > 0:
-                n_stack -= 1
-                y, x = divmod(stack[n_stack], cols)
-                y0, y1 = min(y0, y), max(y1, y)
-                x0, x1 = min(x0, x), max(x1, x)
-                for ny in range(max(y - 1, 0), min(y + 2, rows)):
-                    for nx in range(max(x - 1, 0), min(x + 2, cols)):
-                        if ids[ny, nx] != 0:
-                            continue
-                        r = reach[ny, nx]
-                        if (
-                            r > 0
-                            and free[ny, nx]
-                            and sign * contrast[ny, nx] >= share * np.float32(r)
-                        ):
-                            ids[ny, nx] = part
-                            filled[ny, nx] = True
-                            stack[n_stack] = ny * cols + nx
-                            n_stack += 1
-            # the part's pockets: its box grown by a pixel, flooded
-            # from that edge through 4-steps over pixels not the part's
-            top_row, left = y0 - 1, x0 - 1
-            height, width = y1 - y0 + 3, x1 - x0 + 3
-            outside = np.zeros((height, width), np.bool_)
-            n_stack = 0
-            for i in range(height):
-                for j in range(width):
-                    if i == 0 or j == 0 or i == height - 1 or j == width - 1:
-                        outside[i, j] = True
-                        stack[n_stack] = i * width + j
+    # ``filled`` is the only whole-frame map (no map of part ids: zeroing a 1 MB one cost
+    # as much as the walks). A pixel filled before is never walked again: two parts are
+    # never 8-adjacent, and a part 8-adjacent to another's pocket lies wholly in it (its
+    # diagonal steps pass pixels next to it, so not the other part's), already filled.
+    # The part's pixels, walked breadth-first, stay in ``queue[:tail]`` for its pockets
+    queue = np.empty(rows * cols + 2 * (rows + cols) + 8, np.int64)
+    # the core pixels in raster order: parts numbered as a scan of the frame meets them
+    for t in range(at.size):
+        sy, sx = divmod(at[t], cols)
+        if filled[sy, sx]:
+            continue
+        r = reach[sy, sx]
+        # the reach test (see _seeded_regions), at this pixel
+        if not (r > 0 and free[sy, sx] and sign * contrast[sy, sx] >= share * np.float32(r)):
+            continue
+        filled[sy, sx] = True
+        y0, y1, x0, x1 = sy, sy, sx, sx
+        queue[0] = sy * cols + sx
+        head, tail = 0, 1
+        while head < tail:
+            y, x = divmod(queue[head], cols)
+            head += 1
+            y0, y1 = min(y0, y), max(y1, y)
+            x0, x1 = min(x0, x), max(x1, x)
+            for ny in range(max(y - 1, 0), min(y + 2, rows)):
+                for nx in range(max(x - 1, 0), min(x + 2, cols)):
+                    if filled[ny, nx]:
+                        continue
+                    r = reach[ny, nx]
+                    if (
+                        r > 0
+                        and free[ny, nx]
+                        and sign * contrast[ny, nx] >= share * np.float32(r)
+                    ):
+                        filled[ny, nx] = True
+                        queue[tail] = ny * cols + nx
+                        tail += 1
+        # the part's pockets: its box grown by a pixel, flooded
+        # from that edge through 4-steps over pixels not the part's
+        top_row, left = y0 - 1, x0 - 1
+        height, width = y1 - y0 + 3, x1 - x0 + 3
+        mine = np.zeros((height, width), np.bool_)
+        for u in range(tail):
+            y, x = divmod(queue[u], cols)
+            mine[y - top_row, x - left] = True
+        outside = np.zeros((height, width), np.bool_)
+        n_stack = 0
+        for i in range(height):
+            for j in range(width):
+                if i == 0 or j == 0 or i == height - 1 or j == width - 1:
+                    outside[i, j] = True
+                    queue[n_stack] = i * width + j
+                    n_stack += 1
+        while n_stack > 0:
+            n_stack -= 1
+            i, j = divmod(queue[n_stack], width)
+            for ni, nj in ((i + 1, j), (i - 1, j), (i, j + 1), (i, j - 1)):
+                if 0 <= ni < height and 0 <= nj < width and not outside[ni, nj]:
+                    if not mine[ni, nj]:
+                        outside[ni, nj] = True
+                        queue[n_stack] = ni * width + nj
                         n_stack += 1
-            while n_stack > 0:
-                n_stack -= 1
-                i, j = divmod(stack[n_stack], width)
-                for ni, nj in ((i + 1, j), (i - 1, j), (i, j + 1), (i, j - 1)):
-                    if 0 <= ni < height and 0 <= nj < width and not outside[ni, nj]:
-                        if ids[top_row + ni, left + nj] != part:
-                            outside[ni, nj] = True
-                            stack[n_stack] = ni * width + nj
-                            n_stack += 1
-            for i in range(1, height - 1):
-                for j in range(1, width - 1):
-                    if not outside[i, j]:
-                        filled[top_row + i, left + j] = True
+        for i in range(1, height - 1):
+            for j in range(1, width - 1):
+                if not outside[i, j]:
+                    filled[top_row + i, left + j] = True
 
 
 def _is_solid(region: np.ndarray, *, min_solidity: float) -> bool:
     """The solidity test of one region (module docstring, step 4)."""
-    contours, _ = cv2.findContours(
-        region.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE
-    )
-    hull = cv2.convexHull(np.vstack(contours))
+    # the hull of each row's end pixels: the same vertex list as of the region's outline
+    # (see stages._regions._solidity; ``test_blobs.py`` compares), a third of the cost
+    ends, pixels = _row_ends(np.ascontiguousarray(region))
+    hull = cv2.convexHull(ends)
     # the pixel area of the hull: its polygon area plus half its outline
     hull_px = cv2.contourArea(hull) + 0.5 * cv2.arcLength(hull, True) + 1
-    return np.count_nonzero(region) >= min_solidity * hull_px
+    return pixels >= min_solidity * hull_px
 
 
 def _stands_alone(

@@ -235,13 +235,13 @@ def trim_faint_rims(
     owners = labels.ravel()
     inside = owners > 0
     median = _percentile_by_label(
-        contrast.ravel()[inside].astype(np.float32), owners[inside], count + 1, 50.0
+        contrast.ravel()[inside].astype(np.float32, copy=False), owners[inside], count + 1, 50.0
     )
     median[~np.isfinite(median)] = 0.0
     median[0] = 0.0
     cross = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
     # outside the frame counts as nothing: an object cut by the border keeps its cut edge
-    outline = (cv2.dilate((labels == 0).view(np.uint8), cross) > 0) & (labels > 0)
+    outline = cv2.dilate((labels == 0).view(np.uint8), cross).view(bool) & (labels > 0)
     # read at the outline pixels only (the same products and comparisons as whole-frame
     # maps of the objects' signs and medians would give there)
     owner = labels[outline]

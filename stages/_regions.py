@@ -159,30 +159,33 @@ def _drop_specks(labels, count, min_area_px):  # pragma: no cover - numba
             lookup[k] = kept
     for y in range(rows):
         for x in range(cols):
-            labels[y, x] = lookup[labels[y, x]]
+            k = labels[y, x]
+            if k != 0:  # the ground (most pixels) stays 0: no store
+                labels[y, x] = lookup[k]
 
 
 def _split_at_edges(labels: np.ndarray, edges: np.ndarray, min_area_px: int) -> np.ndarray:
-    """Split objects holding several depth-separated cores; returns new (not dense) labels."""
+    """Split objects holding several depth-separated cores; returns new (not dense) labels
+    (of ``labels``' dtype, ids up to ``labels.max()`` plus the number of cores)."""
     # 4-connected cores: a one-pixel staircase of edge pixels must be a closed cut
     cores = _dense_components((labels > 0) & ~edges, min_area_px, connectivity=4)
-    n_cores = int(cores.max())
+    # parent object of each core (one compiled pass), and how many cores each object has
+    parent = _core_parents(cores, labels)
+    n_cores = parent.size - 1
     if n_cores < 2:
         return labels
-    # parent object of each core, and how many cores each object has
-    core_pixels = cores > 0
-    parent = np.zeros(n_cores + 1, dtype=np.int64)
-    parent[cores[core_pixels]] = labels[core_pixels]
-    cores_per_object = np.bincount(parent[1:], minlength=int(labels.max()) + 1)
+    offset = int(labels.max())
+    cores_per_object = np.bincount(parent[1:], minlength=offset + 1)
     split_objects = np.flatnonzero(cores_per_object >= 2)
     if split_objects.size == 0:
         return labels
-    result = labels.astype(np.int64)
-    offset = int(labels.max())
+    core_pixels = cores > 0
+    # offset + a core's id stays below 2**31 (both count pixels)
+    result = labels.copy()
     boxes = _object_boxes(labels, offset)
     h, w = labels.shape
     for k in split_objects:
-        y0, y1, x0, x1 = (int(v) for v in boxes[k])
+        y0, y1, x0, x1 = boxes[k].tolist()
         # the object's own cores lie in its box: no pixel of it is farther from its nearest
         # core than from its nearest own one, at most ``reach`` (measured in the box), so a
         # crop that much larger holds every core that can be nearest (whole-frame transforms
@@ -204,6 +207,28 @@ def _split_at_edges(labels: np.ndarray, edges: np.ndarray, min_area_px: int) -> 
         mine = (labels[ys, xs] == k) & (parent[nearest] == k)
         result[ys, xs][mine] = offset + nearest[mine]
     return result
+
+
+def _core_parents(cores: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """Per core 0..n (``cores`` numbered 1..n densely, each inside one object of
+    ``labels``): its object's id (core 0: 0), as ``parent[cores[cores > 0]] =
+    labels[cores > 0]`` sets it, in one compiled pass (``test_regions.py`` compares)."""
+    return _parents_pass(np.ascontiguousarray(cores), np.ascontiguousarray(labels))
+
+
+@njit(cache=True)
+def _parents_pass(cores, labels):  # pragma: no cover - numba
+    rows, cols = cores.shape
+    n = 0
+    for y in range(rows):
+        for x in range(cols):
+            n = max(n, cores[y, x])
+    parent = np.zeros(n + 1, np.int64)
+    for y in range(rows):
+        for x in range(cols):
+            if cores[y, x] > 0:
+                parent[cores[y, x]] = labels[y, x]
+    return parent
 
 
 def label_objects(
@@ -403,7 +428,8 @@ def _object_boxes(labels: np.ndarray, count: int) -> np.ndarray:
 
 def _box_window(box: np.ndarray) -> tuple[slice, slice]:
     """The slices of an inclusive (y0, y1, x0, x1) box, as ``find_objects`` gives them."""
-    y0, y1, x0, x1 = (int(v) for v in box)
+    # (tolist: Python ints at a fifth of the cost of int() of each numpy item)
+    y0, y1, x0, x1 = np.asarray(box).tolist()
     return slice(y0, y1 + 1), slice(x0, x1 + 1)
 
 
@@ -414,26 +440,61 @@ def _boxes(labels, count):  # pragma: no cover - numba
         boxes[k, 0] = boxes[k, 2] = np.iinfo(np.int64).max
         boxes[k, 1] = boxes[k, 3] = -1
     rows, cols = labels.shape
+    # by runs of one id along each row: a run's first pixel sets the rows and the left
+    # column, its last the right one (two to four times faster than each pixel's updates)
     for y in range(rows):
+        last = 0
         for x in range(cols):
             k = labels[y, x]
+            if k == last:
+                continue
+            if 0 < last <= count and x - 1 > boxes[last, 3]:
+                boxes[last, 3] = x - 1
             if 0 < k <= count:
                 if y < boxes[k, 0]:
                     boxes[k, 0] = y
                 boxes[k, 1] = y  # rows come in order
                 if x < boxes[k, 2]:
                     boxes[k, 2] = x
-                if x > boxes[k, 3]:
-                    boxes[k, 3] = x
+            last = k
+        if 0 < last <= count and cols - 1 > boxes[last, 3]:
+            boxes[last, 3] = cols - 1
     return boxes
 
 
 def _solidity(mask: np.ndarray) -> float:
     """Pixels of a mask over the pixel area of their convex hull (1: convex)."""
-    # (x, y) of the pixels in raster order, as np.nonzero gives them, at a third of the cost
-    points = cv2.findNonZero(np.ascontiguousarray(mask).view(np.uint8))
-    hull = cv2.convexHull(points)
+    # the hull of each row's first and last pixel is the hull of all the pixels (every
+    # pixel lies between its row's ends): OpenCV's hull of these few points is the same
+    # vertex list as of all pixels (it drops points on an edge; ``test_regions.py``
+    # compares), and sorting them costs a fraction
+    ends, pixels = _row_ends(np.ascontiguousarray(mask))
+    hull = cv2.convexHull(ends)
     # the hull runs through pixel centres: half its perimeter (+1 for the corners) is the
     # area of the boundary pixels outside it, so a convex blob scores about 1
     area = cv2.contourArea(hull) + 0.5 * cv2.arcLength(hull, True) + 1.0
-    return len(points) / area
+    return pixels / area
+
+
+@njit(cache=True)
+def _row_ends(mask):  # pragma: no cover - numba
+    """The (x, y) of each row's first and last pixel of ``mask`` (a (K, 1, 2) int32 array,
+    as cv2.findNonZero shapes points) and the mask's pixel count."""
+    rows, cols = mask.shape
+    ends = np.empty((2 * rows, 1, 2), np.int32)
+    n = 0
+    pixels = 0
+    for y in range(rows):
+        first = -1
+        last = -1
+        for x in range(cols):
+            if mask[y, x]:
+                if first < 0:
+                    first = x
+                last = x
+                pixels += 1
+        if first >= 0:
+            ends[n, 0, 0], ends[n, 0, 1] = first, y
+            ends[n + 1, 0, 0], ends[n + 1, 0, 1] = last, y
+            n += 2
+    return ends[:n], pixels

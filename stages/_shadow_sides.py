@@ -195,9 +195,10 @@ def split_shadow_sides(
         return labels, 0
     owners = labels.ravel()
     inside = owners > 0
-    median = _percentile_by_label(
-        contrast.ravel()[inside].astype(np.float64), owners[inside], count + 1, 50.0
-    )
+    # only the medians' signs are read: float32 contrast takes the compiled float32 path
+    # (the exact order statistic; the float64 path's sort of combined label-value keys
+    # gives the same one, 0.4 ms a call slower); other dtypes the float64 path as before
+    median = _percentile_by_label(contrast.ravel()[inside], owners[inside], count + 1, 50.0)
     # a light object in the precise rows (a far one is skipped: its rows are not read)
     n_pixels, n_precise, n_flat = _label_counts(labels, precise, flat, count + 1)
     light = (np.nan_to_num(median) > 0) & (n_precise >= 0.5 * n_pixels)
@@ -213,25 +214,29 @@ def split_shadow_sides(
     out = labels.copy()
     disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * gap_px + 1, 2 * gap_px + 1))
     step = np.ones((3, 3), np.uint8)
-    # find_objects' slices (None for an absent id) from one compiled pass
-    spans = [
-        _box_window(box) if box[1] >= box[0] else None
-        for box in _object_boxes(labels, count)[1:]
-    ]
+    # find_objects' slices from one compiled pass, made for the objects read (the light
+    # ones and their neighbours: slices for all cost 0.4 ms a frame); every id read is
+    # present in ``labels``
+    boxes = _object_boxes(labels, count)
     rows, cols = labels.shape
     moved = 0
     split: set[int] = set()
     for k in np.flatnonzero(light):
-        sy, sx = spans[k - 1]
+        sy, sx = _box_window(boxes[k])
         y0, x0 = max(0, sy.start - gap_px), max(0, sx.start - gap_px)
         y1, x1 = min(rows, sy.stop + gap_px), min(cols, sx.stop + gap_px)
         window = out[y0:y1, x0:x1]
-        reach = cv2.dilate((window == k).view(np.uint8), disk).view(bool)
-        for d in np.unique(window[reach]):
+        # the objects within gap_px: none when the window holds k's pixels only (all of
+        # them: a light object loses none and gains only in its turn)
+        neighbours: np.ndarray | tuple = ()
+        if 1 in cases and np.count_nonzero(window) > n_pixels[k]:
+            reach = cv2.dilate((window == k).view(np.uint8), disk).view(bool)
+            neighbours = np.unique(window[reach])
+        for d in neighbours:
             if 1 not in cases or not shadowed[d]:
                 continue
             # a box holding both objects
-            dy, dx = spans[d - 1]
+            dy, dx = _box_window(boxes[d])
             by0, bx0 = min(y0, dy.start), min(x0, dx.start)
             by1, bx1 = max(y1, dy.stop), max(x1, dx.stop)
             box = out[by0:by1, bx0:bx1]
@@ -257,9 +262,11 @@ def split_shadow_sides(
             moved += int(np.count_nonzero(take))
             split.add(int(d))
         if 2 in cases:
-            moved += _fill_to_shadow(out, k, spans[k - 1], labels, contrast, shady, raised)
+            moved += _fill_to_shadow(
+                out, k, _box_window(boxes[k]), labels, contrast, shady, raised
+            )
     for d in split:
-        dy, dx = spans[d - 1]
+        dy, dx = _box_window(boxes[d])
         rest = out[dy, dx] == d
         judged = rest & precise[dy, dx]
         heights = relative[dy, dx][judged]
@@ -348,7 +355,10 @@ def _fill_to_shadow(
         return 0
     # only pixels that reach the object through the gap
     _, pieces = cv2.connectedComponents((gap | lit).view(np.uint8), connectivity=8)
-    gap &= np.isin(pieces, np.unique(pieces[lit]))
+    # (a lookup of the pieces holding a lit pixel: np.isin sorts them)
+    reached = np.zeros(int(pieces.max()) + 1, bool)
+    reached[pieces[lit]] = True
+    gap &= reached[pieces]
     box[gap] = k
     return int(np.count_nonzero(gap))
 

@@ -120,6 +120,33 @@ def two_faced_candidates(
         0 elsewhere, 1..n the candidate blobs (not yet tested for solidity).
     n : int
     """
+    blob_ids, kept = _candidates(
+        labels,
+        image,
+        min_sigmas=min_sigmas,
+        min_area_px=min_area_px,
+        join_px=join_px,
+        min_share=min_share,
+        _scales=_scales,
+    )
+    numbers = np.zeros(int(blob_ids.max()) + 1, np.int32)
+    numbers[kept] = np.arange(1, kept.size + 1, dtype=np.int32)
+    return _lookup(numbers, blob_ids), int(kept.size)
+
+
+def _candidates(
+    labels: np.ndarray,
+    image: np.ndarray,
+    *,
+    min_sigmas: float,
+    min_area_px: int,
+    join_px: int,
+    min_share: float,
+    _scales: BlobScales | None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`two_faced_candidates` (its inputs checked) as the connected components of
+    the joined regions, (M, N) int32, and the ids of the candidates among them, ascending
+    (numbered 1.. in that order they are the candidates' blobs)."""
     if labels.shape != image.shape or image.ndim != 2:
         raise ValueError(
             f"labels and image must be 2-D of one shape, got {labels.shape} and {image.shape}"
@@ -149,9 +176,8 @@ def two_faced_candidates(
     )
     joined = dark | light | between
     n_blobs, blob_ids = cv2.connectedComponents(joined.view(np.uint8), connectivity=8)
-    out = np.zeros(labels.shape, np.int32)
     if n_blobs == 1:
-        return out, 0
+        return blob_ids, np.zeros(0, np.int64)
     # per blob: pixels, dark pixels, light pixels, ring pixels (one compiled pass for four
     # bincounts of masked copies; ``test_two_face_blobs.py`` compares them)
     counts = np.zeros((4, n_blobs), np.int64)
@@ -170,9 +196,7 @@ def two_faced_candidates(
         & (ringed == 0)
     )
     keep[0] = False
-    numbers = np.zeros(n_blobs, np.int32)
-    numbers[keep] = np.arange(1, int(keep.sum()) + 1, dtype=np.int32)
-    return _lookup(numbers, blob_ids), int(keep.sum())
+    return blob_ids, np.flatnonzero(keep)
 
 
 def add_two_faced_blobs(
@@ -202,13 +226,14 @@ def add_two_faced_blobs(
     Returns
     -------
     labels : (M, N) ndarray of int32
-        The objects, then the added blobs numbered on from ``labels.max() + 1``.
+        The objects, then the added blobs numbered on from ``labels.max() + 1`` (the
+        input itself when none is added and it is int32).
     added : int
     """
     if not 0 <= min_solidity <= 1:
         raise ValueError(f"min_solidity must be in [0, 1], got {min_solidity}")
-    labels = labels.astype(np.int32, copy=True)
-    blobs, n_blobs = two_faced_candidates(
+    labels = labels.astype(np.int32, copy=False)
+    blob_ids, kept = _candidates(
         labels,
         image,
         min_sigmas=min_sigmas,
@@ -217,33 +242,51 @@ def add_two_faced_blobs(
         min_share=min_share,
         _scales=_scales,
     )
-    if n_blobs == 0:
-        return labels, 0
+    # the candidates by their component ids (numbered 1.. in this order they are
+    # two_faced_candidates' blobs: the same boxes and regions, no lookup of the frame);
+    # labels copied once a blob is added (none added: labels as they came, as other
+    # rules that change nothing return them)
+    out = labels
     rows, cols = labels.shape
-    boxes = _object_boxes(blobs, n_blobs)
+    boxes = _object_boxes(blob_ids, int(kept[-1])) if kept.size else None
     next_id = int(labels.max()) + 1
     added = 0
-    for blob in range(1, n_blobs + 1):
-        y0, y1, x0, x1 = (int(v) for v in boxes[blob])
+    for blob in kept:
+        y0, y1, x0, x1 = boxes[blob].tolist()
         r0, r1 = max(y0 - _PAD_PX, 0), min(y1 + 1 + _PAD_PX, rows)
         c0, c1 = max(x0 - _PAD_PX, 0), min(x1 + 1 + _PAD_PX, cols)
-        region = blobs[r0:r1, c0:c1] == blob
+        region = blob_ids[r0:r1, c0:c1] == blob
         if not _is_solid(region, min_solidity=min_solidity):
             continue
-        labels[r0:r1, c0:c1][region] = next_id
+        if out is labels:
+            out = labels.copy()
+        out[r0:r1, c0:c1][region] = next_id
         next_id += 1
         added += 1
-    return labels, added
+    return out, added
 
 
 @njit(cache=True)
 def _face_counts(blob_ids, dark, light, ring, counts):  # pragma: no cover - numba
     rows, cols = blob_ids.shape
+    # blob 0 (most pixels) counted in registers: ``counts[0, 0] += 1`` on most pixels makes
+    # each wait for the last store (see stages._regions._drop_specks)
+    ground = ground_dark = ground_light = ground_ring = 0
     for y in range(rows):
         for x in range(cols):
             k = blob_ids[y, x]
             # the masks added as 0 or 1: no branch to mispredict
+            if k == 0:
+                ground += 1
+                ground_dark += dark[y, x]
+                ground_light += light[y, x]
+                ground_ring += ring[y, x]
+                continue
             counts[0, k] += 1
             counts[1, k] += dark[y, x]
             counts[2, k] += light[y, x]
             counts[3, k] += ring[y, x]
+    counts[0, 0] += ground
+    counts[1, 0] += ground_dark
+    counts[2, 0] += ground_light
+    counts[3, 0] += ground_ring

@@ -10,11 +10,13 @@ from object_masks import disk
 from stages._blobs import (
     _blob_statistics,
     _core_sums,
+    _is_solid,
     _seeded_regions,
     _tile_spread,
     add_compact_blobs,
 )
 from stages._regions import _label_sums, _object_boxes
+from stages._sectors import sector_edges
 
 SHAPE = (160, 160)
 
@@ -176,6 +178,41 @@ def test_tile_spread_memo_measures_changed_tiles_alike():
     )
 
 
+def _tile_spread_numpy(values, use, tile_px):
+    """_tile_spread's numpy twin: per tile, np.partition of the sample's absolute values."""
+    rows, cols = values.shape
+    row_edges = sector_edges(rows, max(1, round(rows / tile_px)))
+    col_edges = sector_edges(cols, max(1, round(cols / tile_px)))
+    grid = np.full((row_edges.size - 1, col_edges.size - 1), np.nan, np.float32)
+    for i in range(grid.shape[0]):
+        for j in range(grid.shape[1]):
+            r0, r1 = row_edges[i], row_edges[i + 1]
+            c0, c1 = col_edges[j], col_edges[j + 1]
+            sample = values[r0:r1:2, c0:c1:2][use[r0:r1:2, c0:c1:2]]
+            if sample.size >= 12:
+                middle = sample.size // 2
+                grid[i, j] = 1.4826 * np.partition(np.abs(sample), middle)[middle]
+    if np.isnan(grid).all():
+        grid[:] = 0.5
+    grid[np.isnan(grid)] = np.nanmedian(grid)
+    return cv2.resize(grid, (cols, rows), interpolation=cv2.INTER_LINEAR)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_tile_spread_equals_its_numpy_twin(dtype):
+    # the compiled tiles against np.partition per tile: ties (rounded values), empty and
+    # sparse tiles, odd and even sample sizes
+    rng = np.random.default_rng(31)
+    for _ in range(40):
+        shape = tuple(rng.integers(8, 130, 2))
+        values = np.round(rng.normal(0, 4, shape), int(rng.integers(0, 3))).astype(dtype)
+        use = rng.random(shape) < rng.uniform(0.0, 1.0)
+        tile_px = int(rng.integers(8, 40))
+        np.testing.assert_array_equal(
+            _tile_spread(values, use, tile_px), _tile_spread_numpy(values, use, tile_px)
+        )
+
+
 def test_seeded_regions_fill_nested_rings_as_the_whole_frame_flood():
     # each part flooded in its own box: nested rings (a pocket between two parts, inside
     # the outer one) and parts on the frame's edge, against the whole frame's flood
@@ -241,3 +278,29 @@ def test_core_sums_equal_connected_components_and_label_sums():
         mine, match = pairs[0][order], pairs[1][order]
         np.testing.assert_array_equal(counts[mine], want_counts[match])
         np.testing.assert_array_equal(sums[mine], want_sums[match])
+
+
+def _hull_of_outline_px(region):
+    """_is_solid's former hull: of the region's external contours."""
+    contours, _ = cv2.findContours(
+        region.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE
+    )
+    hull = cv2.convexHull(np.vstack(contours))
+    return cv2.contourArea(hull) + 0.5 * cv2.arcLength(hull, True) + 1
+
+
+def test_is_solid_equals_the_test_on_the_outlines_hull():
+    # the hull of each row's ends against the hull of the outline: the same test at the
+    # very threshold a region's own solidity sets
+    rng = np.random.default_rng(37)
+    for _ in range(300):
+        shape = tuple(rng.integers(2, 40, 2))
+        noise = cv2.GaussianBlur(rng.random(shape).astype(np.float32), (0, 0), 1.5)
+        region = noise > rng.uniform(0.3, 0.6)
+        if not region.any():
+            continue
+        solidity = np.count_nonzero(region) / _hull_of_outline_px(region)
+        for threshold in (solidity, np.nextafter(solidity, 2.0), rng.random()):
+            assert _is_solid(region, min_solidity=threshold) == (
+                np.count_nonzero(region) >= threshold * _hull_of_outline_px(region)
+            )

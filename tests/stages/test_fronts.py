@@ -7,7 +7,8 @@ import cv2
 import numpy as np
 import pytest
 
-from stages._fronts import grow_fronts
+from stages._fronts import grow_fronts, merge_fronts
+from stages._regions import _object_boxes
 
 
 def _dilation_loop(front: np.ndarray, weak: np.ndarray, max_steps: int):
@@ -61,3 +62,36 @@ def test_grow_fronts_rejects_mismatched_or_bad_inputs():
         grow_fronts(front, np.zeros((4, 4), np.uint8), max_steps=1)
     with pytest.raises(ValueError, match="max_steps"):
         grow_fronts(front, np.zeros((4, 4), bool), max_steps=-1)
+
+
+def _merge_numpy(labels: np.ndarray, dark_front: np.ndarray, light_front: np.ndarray):
+    """R7's numpy steps that merge_fronts replaced."""
+    out = labels.copy()
+    background = labels == 0
+    for front in (dark_front, light_front):
+        np.copyto(out, front, where=background & (front > 0), casting="unsafe")
+    grew = np.unique(out[out != labels])
+    return out, grew, _object_boxes(out, int(labels.max()))
+
+
+@pytest.mark.parametrize("dtype", [np.uint16, np.float32])
+def test_merge_fronts_equals_copies_unique_and_boxes_on_random_growths(dtype):
+    rng = np.random.default_rng(11)
+    for _ in range(60):
+        rows, cols = rng.integers(1, 30, 2)
+        labels = np.where(
+            rng.random((rows, cols)) < 0.2 * rng.random(), rng.integers(1, 9, (rows, cols)), 0
+        ).astype(np.int32)
+        dark = rng.random(9) < 0.5
+        fronts = []
+        weak = rng.random((rows, cols)) < rng.random()
+        for side in (dark, ~dark):
+            front = np.where(side[labels], labels, 0).astype(dtype)
+            # the sides take disjoint pixels
+            mine = weak & (rng.random((rows, cols)) < 0.5) & (labels == 0)
+            weak &= ~mine
+            grow_fronts(front, mine, max_steps=int(rng.integers(0, 4)))
+            fronts.append(front)
+        expected = _merge_numpy(labels, *fronts)
+        for got, want in zip(merge_fronts(labels, *fronts), expected, strict=True):
+            np.testing.assert_array_equal(got, want)

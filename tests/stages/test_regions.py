@@ -10,6 +10,7 @@ from scipy.ndimage import distance_transform_edt, find_objects
 
 from stages._regions import (
     _box_window,
+    _core_parents,
     _dense_components,
     _label_areas,
     _label_sums,
@@ -17,6 +18,7 @@ from stages._regions import (
     _object_boxes,
     _renumber,
     _renumber_numpy,
+    _solidity,
     _split_at_edges,
     depth_edges,
     fill_holes,
@@ -127,6 +129,25 @@ def test_object_boxes_equal_find_objects():
     assert _object_boxes(np.array([[0, 3, 1]]), 1).tolist()[1] == [0, 0, 2, 2]
 
 
+def test_object_boxes_by_runs_equal_find_objects_on_blobs():
+    # the kernel works by runs of one id along the rows: long runs, runs of touching
+    # objects and runs at the frame's edges, ids above count among them
+    rng = np.random.default_rng(16)
+    for _ in range(40):
+        shape = tuple(rng.integers(1, 60, 2))
+        seeds = np.where(rng.random(shape) < 0.02, rng.integers(1, 15, shape), 0)
+        size = tuple(int(v) for v in rng.integers(1, 12, 2))
+        labels = cv2.dilate(seeds.astype(np.uint16), np.ones(size, np.uint8)).astype(np.int32)
+        count = max(int(labels.max()) - int(rng.integers(0, 3)), 0)
+        boxes = _object_boxes(labels, count)
+        spans = find_objects(np.where(labels <= count, labels, 0))
+        for k in range(1, count + 1):
+            if k > len(spans) or spans[k - 1] is None:
+                assert boxes[k, 1] < boxes[k, 0] and boxes[k, 3] < boxes[k, 2]
+            else:
+                assert _box_window(boxes[k]) == spans[k - 1]
+
+
 def test_renumber_equals_its_numpy_twin():
     rng = np.random.default_rng(13)
     for trial in range(30):
@@ -218,3 +239,40 @@ def test_split_at_edges_crops_equal_the_whole_frame_transform():
         np.testing.assert_array_equal(result, _split_at_edges_twin(labels, edges, 5))
         splits += result is not labels
     assert splits > 50
+
+
+def test_core_parents_equal_the_masked_scatter():
+    # the compiled pass against the numpy scatter it replaced in _split_at_edges
+    rng = np.random.default_rng(23)
+    for _ in range(100):
+        shape = tuple(rng.integers(1, 40, 2))
+        noise = rng.random(shape).astype(np.float32)
+        labels = _dense_components(cv2.GaussianBlur(noise, (0, 0), 1.5) > 0.5, 1)
+        cores = _dense_components((labels > 0) & (rng.random(shape) > 0.1), 2, connectivity=4)
+        expected = np.zeros(int(cores.max()) + 1, np.int64)
+        expected[cores[cores > 0]] = labels[cores > 0]
+        np.testing.assert_array_equal(_core_parents(cores, labels), expected)
+
+
+def _solidity_of_all_pixels(mask):
+    """_solidity's twin: the convex hull of every pixel (cv2.findNonZero)."""
+    points = cv2.findNonZero(mask.astype(np.uint8))
+    hull = cv2.convexHull(points)
+    return len(points) / (cv2.contourArea(hull) + 0.5 * cv2.arcLength(hull, True) + 1.0)
+
+
+def test_solidity_from_the_row_ends_equals_the_hull_of_all_pixels():
+    # the hull of each row's first and last pixel: the same vertices, the same float, on
+    # blobs, rings, straight edges (pixels on a hull edge), single pixels and lines
+    rng = np.random.default_rng(29)
+    masks = [np.ones((1, 1), bool), np.ones((1, 7), bool), np.ones((5, 1), bool)]
+    for _ in range(300):
+        shape = tuple(rng.integers(2, 40, 2))
+        noise = cv2.GaussianBlur(rng.random(shape).astype(np.float32), (0, 0), 1.5)
+        masks.append(noise > rng.uniform(0.3, 0.6))
+        square = np.zeros(shape, bool)
+        square[1 : shape[0] - 1, 1 : shape[1] - 1] = rng.random() < 0.5
+        masks.append(square | (rng.random(shape) < 0.05))
+    for mask in masks:
+        if mask.any():
+            assert _solidity(mask) == _solidity_of_all_pixels(mask)

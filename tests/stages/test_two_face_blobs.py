@@ -185,3 +185,16 @@ def test_face_counts_equal_bincounts_of_masked_ids():
         flat = ids.ravel()
         for row, mask in zip(counts, (np.ones(shape, bool), dark, light, ring), strict=True):
             np.testing.assert_array_equal(row, np.bincount(flat[mask.ravel()], minlength=7))
+
+
+@pytest.mark.parametrize("seed", [0, 2])
+def test_the_input_labels_are_not_modified_and_blobs_numbered_after_them(seed):
+    # the labels are copied only once a blob is added (the blobs by their component ids)
+    labels = np.zeros(SHAPE, np.int32)
+    labels[:6, :6] = 3
+    before = labels.copy()
+    found, added = add_two_faced_blobs(labels, two_faced_rock(seed), min_sigmas=3.0)
+    assert added == 1 and set(np.unique(found)) == {0, 3, 4}
+    np.testing.assert_array_equal(labels, before)
+    blobs, n = two_faced_candidates(labels, two_faced_rock(seed), min_sigmas=3.0)
+    assert n >= 1 and np.array_equal(found == 4, blobs == 1)
