@@ -69,7 +69,7 @@ import cv2
 import numpy as np
 from numba import njit
 
-from ._regions import _box_window, _row_ends
+from ._regions import _box_window, _extend_box, _row_ends
 from ._sectors import sector_edges
 from ._select import _kth
 
@@ -315,13 +315,7 @@ def _blob_pass(blob_ids, z, sign, ring, interior, peaks, counts, boxes):  # prag
             counts[0, k] += 1
             if interior[y, x]:
                 counts[2, k] += 1
-            if y < boxes[k, 0]:
-                boxes[k, 0] = y
-            boxes[k, 1] = y  # rows come in order
-            if x < boxes[k, 2]:
-                boxes[k, 2] = x
-            if x > boxes[k, 3]:
-                boxes[k, 3] = x
+            _extend_box(boxes, k, y, x)
     counts[1, 0] += ground_ring
 
 

@@ -18,6 +18,8 @@ import cv2
 import numpy as np
 from numba import njit
 
+from ._regions import _extend_box
+
 __all__ = ["grow_fronts", "merge_fronts"]
 
 
@@ -174,10 +176,4 @@ def _merge_pass(labels, dark_front, light_front, out, grew, boxes):  # pragma: n
                     grew[k] = True
             out[y, x] = k
             if 0 < k <= count:
-                if y < boxes[k, 0]:
-                    boxes[k, 0] = y
-                boxes[k, 1] = y  # rows come in order
-                if x < boxes[k, 2]:
-                    boxes[k, 2] = x
-                if x > boxes[k, 3]:
-                    boxes[k, 3] = x
+                _extend_box(boxes, k, y, x)

@@ -138,7 +138,7 @@ import numpy as np
 from numba import njit
 
 from ._heights import _percentiles_by_label, check_height_inputs
-from ._regions import _box_window
+from ._regions import _box_window, _extend_box
 
 # R7f: rows whose ground height noise is at most this (metres) are read (R7e's 7.5 mm until
 # segment v38: lava's rocks at 2-2.8 m lie in rows of 7.5-10 mm) ...
@@ -538,13 +538,7 @@ def _measure_pass(  # pragma: no cover - numba
                 ground += 1
                 continue
             sizes[k] += 1
-            if y < boxes[k, 0]:
-                boxes[k, 0] = y
-            boxes[k, 1] = y  # rows come in order
-            if x < boxes[k, 2]:
-                boxes[k, 2] = x
-            if x > boxes[k, 3]:
-                boxes[k, 3] = x
+            _extend_box(boxes, k, y, x)
             height = relative[y, x]
             if np.isfinite(height):
                 owners[0, n_heights] = k

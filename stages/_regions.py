@@ -433,6 +433,20 @@ def _box_window(box: np.ndarray) -> tuple[slice, slice]:
     return slice(y0, y1 + 1), slice(x0, x1 + 1)
 
 
+@njit(cache=True, inline="always")
+def _extend_box(boxes, k, y, x):  # pragma: no cover - numba
+    """Grow object ``k``'s inclusive (y0, y1, x0, x1) box to pixel (y, x), pixels visited in
+    raster order: the one box update of the compiled passes that gather boxes as they go
+    (stages._blobs, _fronts, _height_grow, _sun_shadows)."""
+    if y < boxes[k, 0]:
+        boxes[k, 0] = y
+    boxes[k, 1] = y  # rows come in order
+    if x < boxes[k, 2]:
+        boxes[k, 2] = x
+    if x > boxes[k, 3]:
+        boxes[k, 3] = x
+
+
 @njit(cache=True)
 def _boxes(labels, count):  # pragma: no cover - numba
     boxes = np.empty((count + 1, 4), np.int64)

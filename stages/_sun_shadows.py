@@ -128,6 +128,7 @@ import numpy as np
 from numba import njit
 
 from ._heights import check_height_inputs
+from ._regions import _extend_box
 from ._select import median_u8
 
 __all__ = [
@@ -493,13 +494,7 @@ def _object_pass(labels, contrast, sums, boxes):  # pragma: no cover - numba
                 sums[4, k] += 1.0
                 sums[5, k] += y
                 sums[6, k] += x
-            if y < boxes[k, 0]:
-                boxes[k, 0] = y
-            boxes[k, 1] = y  # rows come in order
-            if x < boxes[k, 2]:
-                boxes[k, 2] = x
-            if x > boxes[k, 3]:
-                boxes[k, 3] = x
+            _extend_box(boxes, k, y, x)
 
 
 @njit(cache=True)
