@@ -231,7 +231,7 @@ def _ground_pass(relative, mask, values):  # pragma: no cover - numba
 def _fraction(mask: np.ndarray) -> float:
     """``float(mask.mean())`` of a non-empty boolean mask, without its float64 copy: the
     mean adds 0s and 1s exactly, so the count over the size is the same float."""
-    return np.count_nonzero(mask) / mask.size
+    return int(np.count_nonzero(mask)) / mask.size  # (a numpy int would give np.float64)
 
 
 def _robust_sigma(values: np.ndarray) -> float:

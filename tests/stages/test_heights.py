@@ -144,3 +144,10 @@ def test_fraction_is_the_mean_of_the_mask_bit_for_bit():
     for _ in range(50):
         mask = rng.random(tuple(rng.integers(1, 300, 2))) < rng.random()
         assert _fraction(mask) == float(mask.mean())
+
+
+def test_fraction_is_a_python_float_not_numpy_float64():
+    # np.count_nonzero gives a numpy int: the share came out np.float64 (float(mean) did
+    # not), and DepthRuleStats' repr read ``depth_valid_fraction=np.float64(0.95...)``
+    share = _fraction(np.array([[True, False, True]]))
+    assert type(share) is float and repr(share) == "0.6666666666666666"
