@@ -57,7 +57,8 @@ def border_fill(image: np.ndarray, *, min_share: float = FILL_MIN_SHARE) -> np.n
     if not isinstance(image, np.ndarray) or image.ndim != 2 or image.dtype != np.uint8:
         raise TypeError(
             "image must be a 2-D uint8 numpy array, got "
-            f"{getattr(image, 'dtype', type(image).__name__)} of shape {np.shape(image)}"
+            f"{getattr(image, 'dtype', type(image).__name__)} of shape {np.shape(image)}; "
+            "convert a gray image with stages._imageio.to_gray_uint8, as ingest does"
         )
     if not 0 <= min_share <= 1:
         raise ValueError(f"min_share must be in [0, 1], got {min_share}")

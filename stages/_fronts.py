@@ -134,7 +134,7 @@ def merge_fronts(
     -------
     out : (M, N) ndarray of ``labels.dtype``
         ``labels`` with the fronts' ids on its background pixels.
-    grew : (n + 1,) ndarray of int64
+    grew : (K,) ndarray of int64
         The objects that took a background pixel, ascending.
     boxes : (n + 1, 4) ndarray of int64
         The inclusive (y0, y1, x0, x1) box of each object of ``out``, as

@@ -659,7 +659,9 @@ def _kept_ground_mean(
     ground = labels == 0
     rows, cols = labels.shape
     if min(rows, cols) < _CONTRAST_WINDOW_PX:
-        # a frame narrower than the window: OpenCV's, whole
+        # a frame narrower than the window: OpenCV's, whole; nothing kept, but _grow still
+        # records its growth here
+        measures["stale"] = []
         return _ground_mean(contrast, ground)
     if "mean" not in measures:
         measures["mean"] = np.empty((rows, cols), np.float32)

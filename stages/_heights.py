@@ -120,9 +120,12 @@ def relative_height(height: np.ndarray, *, smoothing_px: int, ground_window_px: 
     (M, N) ndarray of float32
     """
     if smoothing_px not in (1, 3, 5):
-        raise ValueError(f"window must be 1, 3 or 5 (OpenCV float median), got {smoothing_px}")
+        raise ValueError(
+            "smoothing_px (segment's height_smoothing_px) must be 1, 3 or 5 (OpenCV's float "
+            f"median), got {smoothing_px}"
+        )
     if ground_window_px < 9:
-        raise ValueError(f"window_px must be >= 9, got {ground_window_px}")
+        raise ValueError(f"ground_window_px must be >= 9 (px), got {ground_window_px}")
     height = np.asarray(height, dtype=np.float32)
     valid, filled = _filled(height)
     if smoothing_px > 1:
@@ -231,7 +234,7 @@ def _ground_pass(relative, mask, values):  # pragma: no cover - numba
 def _fraction(mask: np.ndarray) -> float:
     """``float(mask.mean())`` of a non-empty boolean mask, without its float64 copy: the
     mean adds 0s and 1s exactly, so the count over the size is the same float."""
-    return np.count_nonzero(mask) / mask.size
+    return int(np.count_nonzero(mask)) / mask.size  # (a numpy int would give np.float64)
 
 
 def _robust_sigma(values: np.ndarray) -> float:

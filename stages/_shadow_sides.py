@@ -201,7 +201,8 @@ def split_shadow_sides(
     median = _percentile_by_label(contrast.ravel()[inside], owners[inside], count + 1, 50.0)
     # a light object in the precise rows (a far one is skipped: its rows are not read)
     n_pixels, n_precise, n_flat = _label_counts(labels, precise, flat, count + 1)
-    light = (np.nan_to_num(median) > 0) & (n_precise >= 0.5 * n_pixels)
+    # (an absent id, its median +inf, is no object: a rule before may have emptied it)
+    light = (np.nan_to_num(median) > 0) & (n_precise >= 0.5 * n_pixels) & (n_pixels > 0)
     # a dark object that may hold a cast shadow: a quarter of what heights judge is flat
     shadowed = (np.nan_to_num(median) < 0) & (n_flat >= _MIN_FLAT_SHARE * np.maximum(n_precise, 1))
     shadowed &= n_flat > 0

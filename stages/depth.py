@@ -78,6 +78,7 @@ from ._depth_checks import (
 )
 from ._fill import border_fill, disparity_without_fill, extend_into_fill
 from ._select import median32
+from ._stereo_filters import _coerce_image
 from .geometry import (
     derive_max_disparity,
     derive_row_ceiling,
@@ -358,7 +359,8 @@ def run_depth(
     Parameters
     ----------
     inputs : dict
-        ``left``, ``right``: (M, N) ndarray of uint8, rectified gray pair.
+        ``left``, ``right``: (M, N) ndarray of uint8 (other integers in 0..255 are
+        converted), rectified gray pair.
     frame : FrameContext
         ``frame.camera`` gives focal length, baseline, optional pose and the reference.
     params : dict
@@ -379,6 +381,9 @@ def run_depth(
         raise ValueError(
             f"depth needs two 2-D images of one shape, got left {left.shape}, right {right.shape}"
         )
+    # integer gray levels in 0..255 as uint8, as the matcher takes them: the fill and the
+    # pair checks read uint8 only
+    left, right = _coerce_image(left, "left"), _coerce_image(right, "right")
     camera = frame.camera
     _coerce_settings(params)  # bad settings fail before any work
     notes: list[str] = []

@@ -345,3 +345,17 @@ def test_regression_rectification_fill_edge_drew_the_windows_across_it():
     assert 0.9 < result.figures["valid_fraction"] <= 1.0  # of the imaged pixels
     plain = _run(*_ground_pair(shape=(120, 200), seed=4)[:2])
     assert not any("fill" in note for note in plain.notes)
+
+
+def test_regression_integer_images_in_0_255_are_matched_as_uint8_again():
+    # the matcher takes integer gray levels in 0..255 (stages._stereo_filters); the fill
+    # check added in depth v7 took uint8 only and failed such a pair with a TypeError
+    # about "image" (and the quick block matching of the pair checks needs uint8 too)
+    left, right, _ = _ground_pair(shape=(120, 200), seed=4)
+    ys, xs = np.indices(right.shape)
+    right[xs + ys < 40], left[xs + ys < 46] = 0, 0
+    as_uint8 = _run(left, right)
+    as_uint16 = _run(left.astype(np.uint16), right.astype(np.uint16))
+    for name in ("disparity", "residual", "height"):
+        np.testing.assert_array_equal(as_uint16.arrays[name], as_uint8.arrays[name])
+    assert as_uint16.notes == as_uint8.notes

@@ -40,7 +40,8 @@ def test_no_fill_below_the_share_and_none_on_a_constant_frame() -> None:
 
 
 def test_bad_inputs_say_what_was_expected() -> None:
-    with pytest.raises(TypeError, match="2-D uint8"):
+    # and how to fix it: a gray uint8 image as ingest makes it
+    with pytest.raises(TypeError, match=r"2-D uint8.*float32.*to_gray_uint8"):
         border_fill(np.zeros((20, 20), np.float32))
     with pytest.raises(ValueError, match=r"min_share must be in \[0, 1\]"):
         border_fill(np.zeros((20, 20), np.uint8), min_share=2.0)

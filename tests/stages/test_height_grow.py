@@ -248,6 +248,22 @@ def test_kept_ground_mean_equals_the_whole_frames_where_asked():
             measures["stale"].append((x0, x1))
 
 
+def test_frame_narrower_than_the_contrast_window_grows_without_key_error():
+    # a frame under 5 px on a side takes OpenCV's whole-frame mean and kept none: its
+    # growth must still be recorded (KeyError 'stale' until fixed; grown as before v41)
+    labels = np.zeros((100, 4), np.int32)
+    contrast = np.zeros(labels.shape, np.float32)
+    relative = np.zeros(labels.shape, np.float32)
+    relative[10:90] = ROCK_M
+    contrast[10:90] = -0.6
+    contrast[10:90, :2] = -2.0
+    labels[10:90, :2] = 1
+    for maps in ((labels, contrast, relative), (labels.T, contrast.T, relative.T)):
+        frame, gray, heights = (np.ascontiguousarray(m) for m in maps)
+        out, grown = grow_raised_parts(frame, gray, heights, np.full(frame.shape[0], NOISE_M))
+        assert grown == 160 and np.array_equal(out > 0, heights > 0)
+
+
 def test_median_row_equals_numpys_median_of_the_rows():
     rng = np.random.default_rng(4)
     for _ in range(200):

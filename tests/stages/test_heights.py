@@ -144,3 +144,20 @@ def test_fraction_is_the_mean_of_the_mask_bit_for_bit():
     for _ in range(50):
         mask = rng.random(tuple(rng.integers(1, 300, 2))) < rng.random()
         assert _fraction(mask) == float(mask.mean())
+
+
+def test_fraction_is_a_python_float_not_numpy_float64():
+    # np.count_nonzero gives a numpy int: the share came out np.float64 (float(mean) did
+    # not), and DepthRuleStats' repr read ``depth_valid_fraction=np.float64(0.95...)``
+    share = _fraction(np.array([[True, False, True]]))
+    assert type(share) is float and repr(share) == "0.6666666666666666"
+
+
+def test_relative_height_errors_name_its_own_arguments():
+    # its checks were copied from smooth_height and local_ground and named their
+    # ``window`` and ``window_px``, which a caller of relative_height never passed
+    height = np.zeros((20, 20), np.float32)
+    with pytest.raises(ValueError, match=r"smoothing_px .* must be 1, 3 or 5.*got 4"):
+        relative_height(height, smoothing_px=4, ground_window_px=36)
+    with pytest.raises(ValueError, match=r"ground_window_px must be >= 9.*got 8"):
+        relative_height(height, smoothing_px=5, ground_window_px=8)
