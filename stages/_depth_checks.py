@@ -165,7 +165,7 @@ def _share_at_limit(disparity: np.ndarray, hi: int) -> float:
     # counts, not a copy of the valid values: 0.11 ms instead of 0.76 on a 500x500 frame,
     # run on every frame with a pose (NaN compares False)
     valid = np.count_nonzero(np.isfinite(disparity))
-    return np.count_nonzero(disparity >= hi - 1) / valid if valid else 0.0
+    return int(np.count_nonzero(disparity >= hi - 1)) / int(valid) if valid else 0.0
 
 
 def limit_note(disparity: np.ndarray, hi: int, params: Mapping[str, Any]) -> list[str]:

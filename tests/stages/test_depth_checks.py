@@ -99,3 +99,13 @@ def test_limit_note_names_where_the_limit_came_from():
     assert "lower depth.nearest_range_m" in note
     (note,) = limit_note(piled, 64, params)
     assert "from the camera pose" in note
+
+
+def test_share_at_limit_is_a_python_float():
+    # it returned np.float64 under its float annotation (as _heights._fraction did)
+    from stages._depth_checks import _share_at_limit
+
+    disparity = np.array([[1.0, 9.5, np.nan], [10.0, 3.0, 9.0]], np.float32)
+    share = _share_at_limit(disparity, 10)
+    assert type(share) is float and share == 3 / 5
+    assert type(_share_at_limit(np.full((2, 2), np.nan, np.float32), 10)) is float
