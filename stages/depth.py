@@ -404,9 +404,10 @@ def run_depth(
     fill_ref, fill_oth = border_fill(reference), border_fill(other)
     ref_m = reference if fill_ref is None else extend_into_fill(reference, fill_ref)
     oth_m = other if fill_oth is None else extend_into_fill(other, fill_oth)
+    has_fill = fill_ref is not None or fill_oth is not None
     matching, tiled = _match(ref_m, oth_m, lo, hi, band, params, gradient)
     disparity_m, valid_fraction = matching.disparity, matching.valid_fraction
-    if fill_ref is not None or fill_oth is not None:
+    if has_fill:
         disparity_m = disparity_without_fill(disparity_m, fill_ref, fill_oth)
         imaged = np.ones(reference.shape, bool) if fill_ref is None else ~fill_ref
         valid_fraction = float(np.mean(np.isfinite(disparity_m[imaged])))
@@ -427,7 +428,7 @@ def run_depth(
             disparity_m, source = _refine.refine_against_ground(
                 ref_m, oth_m, disparity_m, plane=plane_px
             )
-            if fill_ref is not None or fill_oth is not None:
+            if has_fill:  # the refinement may have matched the fill again
                 disparity_m = disparity_without_fill(disparity_m, fill_ref, fill_oth)
             refined_fraction = float(np.mean(source > 0))
     pseudo = pseudo_left(reference, disparity_m)
