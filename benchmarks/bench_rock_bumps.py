@@ -32,30 +32,33 @@ from collections import defaultdict
 
 import numpy as np
 
-# sibling modules: benchmarks/ is on sys.path when one of its scripts runs
-from _rundir import open_run
-from bench_misses import classify_misses
-from bench_untouched_depth import _bump, _ring
-
 from stages.segment import segment_image
 
-__all__ = ["main"]
+__all__ = ["kept_shares", "main", "top_bump"]
 
 _MIN_TRUE_PX = 30
 _MIN_TRUTH_BUMP = 0.1  # px: smaller bumps make the kept share meaningless
 
 
+def kept_shares(truth: np.ndarray, run: np.ndarray) -> np.ndarray:
+    """run / truth bump of the rocks whose both bumps are finite and whose truth bump is at
+    least 0.1 px (a smaller one makes the share meaningless)."""
+    finite = np.isfinite(truth) & np.isfinite(run)
+    big = finite & (np.where(finite, truth, 0.0) >= _MIN_TRUTH_BUMP)
+    return run[big] / truth[big]
+
+
 def _columns(truth: np.ndarray, run: np.ndarray) -> str:
     """Median truth and run bumps, median kept share and the share keeping under half."""
     finite = np.isfinite(truth) & np.isfinite(run)
-    truth, run = truth[finite], run[finite]
-    if truth.size == 0:
+    if not finite.any():
         return "     -      -      -      -"
-    big = truth >= _MIN_TRUTH_BUMP
-    kept = run[big] / truth[big]
+    kept = kept_shares(truth, run)
     kept_median = f"{np.median(kept):6.2f}" if kept.size else "     -"
     below_half = f"{np.mean(kept < 0.5):6.2f}" if kept.size else "     -"
-    return f"{np.median(truth):6.3f} {np.median(run):6.3f} {kept_median} {below_half}"
+    return (
+        f"{np.median(truth[finite]):6.3f} {np.median(run[finite]):6.3f} {kept_median} {below_half}"
+    )
 
 
 def _summary(rows: list[tuple[float, float, float, float]]) -> str:
@@ -66,7 +69,7 @@ def _summary(rows: list[tuple[float, float, float, float]]) -> str:
     )
 
 
-def _top_bump(values: np.ndarray, mask: np.ndarray, ring: np.ndarray) -> float:
+def top_bump(values: np.ndarray, mask: np.ndarray, ring: np.ndarray) -> float:
     """90th percentile over ``mask`` minus the median over ``ring`` (finite pixels)."""
     inside = values[mask]
     inside = inside[np.isfinite(inside)]
@@ -82,6 +85,12 @@ def main() -> None:
     parser.add_argument("rundirs", nargs="+", help="finished run directories of built-in archives")
     parser.add_argument("--near", type=float, default=3.0, help="truth range limit, m")
     args = parser.parse_args()
+    # sibling modules: benchmarks/ is on sys.path when this script runs (not when a test
+    # imports its functions)
+    from _rundir import open_run
+    from bench_misses import classify_misses
+    from bench_untouched_depth import _bump, _ring
+
     print(
         "archive   polarity  class         rocks  median: truth    run   kept  <half"
         " | top: truth    run   kept  <half"
@@ -108,8 +117,8 @@ def main() -> None:
                 bumps = (
                     _bump(truth_disparity, mask, ring),
                     _bump(disparity, mask, ring),
-                    _top_bump(truth_disparity, mask, ring),
-                    _top_bump(disparity, mask, ring),
+                    top_bump(truth_disparity, mask, ring),
+                    top_bump(disparity, mask, ring),
                 )
                 side = polarity.get(row["rock"], "?")
                 groups[(side, row["class"])].append(bumps)
