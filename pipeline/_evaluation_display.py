@@ -46,6 +46,15 @@ _DISPLAY: tuple[tuple[str, str, str, str], ...] = (
 )
 
 
+def _format_interval(value: float | None, low: float | None, high: float | None, kind: str) -> str:
+    """``value (low-high)``, or the value alone when the interval is missing or undefined."""
+    text = _format_value(value, kind)
+    bounds = (value, low, high)
+    if any(v is None or not math.isfinite(v) for v in bounds):
+        return text
+    return f"{text} ({_format_value(low, kind)}-{_format_value(high, kind)})"
+
+
 def _format_value(value: float | None, kind: str) -> str:
     if value is None or not math.isfinite(value):
         return "—"
@@ -70,7 +79,8 @@ def evaluation_tables(table: pa.Table) -> list[Any]:
     -------
     tables : list of rich.table.Table
         One per archive: rows = metrics, columns = arroyo and the baseline of each product
-        (named in the product column).
+        (named in the product column). Where the table has ``<metric>_low`` and
+        ``<metric>_high``, arroyo's figure is followed by its 95 % interval in brackets.
     """
     from rich.table import Table
 
@@ -95,6 +105,8 @@ def evaluation_tables(table: pa.Table) -> list[Any]:
         t.add_column("metric")
         t.add_column("arroyo", justify="right")
         t.add_column("baseline", justify="right")
+        if any(metric.endswith("_high") for _, _, metric in vals):
+            t.caption = "(low-high): 95 % Wilson score interval of arroyo's pooled proportion"
         for product in dict.fromkeys(p for p, _, _, _ in _DISPLAY):
             methods = sorted({m for p, m, _ in vals if p == product}, key=_method_rank)
             baselines = [m for m in methods if m != "arroyo"]
@@ -103,6 +115,8 @@ def evaluation_tables(table: pa.Table) -> list[Any]:
                 if product_ != product:
                     continue
                 ours = vals.get((product, "arroyo", metric))
+                low = vals.get((product, "arroyo", f"{metric}_low"))
+                high = vals.get((product, "arroyo", f"{metric}_high"))
                 theirs = [vals.get((product, m, metric)) for m in baselines]
                 if ours is None and all(v is None for v in theirs):
                     continue
@@ -110,7 +124,7 @@ def evaluation_tables(table: pa.Table) -> list[Any]:
                 t.add_row(
                     name if first else "",
                     label,
-                    _format_value(ours, kind),
+                    _format_interval(ours, low, high, kind),
                     " / ".join(_format_value(v, kind) for v in theirs) or "",
                 )
                 first = False

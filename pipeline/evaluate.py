@@ -24,7 +24,11 @@ frame with truth.
 
 Output: a tidy long table (one row per archive, frame, product, method and metric; frame
 ``'*'`` is the aggregate over the archive's frames, pooled over pixels/objects/rocks rather than
-averaged over frames), written atomically to ``RUNDIR/evaluation.parquet``.
+averaged over frames), written atomically to ``RUNDIR/evaluation.parquet``. The aggregates of
+the proportions over counts (segmentation ``precision`` and ``recall``, descriptors
+``class_accuracy`` and ``near_class_accuracy``, relations ``agreement``) come with
+``<metric>_low`` and ``<metric>_high``: the 95 % Wilson score interval
+(:func:`metrics.wilson_interval`) of the pooled proportion.
 """
 
 from __future__ import annotations
@@ -494,6 +498,45 @@ def _score_size_frequency(ctx: _RunData, out: _Collector, rows: list[Mapping[str
         out.extend(AGGREGATE, "size-frequency", method, {**values, "n_rocks": fit.n_rocks})
 
 
+#: Confidence of the ``<metric>_low`` / ``<metric>_high`` aggregate rows.
+_INTERVAL_CONFIDENCE = 0.95
+
+
+def _successes(rate: float, trials: float) -> float:
+    """The count behind ``rate = successes / trials`` (exact: ``trials`` is far below 2**52)."""
+    return float(round(rate * trials)) if trials > 0 else 0.0
+
+
+def _proportion_counts(product: str, values: Mapping[str, float]) -> dict[str, tuple[float, float]]:
+    """(successes, trials) of each pooled proportion of ``product`` that gets an interval."""
+    if product == "segmentation":
+        tp, fp, fn = values["tp"], values["fp"], values["fn"]
+        return {"precision": (tp, tp + fp), "recall": (tp, tp + fn)}
+    if product == "descriptors":
+        return {
+            f"{prefix}class_accuracy": (
+                _successes(values[f"{prefix}class_accuracy"], values[f"{prefix}n_rocks"]),
+                values[f"{prefix}n_rocks"],
+            )
+            for prefix in ("", "near_")
+        }
+    if product == "relations":
+        return {"agreement": (values["n_agree"], values["n_checked"])}
+    return {}
+
+
+def _with_intervals(product: str, values: Mapping[str, float]) -> dict[str, float]:
+    """``values`` with ``<metric>_low`` and ``<metric>_high`` right after each proportion."""
+    counts = _proportion_counts(product, values)
+    out: dict[str, float] = {}
+    for metric, value in values.items():
+        out[metric] = value
+        if metric in counts:
+            low, high = metrics.wilson_interval(*counts[metric], confidence=_INTERVAL_CONFIDENCE)
+            out[f"{metric}_low"], out[f"{metric}_high"] = low, high
+    return out
+
+
 def _add_aggregates(out: _Collector) -> None:
     pool = {
         "depth": metrics.pool_disparity_errors,
@@ -508,19 +551,16 @@ def _add_aggregates(out: _Collector) -> None:
             # 20.2 s, the others 0.08 s), and the mean of 4 frames printed 5.1 s against
             # SGBM's 0.1 s
             values["seconds_per_frame"] = float(np.median(seconds))
-        out.extend(AGGREGATE, product, method, values)
+        out.extend(AGGREGATE, product, method, _with_intervals(product, values))
     pooled_pairs, pooled_edges = out.pooled_pairs, out.pooled_edges
     if pooled_pairs[0] or pooled_pairs[1]:
-        out.extend(
-            AGGREGATE,
-            "descriptors",
-            "arroyo",
-            metrics.descriptor_errors(
-                _columns(pooled_pairs[0], _PRED_COLUMNS), _columns(pooled_pairs[1], _TRUE_COLUMNS)
-            ),
+        errors = metrics.descriptor_errors(
+            _columns(pooled_pairs[0], _PRED_COLUMNS), _columns(pooled_pairs[1], _TRUE_COLUMNS)
         )
+        out.extend(AGGREGATE, "descriptors", "arroyo", _with_intervals("descriptors", errors))
     if pooled_edges:
-        out.extend(AGGREGATE, "relations", "arroyo", _relation_scores(pooled_edges))
+        relations = _relation_scores(pooled_edges)
+        out.extend(AGGREGATE, "relations", "arroyo", _with_intervals("relations", relations))
 
 
 def _write_atomic(table: pa.Table, target: Path) -> None:

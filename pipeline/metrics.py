@@ -17,6 +17,9 @@ Conventions (the answer to "what exactly does bad-2 mean here"):
   pairs (medians do not average across frames).
 * **Relations** are checked against the truth geometry of the matched rocks (see
   :func:`relation_agreement`).
+* **Intervals**: a proportion over a count (precision, recall, class accuracy, agreement)
+  comes with its Wilson score interval (:func:`wilson_interval`), which stays inside [0, 1]
+  and keeps a sensible width at 0 or n successes, where the normal approximation collapses.
 
 Each per-frame result carries the counts it came from, so the ``pool_*`` functions combine
 frames exactly (a pooled bad-2 rate is over all pixels, not a mean of per-frame rates).
@@ -24,8 +27,11 @@ frames exactly (a pooled bad-2 rate is over all pixels, not a mean of per-frame 
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
+from numbers import Real
+from statistics import NormalDist
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -41,6 +47,7 @@ __all__ = [
     "true_occlusions",
     "relation_agreement",
     "CHECKED_RELATIONS",
+    "wilson_interval",
 ]
 
 #: Relations :func:`relation_agreement` checks; ``adjacent`` is not checked (its gap tolerance
@@ -597,3 +604,69 @@ def relation_agreement(
         "n_unchecked": float(n - n_checked),
         **out,
     }
+
+
+# ------------------------------------------------------------------------------ intervals
+def _coerce_count(name: str, value: object) -> float:
+    """A whole number >= 0 (int, or a float holding one, as the pooled counts are)."""
+    if isinstance(value, bool) or not isinstance(value, Real):
+        raise TypeError(f"{name} must be a count (int), got {type(value).__name__} {value!r}")
+    count = float(value)
+    if not math.isfinite(count) or count < 0 or count != math.floor(count):
+        raise ValueError(
+            f"{name} must be a whole number >= 0, got {value!r}; pass the count of rocks, "
+            "objects or edges, not a rate"
+        )
+    return count
+
+
+def wilson_interval(
+    successes: int | float, trials: int | float, *, confidence: float = 0.95
+) -> tuple[float, float]:
+    """Wilson score interval of a proportion ``successes / trials``.
+
+    Unlike the normal ("Wald") interval it stays inside [0, 1] and does not collapse to a
+    point at 0 or ``trials`` successes, so it suits the small counts of an evaluation
+    (58 rocks within 2 m, 54 classed right: 93.1 %, 95 % interval 83.6-97.3 %).
+
+    Parameters
+    ----------
+    successes : int or float
+        Number of successes, a whole number in [0, trials] (a float holding a whole number,
+        such as the pooled counts of :func:`pool_segmentation_scores`, is accepted).
+    trials : int or float
+        Number of trials, a whole number >= 0.
+    confidence : float
+        Coverage of the interval, in (0, 1); 0.95 by default.
+
+    Returns
+    -------
+    low, high : float
+        The interval's bounds, ``0 <= low <= successes / trials <= high <= 1``; ``low`` is
+        exactly 0 at 0 successes and ``high`` exactly 1 at ``trials`` successes. Both NaN
+        when ``trials`` is 0 (no proportion to bound).
+    """
+    s = _coerce_count("successes", successes)
+    n = _coerce_count("trials", trials)
+    if s > n:
+        raise ValueError(
+            f"successes must be at most trials, got {successes!r} successes of {trials!r} "
+            "trials; pass (successes, trials) in that order"
+        )
+    if isinstance(confidence, bool) or not isinstance(confidence, Real):
+        raise TypeError(f"confidence must be a number in (0, 1), got {confidence!r}")
+    if not 0 < float(confidence) < 1:
+        raise ValueError(
+            f"confidence must be in (0, 1), got {confidence!r}; e.g. 0.95 for a 95 % interval"
+        )
+    if n == 0:
+        return float("nan"), float("nan")
+    z = NormalDist().inv_cdf(0.5 + float(confidence) / 2)
+    p = s / n
+    z2n = z * z / n
+    centre = (p + z2n / 2) / (1 + z2n)
+    half = z / (1 + z2n) * math.sqrt(p * (1 - p) / n + z2n / (4 * n))
+    # rounding must neither put p outside nor a bound outside [0, 1]
+    low = 0.0 if s == 0 else min(max(centre - half, 0.0), p)
+    high = 1.0 if s == n else max(min(centre + half, 1.0), p)
+    return float(low), float(high)

@@ -13,6 +13,7 @@ import xarray as xr
 from pipeline._baselines import otsu_labels, sgbm_disparity
 from pipeline.errors import RunDirError
 from pipeline.evaluate import AGGREGATE, EVALUATION_SCHEMA, evaluate_run, format_evaluation
+from pipeline.metrics import wilson_interval
 from stages._sizefreq import fit_size_frequency
 
 H, W, D = 64, 96, 6  # frame size and the constant ground disparity of the fixture
@@ -185,6 +186,62 @@ def _value(table: pa.Table, *, frame_id, product, method, metric) -> float:
     return hits[0]
 
 
+#: (product, metric) of the proportions whose aggregate carries a 95 % interval
+_PROPORTIONS = (
+    ("segmentation", "precision"),
+    ("segmentation", "recall"),
+    ("descriptors", "class_accuracy"),
+    ("descriptors", "near_class_accuracy"),
+    ("relations", "agreement"),
+)
+
+
+def _interval_counts(aggregate: dict, product: str, method: str, metric: str):
+    """(successes, trials) of a proportion, from the counts in the same aggregate rows."""
+
+    def get(name):
+        return aggregate[(product, method, name)]
+
+    if metric == "precision":
+        return get("tp"), get("tp") + get("fp")
+    if metric == "recall":
+        return get("tp"), get("tp") + get("fn")
+    if metric == "agreement":
+        return get("n_agree"), get("n_checked")
+    n = get(metric.replace("class_accuracy", "n_rocks"))
+    right = get(metric) * n
+    assert right == pytest.approx(round(right), abs=1e-9)  # a count of rocks
+    return round(right), n
+
+
+def _assert_intervals_match_counts(table: pa.Table) -> int:
+    """Every aggregate proportion's _low/_high is the Wilson interval of its counts; per-frame
+    rows carry none. Returns how many intervals were checked."""
+    rows = table.to_pylist()
+    assert not [
+        r for r in rows if r["frame_id"] != AGGREGATE and r["metric"].endswith(("_low", "_high"))
+    ]
+    aggregate = {
+        (r["product"], r["method"], r["metric"]): r["value"]
+        for r in rows
+        if r["frame_id"] == AGGREGATE
+    }
+    checked = 0
+    for product, method, metric in list(aggregate):
+        if (product, metric) not in _PROPORTIONS:
+            continue
+        counts = _interval_counts(aggregate, product, method, metric)
+        low = aggregate[(product, method, f"{metric}_low")]
+        high = aggregate[(product, method, f"{metric}_high")]
+        assert (low, high) == pytest.approx(wilson_interval(*counts), nan_ok=True)
+        if counts[1] > 0:
+            assert low <= aggregate[(product, method, metric)] <= high
+        checked += 1
+    intervals = {m for _, _, m in aggregate if m.endswith(("_low", "_high"))}
+    assert len(intervals) == len({f"{m}_{s}" for _, m in _PROPORTIONS for s in ("low", "high")})
+    return checked
+
+
 def test_evaluate_run_scores_fixture(rundir: Path):
     table = evaluate_run(rundir)
     assert table.schema == EVALUATION_SCHEMA
@@ -232,6 +289,81 @@ def test_evaluate_run_scores_fixture(rundir: Path):
     text = format_evaluation(table)
     assert "fixture: 2 frames scored" in text
     assert "opencv-sgbm" in text and "otsu" in text and "bad-2" in text
+
+
+def test_evaluate_aggregates_carry_wilson_intervals(rundir: Path):
+    """The pooled proportions come with their 95 % interval, computed from the pooled counts."""
+    # f1 reads rock 1 (1.6 m, near) as an obstacle: 3 of 4 rocks classed right, 1 of 2 near
+    part = rundir / "descriptors.parquet" / "part-0.parquet"
+    rows = pq.read_table(part).to_pylist()
+    for row in rows:
+        if (row["frame_id"], row["object_id"]) == ("f1", 1):
+            row["size_class"] = "obstacle"
+    pq.write_table(pa.Table.from_pylist(rows), part)
+    table = evaluate_run(rundir)
+
+    def v(product, metric, method="arroyo"):
+        return _value(table, frame_id=AGGREGATE, product=product, method=method, metric=metric)
+
+    # the counts, known from the fixture: 2 frames of 2 rocks, all matched; 6 edges checked,
+    # of which 4 agree (left_of 2 -> 1 is wrong in each frame)
+    assert v("descriptors", "class_accuracy") == 0.75
+    expected = {
+        ("segmentation", "precision", "arroyo"): (4, 4),
+        ("segmentation", "recall", "arroyo"): (4, 4),
+        ("segmentation", "precision", "otsu"): (4, 4),
+        ("segmentation", "recall", "otsu"): (4, 4),
+        ("descriptors", "class_accuracy", "arroyo"): (3, 4),
+        ("descriptors", "near_class_accuracy", "arroyo"): (1, 2),
+        ("relations", "agreement", "arroyo"): (4, 6),
+    }
+    for (product, metric, method), counts in expected.items():
+        low, high = v(product, f"{metric}_low", method), v(product, f"{metric}_high", method)
+        assert (low, high) == wilson_interval(*counts), (product, metric, method)
+    # the breakdown blocks and depth carry no interval
+    metrics = set(table.column("metric").to_pylist())
+    assert {m for m in metrics if m.endswith("_low")} == {
+        "precision_low",
+        "recall_low",
+        "class_accuracy_low",
+        "near_class_accuracy_low",
+        "agreement_low",
+    }
+    assert _assert_intervals_match_counts(table) == 7
+
+    # the table prints arroyo's interval next to its figure; the baselines' stay bare
+    def pct(value):
+        return f"{100 * value:.1f}"
+
+    text = format_evaluation(table, width=120)
+    low, high = wilson_interval(4, 6)
+    assert f"{pct(4 / 6)} ({pct(low)}-{pct(high)})" in text
+    low, high = wilson_interval(4, 4)
+    assert f"1.000 ({low:.3f}-1.000)" in text
+    assert "95 % Wilson score interval" in text
+    (precision,) = [line for line in text.splitlines() if "precision" in line]
+    cells = [cell.strip() for cell in precision.split("│")]
+    assert cells[-3:] == [f"1.000 ({low:.3f}-1.000)", "1.000", ""]  # arroyo, otsu
+
+
+def test_evaluate_intervals_leave_every_other_metric_unchanged(rundir: Path, monkeypatch):
+    """The interval rows are added next to the metrics; every other row is as before."""
+    import pipeline.evaluate
+
+    def scores(table: pa.Table) -> pd.DataFrame:
+        # SGBM's seconds are timed here, so they differ between two evaluations
+        frame = table.to_pandas()
+        return frame[frame["metric"] != "seconds_per_frame"].reset_index(drop=True)
+
+    with_intervals = scores(evaluate_run(rundir))
+    monkeypatch.setattr(pipeline.evaluate, "_with_intervals", lambda product, values: values)
+    without = scores(evaluate_run(rundir))
+    is_interval = with_intervals["metric"].str.endswith(("_low", "_high"))
+    # NaN-aware and exact: same rows in the same order, values bit for bit
+    pd.testing.assert_frame_equal(
+        with_intervals[~is_interval].reset_index(drop=True), without, check_exact=True
+    )
+    assert is_interval.sum() == 2 * 7
 
 
 def test_evaluate_size_frequency_against_the_truth_rocks(rundir: Path):
@@ -394,6 +526,8 @@ def test_end_to_end_render_run_evaluate(tmp_path: Path):
         assert 0.0 <= aggregate[("depth", method, "bad2")] <= 1.0
         assert aggregate[("depth", method, "n_px")] > 0.5 * 2 * 160 * 160
     assert 0.0 <= aggregate[("segmentation", "arroyo", "f1")] <= 1.0
+    # each pooled proportion's interval is the Wilson interval of the run's own counts
+    assert _assert_intervals_match_counts(table) >= 4
     assert "lab" in format_evaluation(table)
 
 

@@ -16,6 +16,7 @@ from pipeline.metrics import (
     relation_agreement,
     segmentation_scores,
     true_occlusions,
+    wilson_interval,
 )
 
 
@@ -337,3 +338,111 @@ def test_matching_invariants(images):
     swapped = match_objects(truth, pred, min_true_px=0)
     assert swapped.tp == m.tp  # matching at IoU >= 0.5 does not depend on which side is truth
     assert segmentation_scores(truth, truth, min_true_px=0)["fp"] == 0
+
+
+# --------------------------------------------------------------------------- intervals
+def _wilson_roots(successes: int, trials: int, confidence: float = 0.95) -> tuple[float, float]:
+    """The Wilson bounds by another route: the roots p of (p_hat - p)^2 = z^2 p (1 - p) / n,
+    with z from scipy rather than statistics.NormalDist."""
+    from scipy.stats import norm
+
+    z = norm.ppf(1 - (1 - confidence) / 2)
+    p_hat, n = successes / trials, trials
+    a, b, c = 1 + z**2 / n, -(2 * p_hat + z**2 / n), p_hat**2
+    disc = math.sqrt(b * b - 4 * a * c)
+    return (-b - disc) / (2 * a), (-b + disc) / (2 * a)
+
+
+@pytest.mark.parametrize(
+    ("successes", "trials", "expected"),
+    [
+        # Newcombe (1998), Statistics in Medicine 17:857, Table I, method 3 (score, no
+        # continuity correction), rounded to 4 decimals there
+        (81, 263, (0.2553, 0.3662)),
+        (15, 148, (0.0624, 0.1605)),
+        (0, 20, (0.0, 0.1611)),
+        (1, 29, (0.0061, 0.1718)),
+    ],
+)
+def test_wilson_interval_published_values(successes, trials, expected):
+    low, high = wilson_interval(successes, trials)
+    assert (round(low, 4), round(high, 4)) == expected
+
+
+@pytest.mark.parametrize(("successes", "trials"), [(54, 58), (1, 2), (3, 7), (99, 100)])
+def test_wilson_interval_solves_the_score_equation(successes, trials):
+    assert wilson_interval(successes, trials) == pytest.approx(
+        _wilson_roots(successes, trials), rel=1e-9
+    )
+
+
+def test_wilson_interval_closed_forms_at_the_ends():
+    z = 1.959963984540054  # the 97.5 % normal quantile
+    for n in (1, 10, 58):
+        assert wilson_interval(0, n) == (0.0, pytest.approx(z**2 / (n + z**2)))
+        assert wilson_interval(n, n) == (pytest.approx(n / (n + z**2)), 1.0)
+    low, high = wilson_interval(1, 2)  # symmetric about 1/2
+    assert low + high == pytest.approx(1.0)
+    assert (round(100 * low, 1), round(100 * high, 1)) == (9.5, 90.5)
+
+
+def test_wilson_interval_of_the_lab_near_class_accuracy():
+    # 54 of 58 near rocks classed right: "93.1 %" is 83.6-97.3 % at 95 %
+    low, high = wilson_interval(54, 58)
+    assert (round(100 * low, 1), round(100 * high, 1)) == (83.6, 97.3)
+
+
+def test_wilson_interval_without_trials_and_with_float_counts():
+    assert all(math.isnan(v) for v in wilson_interval(0, 0))
+    assert wilson_interval(54.0, 58.0) == wilson_interval(54, 58)  # pooled counts are floats
+    assert wilson_interval(np.int64(54), np.int64(58)) == wilson_interval(54, 58)
+
+
+def test_wilson_interval_confidence():
+    narrow, wide = wilson_interval(54, 58, confidence=0.8), wilson_interval(54, 58, confidence=0.99)
+    assert wide[0] < narrow[0] < narrow[1] < wide[1]
+    assert wilson_interval(54, 58, confidence=0.9) == pytest.approx(
+        _wilson_roots(54, 58, 0.9), rel=1e-9
+    )
+
+
+@pytest.mark.parametrize(
+    ("args", "kwargs", "error", "match"),
+    [
+        ((-1, 10), {}, ValueError, "successes must be a whole number >= 0, got -1"),
+        ((1, -10), {}, ValueError, "trials must be a whole number >= 0, got -10"),
+        ((11, 10), {}, ValueError, "at most trials, got 11 successes of 10 trials"),
+        ((0.5, 10), {}, ValueError, "not a rate"),
+        ((float("nan"), 10), {}, ValueError, "whole number"),
+        ((1, 10), {"confidence": 0.0}, ValueError, r"confidence must be in \(0, 1\), got 0.0"),
+        ((1, 10), {"confidence": 1.0}, ValueError, r"confidence must be in \(0, 1\)"),
+        ((1, 10), {"confidence": 95}, ValueError, "e.g. 0.95 for a 95 % interval"),
+        (("1", 10), {}, TypeError, "successes must be a count"),
+        ((True, 10), {}, TypeError, "successes must be a count"),
+        ((1, 10), {"confidence": "0.95"}, TypeError, "confidence must be a number"),
+    ],
+)
+def test_wilson_interval_input_errors(args, kwargs, error, match):
+    with pytest.raises(error, match=match):
+        wilson_interval(*args, **kwargs)
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    trials=st.integers(1, 10_000),
+    share=st.floats(0.0, 1.0),
+    confidence=st.floats(0.5, 0.999),
+    scale=st.integers(2, 10),
+)
+def test_wilson_interval_properties(trials, share, confidence, scale):
+    successes = round(share * trials)
+    low, high = wilson_interval(successes, trials, confidence=confidence)
+    assert 0.0 <= low <= successes / trials <= high <= 1.0
+    assert low < high
+    # the same proportion on more trials is known more narrowly
+    more = wilson_interval(scale * successes, scale * trials, confidence=confidence)
+    assert more[1] - more[0] < high - low
+    # failures are successes seen the other way round
+    flipped = wilson_interval(trials - successes, trials, confidence=confidence)
+    assert flipped[0] == pytest.approx(1 - high, abs=1e-12)
+    assert flipped[1] == pytest.approx(1 - low, abs=1e-12)
