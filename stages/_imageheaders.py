@@ -11,7 +11,8 @@ The header also says how many bits of a sample are significant when the file dec
 PNG's ``sBIT`` chunk, a 16-bit PGM/PPM's maximum value (4095: 12 bits), or a 16-bit TIFF's
 ``MaxSampleValue`` tag (281). Ingest notes a
 16-bit file that declares fewer bits than ``ingest.sample_bits``; it does not decode it
-differently.
+differently. A PGM/PPM's maximum value and the offset of its raster are recorded for the
+decoder, which scales 8-bit samples to full scale and clips samples above the maximum.
 """
 
 from __future__ import annotations
@@ -73,6 +74,13 @@ class ImageHeader:
         when None.
     more_pages : bool
         A TIFF whose first image directory links to another: only the first page is decoded.
+    max_value : int or None
+        A PGM/PPM's maximum value, 1 to 65535: a sample is ``value / max_value`` of full
+        intensity (1 or 2 bytes per binary sample for up to 255 or more); None for the other
+        formats.
+    raster_offset : int or None
+        A PGM/PPM's byte offset of its raster (the first byte after the whitespace that
+        ends the header); None for the other formats.
     """
 
     format: str
@@ -82,6 +90,8 @@ class ImageHeader:
     significant_bits: int | None = None
     significant_from: str = ""
     more_pages: bool = False
+    max_value: int | None = None
+    raster_offset: int | None = None
 
 
 def read_header(data: bytes) -> ImageHeader:
@@ -299,9 +309,10 @@ def _pnm_header(data: bytes) -> ImageHeader:
     if position >= len(data) or not data[position : position + 1].isspace():
         raise _truncated("PNM", "no pixel data after the header")
     header = _size("PNM", width, height)
+    header = dataclasses.replace(header, max_value=maxval, raster_offset=position + 1)
     if maxval > 255:
-        header = ImageHeader(
-            "PNM", width, height, bit_depth=16, significant_bits=maxval.bit_length(),
+        header = dataclasses.replace(
+            header, bit_depth=16, significant_bits=maxval.bit_length(),
             significant_from=f"its maximum value {maxval}",
         )  # fmt: skip
     channels = 3 if kind in (b"P3", b"P6") else 1

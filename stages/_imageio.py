@@ -22,6 +22,14 @@ and is not detected.
 
 Conversion to 8-bit gray (each step adds a note to the frame's record):
 
+* PGM/PPM samples are ``value / max_value`` of full intensity (the Netpbm definition), in
+  binary (``P5``/``P6``) and plain (ASCII, ``P2``/``P3``) files alike: 8-bit samples with a
+  maximum value other than 255 are scaled to 0..255 by ``round(value * 255 / max_value)``
+  (OpenCV left binary ones as stored and rounded plain ones down). A sample above the
+  header's maximum value makes the file inconsistent: it is clipped to the maximum value
+  and the note counts such samples, names the file and the largest value (the frame does
+  not fail, as for samples above ``sample_bits`` below). 16-bit PGM/PPM samples (maximum
+  value 256 to 65535) are then scaled like any 16-bit samples.
 * colour (BGR/BGRA) -> gray with OpenCV's ``COLOR_BGR2GRAY`` weights
   (0.299 R + 0.587 G + 0.114 B); an alpha channel is ignored; three identical channels
   are reduced to one without a weighted sum.
@@ -52,6 +60,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import re
 import stat
 import sys
 import tempfile
@@ -200,7 +209,11 @@ def decode_gray(
             raise ValueError(
                 f"{header.format} data is corrupt or an unsupported variant of the format"
             )
+        pnm_notes: list[str] = []
+        if header.format == "PNM":
+            decoded, pnm_notes = _pnm_full_scale(decoded, data, header, name=name)
         image, notes = to_gray_uint8(decoded, sample_bits=sample_bits, name=name)
+        notes[:0] = pnm_notes
         if decoded.dtype == np.uint16:
             notes.extend(_declared_bits_notes(header, sample_bits))
         if header.more_pages:
@@ -220,6 +233,116 @@ def decode_gray(
         nbytes=len(data),
         format=header.format,
     )
+
+
+def _pnm_full_scale(
+    decoded: np.ndarray, data: bytes, header: ImageHeader, *, name: str
+) -> tuple[np.ndarray, list[str]]:
+    """A PGM/PPM's samples as ``cv2.imdecode`` should give them, with the notes.
+
+    OpenCV returns a binary (``P5``/``P6``) file's samples as stored, but scales a plain
+    (ASCII, ``P2``/``P3``) 8-bit file's by ``value * 255 // max_value`` (rounded down) and
+    clips a plain file's samples above the maximum value, so one image decoded differently
+    in the two encodings. Here the stored samples (read again from the text of a plain
+    file) are the input for both:
+
+    * samples above the header's maximum value (an inconsistent file) are clipped to it,
+      with a note;
+    * 8-bit samples (maximum value up to 255) are scaled to 0..255 by
+      ``round(value * 255 / max_value)``, halves up as Netpbm's own tools round, with a
+      note; a maximum value of 255 changes nothing;
+    * 16-bit samples (maximum value 256 to 65535) are returned as stored, for the
+      ``sample_bits`` scaling of :func:`to_gray_uint8` (as before).
+
+    Parameters
+    ----------
+    decoded : (H, W) or (H, W, 3) ndarray of {uint8, uint16}
+        ``cv2.imdecode`` of ``data``; BGR for a PPM.
+    data : bytes
+        The file's bytes.
+    header : ImageHeader
+        ``read_header(data)``, with ``max_value`` and ``raster_offset``.
+    name : str
+        Names the file in the note on samples above the maximum value.
+
+    Returns
+    -------
+    samples : ndarray of {uint8, uint16}, shape of ``decoded``
+        uint8 for a maximum value up to 255, uint16 above.
+    notes : list of str
+
+    Raises
+    ------
+    ValueError
+        A plain file's numbers cannot be read back as OpenCV read them.
+    """
+    maxval, offset = header.max_value, header.raster_offset
+    if maxval is None or offset is None:
+        raise ValueError("expected a PGM/PPM header with its maximum value and raster offset")
+    stored: np.ndarray = decoded
+    if data[1:2] in (b"2", b"3"):
+        values = _plain_pnm_values(data, offset=offset, count=decoded.size)
+        stored = values.reshape(decoded.shape)
+        if stored.ndim == 3:
+            stored = stored[:, :, ::-1]  # RGB in the file, BGR from OpenCV
+        within = np.minimum(stored, maxval)
+        opencv = within if maxval > 255 else within * 255 // maxval
+        if not np.array_equal(opencv, decoded):
+            raise ValueError(
+                "the plain (ASCII) PNM sample values cannot be read consistently; "
+                "re-save the file as binary PGM/PPM or PNG"
+            )
+    notes: list[str] = []
+    peak = int(stored.max())
+    if peak > maxval:
+        over = int(np.count_nonzero(stored > maxval))
+        scale = " (full scale)" if maxval <= 255 else ""
+        notes.append(
+            f"{over} of the {stored.size} samples of {name} exceed the header's maximum value "
+            f"{maxval} (up to {peak}): clipped to {maxval}{scale}; the file is inconsistent, "
+            "check the program that wrote it"
+        )
+        stored = np.minimum(stored, maxval)
+    if maxval > 255:
+        return stored.astype(np.uint16, copy=False), notes
+    if maxval != 255:
+        # round half up in integers: (2 v 255 + maxval) // (2 maxval)
+        table = (np.arange(maxval + 1) * 510 + maxval) // (2 * maxval)
+        stored = table.astype(np.uint8)[stored]
+        notes.append(
+            f"samples with the maximum value {maxval} scaled to 0-255 by "
+            f"round(value * 255 / {maxval})"
+        )
+    return stored.astype(np.uint8, copy=False), notes
+
+
+def _plain_pnm_values(data: bytes, *, offset: int, count: int) -> np.ndarray:
+    """The first ``count`` decimal numbers of a plain PGM/PPM raster, as int64.
+
+    Comments (``#`` to the end of the line) are left out, as OpenCV leaves them out. Only
+    called once OpenCV has decoded the file, so every number is below 2**31 (OpenCV fails
+    larger ones): a run of more than 10 digits starts with zeros.
+    """
+    body = data[offset:]
+    if b"#" in body:
+        body = re.sub(rb"#[^\r\n]*", b"", body)
+    raw = np.frombuffer(body, dtype=np.uint8)
+    digit = np.zeros(len(raw) + 2, dtype=np.int8)
+    digit[1:-1] = (raw >= 48) & (raw <= 57)
+    change = np.diff(digit)
+    starts = np.flatnonzero(change == 1)[:count]
+    ends = np.flatnonzero(change == -1)[:count]  # one past each number's last digit
+    if len(starts) < count:
+        raise ValueError(
+            f"truncated PNM file: {len(starts)} of {count} sample values present; the file "
+            "was cut short (re-copy it)"
+        )
+    lengths = ends - starts
+    values = np.zeros(count, dtype=np.int64)
+    for k in range(min(int(lengths.max(initial=0)), 10)):
+        has = lengths > k
+        values[has] += (raw[ends[has] - 1 - k].astype(np.int64) - 48) * 10**k
+    return values
 
 
 def _declared_bits_notes(header: ImageHeader, sample_bits: int) -> list[str]:

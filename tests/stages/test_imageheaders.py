@@ -123,3 +123,15 @@ def test_tiff_declaring_12_significant_bits_is_noted_at_ingest(tmp_path, sixteen
     declared = [n for n in decoded.notes if "declares 12 significant bits" in n]
     assert len(declared) == 1 and "MaxSampleValue tag 4095" in declared[0], decoded.notes
     assert not any("declares" in n for n in read_gray(path, sample_bits=12).notes)
+
+
+def test_pnm_header_records_its_maximum_value_and_raster_offset() -> None:
+    samples = np.arange(6, dtype=np.uint8).reshape(2, 3)
+    data = b"P5\n# comment\n3 2\n100\n" + samples.tobytes()
+    header = read_header(data)
+    assert (header.max_value, header.bit_depth) == (100, 8)
+    assert data[header.raster_offset or 0 :] == samples.tobytes()
+    plain = read_header(b"P2 3 2 4095\n0 1 2\n3 4 4095\n")
+    assert (plain.max_value, plain.raster_offset, plain.bit_depth) == (4095, 12, 16)
+    other = read_header(png_bytes(samples))
+    assert (other.max_value, other.raster_offset) == (None, None)

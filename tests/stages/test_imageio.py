@@ -301,6 +301,115 @@ def test_extension_mismatch_is_noted(tmp_path: Path, gray: np.ndarray) -> None:
     assert "content is PNG although the file name ends in .jpg" in decoded.notes
 
 
+def pnm_bytes(samples: np.ndarray, maxval: int, *, plain: bool) -> bytes:
+    """A PGM (2-D ``samples``) or PPM ((H, W, 3), RGB), binary or plain (ASCII)."""
+    h, w = samples.shape[:2]
+    colour = samples.ndim == 3
+    magic = {(False, False): "P5", (True, False): "P6", (False, True): "P2", (True, True): "P3"}
+    header = f"{magic[colour, plain]}\n{w} {h}\n{maxval}\n".encode()
+    if plain:
+        rows = (" ".join(str(int(v)) for v in row.ravel()) for row in samples)
+        return header + "\n".join(rows).encode() + b"\n"
+    return header + samples.astype(">u2" if maxval > 255 else np.uint8).tobytes()
+
+
+def netpbm_full_scale(samples: np.ndarray, maxval: int) -> np.ndarray:
+    """``value / maxval`` of full intensity as 8-bit gray levels, rounded to nearest."""
+    return np.floor(samples.astype(np.float64) * 255 / maxval + 0.5).astype(np.uint8)
+
+
+@pytest.mark.parametrize("maxval", [1, 100, 255, 4095, 65535])
+@pytest.mark.parametrize("colour", [False, True], ids=["pgm", "ppm"])
+def test_regression_binary_and_plain_pnm_of_one_image_decoded_differently(
+    maxval: int, colour: bool
+) -> None:
+    """Bug (user PGMs): OpenCV left a binary (P5/P6) 8-bit file's samples as stored and
+    scaled a plain (P2/P3) one's by value * 255 // maxval, so one image with maximum value
+    100 decoded as gray levels 0-100 from P5 and 0-255 (rounded down) from P2. Now both
+    are value / maxval of full scale, rounded to nearest; 16-bit files keep the
+    sample_bits rule (>> 8 by default) in both encodings."""
+    shape = (12, 17, 3) if colour else (12, 17)
+    samples = np.random.default_rng(maxval).integers(0, maxval + 1, size=shape)
+    samples.flat[:2] = (0, maxval)
+    binary = decode_gray(pnm_bytes(samples, maxval, plain=False))
+    plain = decode_gray(pnm_bytes(samples, maxval, plain=True))
+    np.testing.assert_array_equal(binary.image, plain.image)
+    assert binary.notes == plain.notes
+    # 16-bit samples as stored (the sample_bits rule follows), 8-bit ones at full scale
+    full = samples.astype(np.uint16) if maxval > 255 else netpbm_full_scale(samples, maxval)
+    expected = to_gray_uint8(full[:, :, ::-1] if colour else full)[0]  # BGR, as OpenCV's
+    np.testing.assert_array_equal(binary.image, expected)
+    if maxval > 255 and not colour:
+        np.testing.assert_array_equal(binary.image, (samples >> 8).astype(np.uint8))
+    scaled = [n for n in binary.notes if f"maximum value {maxval} scaled to 0-255" in n]
+    assert len(scaled) == (0 < maxval < 255)
+    assert not any("exceed" in n for n in binary.notes)
+
+
+def test_pnm_with_maximum_value_255_is_decoded_as_before(colour: np.ndarray) -> None:
+    """The samples of 8-bit files at full scale are OpenCV's, bit for bit, without a note."""
+    rgb = colour[:, :, ::-1]
+    for samples in (colour[:, :, 0], rgb):
+        for plain in (False, True):
+            data = pnm_bytes(samples, 255, plain=plain)
+            decoded = decode_gray(data)
+            raw = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+            np.testing.assert_array_equal(decoded.image, to_gray_uint8(raw)[0])
+            if samples.ndim == 2:
+                np.testing.assert_array_equal(decoded.image, samples)
+                assert decoded.notes == []
+
+
+@pytest.mark.parametrize(
+    ("maxval", "above", "plain"),
+    # a binary 8-bit sample cannot exceed 255
+    [(100, 200, False), (100, 200, True), (255, 300, True), (4095, 5000, False),
+     (4095, 5000, True)],
+)  # fmt: skip
+def test_regression_samples_above_the_maximum_value_were_accepted_silently(
+    tmp_path: Path, gray: np.ndarray, plain: bool, maxval: int, above: int
+) -> None:
+    """Bug (user PGMs): a P5 with maximum value 100 holding 200 decoded as 200, a P2 as
+    255, both without a word. Such samples are clipped to the maximum value (full scale)
+    in both encodings and the frame's note counts them, names the file and the largest
+    value; the frame does not fail (its other pixels are good)."""
+    samples = (gray.astype(np.int64) * maxval) // 255
+    samples[3, 4:9] = above
+    path = tmp_path / ("bad.pgm")
+    path.write_bytes(pnm_bytes(samples, maxval, plain=plain))
+    decoded = read_gray(path, sample_bits=maxval.bit_length() if maxval > 255 else 16)
+    exceed = [n for n in decoded.notes if "exceed the header's maximum value" in n]
+    assert len(exceed) == 1, decoded.notes
+    assert exceed[0].startswith(f"5 of the {samples.size} samples of {path} ")
+    assert f"maximum value {maxval} (up to {above}): clipped to {maxval}" in exceed[0]
+    assert np.all(decoded.image[3, 4:9] == 255)
+    within = np.minimum(samples, maxval)
+    expected = (
+        netpbm_full_scale(within, maxval)
+        if maxval <= 255
+        else to_gray_uint8(within.astype(np.uint16), sample_bits=maxval.bit_length())[0]
+    )
+    np.testing.assert_array_equal(decoded.image, expected)
+    other = pnm_bytes(samples, maxval, plain=not plain) if maxval != 255 else None
+    if other is not None:
+        again = decode_gray(
+            other, name=str(path), sample_bits=maxval.bit_length() if maxval > 255 else 16
+        )
+        np.testing.assert_array_equal(again.image, decoded.image)
+        assert again.notes == decoded.notes
+
+
+def test_plain_pnm_comments_and_leading_zeros_in_the_raster(gray: np.ndarray) -> None:
+    samples = (gray[:4, :5].astype(np.int64) * 100) // 255
+    values = [f"{int(v):04d}" for v in samples.ravel()]
+    text = " ".join(values[:7]) + " # a comment 123 456\n" + "\n".join(values[7:]) + "\n"
+    data = b"P2\n5 4\n# size above\n100\n" + text.encode()
+    expected = decode_gray(pnm_bytes(samples, 100, plain=False))
+    decoded = decode_gray(data)
+    np.testing.assert_array_equal(decoded.image, expected.image)
+    assert decoded.notes == expected.notes
+
+
 # --- bad files ----------------------------------------------------------------------------
 
 
