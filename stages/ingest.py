@@ -202,7 +202,9 @@ def _pair_notes(left: DecodedImage, right: DecodedImage) -> list[str]:
 
 STAGE = Stage(
     name="ingest",
-    version="1",
+    # 2: 8-bit PGM/PPM with a maximum value other than 255 scaled to 0-255 in both encodings,
+    # samples above the maximum value clipped (PNG, JPEG, TIFF, BMP and maxval-255 files as in 1)
+    version="2",
     inputs=(),
     outputs=(
         Product(
