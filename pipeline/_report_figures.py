@@ -1,12 +1,13 @@
 """Figures of the run report as PNG bytes: per-archive rock plots (matplotlib, no pyplot
-state, Agg canvas) and per-frame quicklooks (the quicklook stage's PNGs, or drawn from
-``products.zarr`` with the same functions when the stage did not write them)."""
+state, Agg canvas), per-frame quicklooks (the quicklook stage's PNGs, or drawn from
+``products.zarr`` with the same functions when the stage did not write them) and the
+frame's scene graph (OpenCV, over the reference image from ``products.zarr``)."""
 
 from __future__ import annotations
 
 import io
 import math
-from collections.abc import Collection, Mapping
+from collections.abc import Collection, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -26,6 +27,13 @@ __all__ = [
     "top_view_png",
     "compact_png",
     "frame_quicklooks",
+    "GRAPH_CLASS_COLORS",
+    "GRAPH_EDGE_COLORS",
+    "GRAPH_DRAWN",
+    "scene_graph_image",
+    "relation_counts",
+    "scene_graph_caption",
+    "frame_scene_graph",
 ]
 
 #: the stage that writes each product a quicklook is drawn from
@@ -53,6 +61,8 @@ def quicklook_caption(name: str, reference: str) -> str:
 
         return " | ".join(residual_labels(reference)).replace(" - ", " − ")
     return QUICKLOOKS[name]
+
+
 _CLASS_COLORS = {"sample": "#1f77b4", "obstacle": "#d62728"}
 _OTHER_COLOR = "#7f7f7f"
 _REFERENCE_K = (0.05, 0.1, 0.2)
@@ -331,3 +341,273 @@ def frame_quicklooks(
             continue  # depth never ran for this frame: nothing to draw over the image
         out[name] = compact_png(encode_png(render(arrays)))
     return out
+
+
+# -- scene graph -----------------------------------------------------------------------------
+#: size class -> (B, G, R) of the scene graph's discs (bright on the dimmed gray image; the
+#: hues of the per-archive plots' sample blue and obstacle red)
+GRAPH_CLASS_COLORS: dict[str, tuple[int, int, int]] = {
+    "sample": (255, 190, 70),  # sky blue
+    "obstacle": (40, 110, 255),  # orange
+}
+_GRAPH_OTHER_BGR = (235, 80, 235)  # magenta: any other size class (None, NaN, '')
+#: drawn relation -> (B, G, R) of its stroke: a white line, a yellow arrow
+GRAPH_EDGE_COLORS: dict[str, tuple[int, int, int]] = {
+    "adjacent": (235, 235, 235),
+    "occludes": (0, 235, 255),
+}
+_GRAPH_COLOR_NAMES = {"sample": "blue", "obstacle": "orange"}
+#: the relations :func:`scene_graph_image` draws; the ordering ones (left_of, right_of,
+#: in_front_of, behind: ~230 rows each per lava frame) would cover the image
+GRAPH_DRAWN = tuple(GRAPH_EDGE_COLORS)
+_NODE_COLUMNS = ("object_id", "centroid_x", "centroid_y", "size_class")
+_EDGE_COLUMNS = ("subject_id", "relation", "object_id")
+
+
+def _graph_columns(name: str, table: Any, required: Sequence[str]) -> dict[str, np.ndarray]:
+    """The ``required`` columns of a mapping (or pyarrow.Table) as 1-D arrays of one length."""
+    if hasattr(table, "column_names") and hasattr(table, "to_pydict"):  # pyarrow.Table
+        table = table.select([c for c in required if c in table.column_names]).to_pydict()
+    if not isinstance(table, Mapping):
+        raise TypeError(
+            f"{name} must be a mapping of column name to (K,) array (a dict, or a "
+            f"pyarrow.Table), got {type(table).__name__}; pass e.g. "
+            f"{{'{required[0]}': [...], ...}}"
+        )
+    missing = [c for c in required if c not in table]
+    if missing:
+        raise ValueError(
+            f"{name} lacks the column(s) {missing}: expected {list(required)}, got "
+            f"{sorted(map(str, table))}; pass the {name} table's columns"
+        )
+    out = {c: np.asarray(table[c], dtype=object) for c in required}
+    shapes = {c: a.shape for c, a in out.items()}
+    if any(len(s) != 1 for s in shapes.values()) or len({s[0] for s in shapes.values()}) > 1:
+        raise ValueError(
+            f"{name}'s columns must be 1-D and of one length, got shapes {shapes}; pass one "
+            "value per row in every column"
+        )
+    return out
+
+
+def _as_ids(name: str, values: np.ndarray) -> np.ndarray:
+    try:
+        ids = values.astype(np.float64)
+    except (TypeError, ValueError):
+        ids = np.full(values.shape, np.nan)
+    if not (np.isfinite(ids).all() and (ids == np.round(ids)).all()):
+        raise ValueError(
+            f"{name} must hold integer object ids, got {values[:5].tolist()!r}...; pass the "
+            "ids of the labels image"
+        )
+    return ids.astype(np.int64)
+
+
+def scene_graph_image(
+    image: np.ndarray,
+    nodes: Mapping[str, Any],
+    edges: Mapping[str, Any],
+    *,
+    dim: float = 0.5,
+    radius_px: int | None = None,
+    label_ids: bool = True,
+) -> np.ndarray:
+    """The frame's scene graph over its dimmed reference image.
+
+    Objects are filled discs at their centroids, coloured by size class
+    (:data:`GRAPH_CLASS_COLORS`; magenta for any other class), with their id beside them.
+    Of the edges only :data:`GRAPH_DRAWN` are drawn, between centroids: ``adjacent`` as a
+    white line (one per pair, stored in both directions), ``occludes`` as a yellow arrow from
+    the occluder to the occluded object, its head at the occluded disc's rim. Lines and
+    arrows have a black outline so they read on light and dark ground alike. Edges naming
+    an id without a node or with a non-finite centroid, and self-edges, are not drawn.
+
+    Parameters
+    ----------
+    image : (M, N) ndarray
+        Gray reference image (uint8; other dtypes are clipped to 0..255).
+    nodes : mapping of str to (K,) array, or pyarrow.Table
+        Columns ``object_id`` (int), ``centroid_x``, ``centroid_y`` (float, pixels: column
+        and row; NaN: not drawn) and ``size_class`` (``'sample'`` | ``'obstacle'`` | other)
+        of the descriptors table; other columns are ignored. Ids must be unique.
+    edges : mapping of str to (E,) array, or pyarrow.Table
+        Columns ``subject_id``, ``relation``, ``object_id`` of the relations table.
+    dim : float
+        Share of the image's brightness taken away, in [0, 1] (1: black background).
+    radius_px : int, optional
+        Disc radius, >= 1 pixels; default ``max(3, min(M, N) // 125)`` (4 for 500 x 500).
+    label_ids : bool
+        Write each object's id beside its disc.
+
+    Returns
+    -------
+    (M, N, 3) ndarray of uint8
+        BGR image (OpenCV's channel order, as the quicklooks).
+
+    Raises
+    ------
+    TypeError
+        ``nodes`` or ``edges`` is not a mapping of columns.
+    ValueError
+        A 2-D image was not given, a column is missing or of another length, ids are not
+        integers or repeat, or a setting is out of range.
+    """
+    import cv2
+
+    from stages.quicklook import _coerce_image, _text
+
+    if isinstance(dim, bool) or not isinstance(dim, int | float) or not 0 <= dim <= 1:
+        raise ValueError(f"dim must be a number in [0, 1], got {dim!r}; 0.5 halves brightness")
+    if radius_px is not None and (
+        isinstance(radius_px, bool) or not isinstance(radius_px, int) or radius_px < 1
+    ):
+        raise ValueError(f"radius_px must be an int >= 1 or None (automatic), got {radius_px!r}")
+    gray = _coerce_image("image", image)
+    node_cols = _graph_columns("nodes", nodes, _NODE_COLUMNS)
+    edge_cols = _graph_columns("edges", edges, _EDGE_COLUMNS)
+    ids = _as_ids("nodes['object_id']", node_cols["object_id"])
+    if np.unique(ids).size != ids.size:
+        raise ValueError(
+            f"nodes['object_id'] must be unique, got {ids.size} rows for "
+            f"{np.unique(ids).size} ids; pass one frame's descriptors"
+        )
+    try:
+        cx = node_cols["centroid_x"].astype(np.float64)
+        cy = node_cols["centroid_y"].astype(np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(
+            "nodes['centroid_x'] and nodes['centroid_y'] must be numbers (pixels; NaN for "
+            f"none), got {node_cols['centroid_x'][:3].tolist()!r} and "
+            f"{node_cols['centroid_y'][:3].tolist()!r}"
+        ) from None
+    subj = _as_ids("edges['subject_id']", edge_cols["subject_id"])
+    obj = _as_ids("edges['object_id']", edge_cols["object_id"])
+    relation = edge_cols["relation"]
+
+    h, w = gray.shape
+    radius = radius_px if radius_px is not None else max(3, min(h, w) // 125)
+    out = cv2.cvtColor(cv2.convertScaleAbs(gray, alpha=1.0 - float(dim)), cv2.COLOR_GRAY2BGR)
+    placed = np.isfinite(cx) & np.isfinite(cy)
+    # beyond any image: drawing clips, and int() of a huge float must not overflow OpenCV
+    px = np.clip(np.where(placed, cx, 0.0), -(w + 1), 2 * w + 1).round().astype(np.int64)
+    py = np.clip(np.where(placed, cy, 0.0), -(h + 1), 2 * h + 1).round().astype(np.int64)
+    where = {int(i): k for k, i in enumerate(ids) if placed[k]}
+
+    pairs: set[tuple[int, int]] = set()
+    arrows: set[tuple[int, int]] = set()
+    for s, r, o in zip(subj.tolist(), relation.tolist(), obj.tolist(), strict=True):
+        a, b = where.get(s), where.get(o)
+        if a is None or b is None or a == b:
+            continue
+        if r == "adjacent":
+            pairs.add((min(a, b), max(a, b)))
+        elif r == "occludes":
+            arrows.add((a, b))
+
+    def point(k: int) -> tuple[int, int]:
+        return int(px[k]), int(py[k])
+
+    head_px = max(6.0, 2.0 * radius)
+    shafts: list[tuple[tuple[int, int], tuple[int, int], float]] = []
+    for a, b in sorted(arrows):
+        start = np.array(point(a), np.float64)
+        vector = np.array(point(b), np.float64) - start
+        length = float(np.hypot(*vector))
+        if length < 1:
+            continue
+        # the head ends at the occluded disc's rim, where it stays visible
+        end = start + vector * max(length - radius - 1, 0.5 * length) / length
+        tip = min(0.5, head_px / max(float(np.hypot(*(end - start))), 1.0))
+        shafts.append(((int(px[a]), int(py[a])), (round(end[0]), round(end[1])), tip))
+    # black outlines under the discs, the coloured strokes over them: rocks in contact have
+    # centroids ~10 px apart, and a line drawn only between the discs would not show
+    for a, b in sorted(pairs):
+        cv2.line(out, point(a), point(b), (0, 0, 0), 4, cv2.LINE_AA)
+    for p0, p1, tip in shafts:
+        cv2.arrowedLine(out, p0, p1, (0, 0, 0), 4, cv2.LINE_AA, tipLength=tip)
+    classes = node_cols["size_class"]
+    for k in np.flatnonzero(placed).tolist():
+        color = GRAPH_CLASS_COLORS.get(str(classes[k]), _GRAPH_OTHER_BGR)
+        cv2.circle(out, point(k), radius, color, -1, cv2.LINE_AA)
+        cv2.circle(out, point(k), radius, (0, 0, 0), 1, cv2.LINE_AA)
+    for a, b in sorted(pairs):
+        cv2.line(out, point(a), point(b), GRAPH_EDGE_COLORS["adjacent"], 2, cv2.LINE_AA)
+    for p0, p1, tip in shafts:
+        cv2.arrowedLine(out, p0, p1, GRAPH_EDGE_COLORS["occludes"], 2, cv2.LINE_AA, tipLength=tip)
+    if label_ids:
+        scale = 0.35 if min(h, w) < 300 else 0.45  # as stages.quicklook._text draws
+        for k in np.flatnonzero(placed).tolist():
+            x, y = point(k)
+            text = str(int(ids[k]))
+            (tw, th), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, 1)
+            # upper right of the disc, kept inside the image (ids at the border stay whole)
+            org = (min(x + radius + 1, w - tw - 1), max(y - radius + 1, th + 2))
+            _text(out, text, org, (255, 255, 255))
+    return out
+
+
+def relation_counts(relations: Sequence[Any]) -> dict[str, int]:
+    """Edge rows per relation: the six of :data:`stages._relations.RELATIONS` in their order
+    (0 when absent), then any other names found, in order of first appearance.
+
+    Parameters
+    ----------
+    relations : (E,) sequence of str
+        The ``relation`` column of one frame's edges.
+    """
+    from stages._relations import RELATIONS
+
+    counts = dict.fromkeys(RELATIONS, 0)
+    for name in relations:
+        counts[str(name)] = counts.get(str(name), 0) + 1
+    return counts
+
+
+def scene_graph_caption(counts: Mapping[str, int], *, unclassified: bool = False) -> str:
+    """The scene-graph figure's caption: legend, what is left out, and the frame's relation
+    counts (``counts``: :func:`relation_counts`); ``unclassified`` adds the magenta disc."""
+    colors = ", ".join(f"{_GRAPH_COLOR_NAMES[c]} = {c}" for c in GRAPH_CLASS_COLORS)
+    if unclassified:
+        colors += ", magenta = no size class"
+    hidden = ", ".join(name for name in counts if name not in GRAPH_DRAWN)
+    text = (
+        f"Scene graph: objects at their centroids ({colors}); white line = adjacent, "
+        "yellow arrow = occludes (from the nearer object). "
+        f"Not drawn: {hidden}."
+    )
+    if not any(counts.values()):
+        return f"{text} This frame has no relations."
+    listed = []
+    for name, n in counts.items():
+        item = f"{name} {n}"
+        if name == "adjacent" and n:
+            pairs = n // 2  # stored in both directions
+            item += f" ({pairs} pair{'s' if pairs != 1 else ''})"
+        listed.append(item)
+    return f"{text} Edge rows in this frame: {', '.join(listed)}."
+
+
+def frame_scene_graph(
+    index: int,
+    *,
+    products: Any,
+    nodes: Mapping[str, Any],
+    edges: Mapping[str, Any],
+    reference: str = "right",
+    done_stages: Collection[str] | None = None,
+) -> bytes | None:
+    """The frame's scene graph as PNG bytes (:func:`scene_graph_image` over the
+    ``reference`` image of ``products``, the run's ``zarr.Group``), compacted as the
+    quicklooks are; None without products, objects, or a current ingest and describe
+    (``done_stages``, as for :func:`frame_quicklooks`)."""
+    from stages.quicklook import encode_png
+
+    if products is None or reference not in products or index < 0:
+        return None
+    if done_stages is not None and not {"ingest", "describe"} <= set(done_stages):
+        return None
+    columns = _graph_columns("nodes", nodes, _NODE_COLUMNS)
+    if columns["object_id"].size == 0:
+        return None
+    image = np.asarray(products[reference][index])
+    return compact_png(encode_png(scene_graph_image(image, nodes, edges)))

@@ -142,6 +142,7 @@ details.frame[open]>summary{border-bottom:1px solid var(--line);background:#fafb
 @media (max-width:900px){.quicklooks{grid-template-columns:1fr 1fr}
 .quicklooks figure.wide{grid-column:1 / span 2}}
 .quicklooks img{width:100%;image-rendering:auto}
+.quicklooks figure.scene-graph{grid-column:1 / span 2;max-width:640px}
 .error{color:var(--bad);white-space:pre-wrap}
 .scroll{max-height:340px;overflow:auto}
 """

@@ -14,8 +14,10 @@ Rocks (per archive)
 Frames
     Per frame (the first ``max_frames`` in catalog order, filterable by id and status): the
     reference image with object outlines and ids, contours of equal range, left minus
-    pseudo-left, and the frame's rock table. The quicklook stage's PNGs are embedded when
-    present, otherwise drawn from ``products.zarr`` with the same functions.
+    pseudo-left, the scene graph (objects by size class, ``adjacent`` and ``occludes``
+    edges, the counts of every relation) and the frame's rock table. The quicklook stage's
+    PNGs are embedded when present, otherwise drawn from ``products.zarr`` with the same
+    functions; the scene graph is always drawn from ``products.zarr``.
 
 The page needs no network: CSS and JS are inline and images are base64 PNG data URIs. The
 report reads what queries read (:mod:`pipeline.query`): completed, published frames only.
@@ -362,11 +364,25 @@ def _rock_table(rows: Sequence[Mapping[str, Any]]) -> str:
     return f'<div class="scroll">{html_table(headers, body, numeric=numeric)}</div>'
 
 
-def _frames(run: RunInfo, frames: pa.Table, desc: pa.Table, max_frames: int) -> str:
+def _graph_columns(rows: Sequence[Mapping[str, Any]], names: Sequence[str]) -> dict[str, list]:
+    return {name: [r.get(name) for r in rows] for name in names}
+
+
+def _frames(
+    run: RunInfo, frames: pa.Table, desc: pa.Table, relations: pa.Table, max_frames: int
+) -> str:
     rows = frames.to_pylist()
     by_frame: dict[str, list[dict[str, Any]]] = {}
     for r in desc.to_pylist():
         by_frame.setdefault(r["frame_id"], []).append(r)
+    # the shown frames' edges, for the scene graphs (a survey's table has many more)
+    columns = ["frame_id", "subject_id", "relation", "object_id"]
+    edges_of: dict[str, list[dict[str, Any]]] = {}
+    if relations.num_rows and set(columns) <= set(relations.column_names):
+        shown_ids = pa.array([str(r["frame_id"]) for r in rows[:max_frames]], pa.string())
+        keep = pa.compute.is_in(relations["frame_id"], value_set=shown_ids)
+        for r in relations.select(columns).filter(keep).to_pylist():
+            edges_of.setdefault(r["frame_id"], []).append(r)
     products = _open_products(run)
     frame_index = {}
     if products is not None and "frame" in products:
@@ -412,6 +428,8 @@ def _frames(run: RunInfo, frames: pa.Table, desc: pa.Table, max_frames: int) -> 
             )
         if row.get("notes"):
             body.append(f'<p class="note">notes: {esc(row["notes"])}</p>')
+        # a failed or pending frame's quicklook files and slabs may be an earlier run's
+        done = {s for s in stages if row.get(f"{s}_seconds") is not None}
         images = figs.frame_quicklooks(
             products_root(run.path, run.meta),
             fid,
@@ -419,10 +437,18 @@ def _frames(run: RunInfo, frames: pa.Table, desc: pa.Table, max_frames: int) -> 
             products=products if fid in frame_index else None,
             range_step_m=step,
             reference=reference,
-            # a failed or pending frame's quicklook files and slabs may be an earlier run's
-            done_stages={s for s in stages if row.get(f"{s}_seconds") is not None},
+            done_stages=done,
         )
-        if images:
+        edges = edges_of.get(fid, [])
+        graph = figs.frame_scene_graph(
+            frame_index.get(fid, -1),
+            products=products if fid in frame_index else None,
+            nodes=_graph_columns(rocks, ("object_id", "centroid_x", "centroid_y", "size_class")),
+            edges=_graph_columns(edges, ("subject_id", "relation", "object_id")),
+            reference=reference,
+            done_stages=done,
+        )
+        if images or graph is not None:
             body.append('<div class="quicklooks">')
             for name in figs.QUICKLOOKS:
                 caption = figs.quicklook_caption(name, reference)
@@ -432,9 +458,22 @@ def _frames(run: RunInfo, frames: pa.Table, desc: pa.Table, max_frames: int) -> 
                         f"<figure{wide}>{png_img(images[name], f'{fid}: {caption}')}"
                         f"<figcaption>{esc(caption)}</figcaption></figure>"
                     )
+            if graph is not None:
+                caption = figs.scene_graph_caption(
+                    figs.relation_counts([e["relation"] for e in edges]),
+                    unclassified=any(
+                        r.get("size_class") not in figs.GRAPH_CLASS_COLORS for r in rocks
+                    ),
+                )
+                body.append(
+                    f'<figure class="scene-graph">{png_img(graph, f"{fid}: scene graph")}'
+                    f"<figcaption>{esc(caption)}</figcaption></figure>"
+                )
             body.append("</div>")
         else:
             body.append('<p class="note">No images for this frame.</p>')
+        if graph is None and "describe" in done and not rocks:
+            body.append('<p class="note">Scene graph: no objects, so no relations.</p>')
         body.append(f"<h3>Rocks ({len(rocks)})</h3>{_rock_table(rocks)}")
         is_open = " open" if i == 0 else ""
         parts.append(
@@ -459,7 +498,7 @@ def render_report(run: RunInfo, *, max_frames: int = 50) -> str:
         )
     sections.append(_summary(run, frames, desc, tables["evaluation"]))
     sections.append(_rocks(run, frames, desc))
-    sections.append(_frames(run, frames, desc, max_frames))
+    sections.append(_frames(run, frames, desc, tables["relations"], max_frames))
     subtitle = esc(
         f"archive {run.archive} · run {run.run_id} · {run.meta.get('status', '?')} · "
         f"{run.path.resolve()}"

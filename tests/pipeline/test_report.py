@@ -18,6 +18,8 @@ import pytest
 import zarr
 from test_query import make_run
 
+from pipeline._report_figures import relation_counts, scene_graph_caption, scene_graph_image
+from pipeline._report_html import esc
 from pipeline.cli import main
 from pipeline.errors import ParamError, RunDirError
 from pipeline.lock import RunLock
@@ -108,8 +110,8 @@ def test_report_of_a_run_with_failed_frames(tmp_path):
     per_frame = {
         f["frame_id"]: [i for i in page.images if i["frame"] == f["frame_id"]] for f in frames
     }
-    assert len(per_frame["lab_000"]) == 3  # quicklook files embedded
-    assert len(per_frame["lab_003"]) == 3  # no files: drawn from products.zarr
+    assert len(per_frame["lab_000"]) == 4  # quicklook files embedded, and the scene graph
+    assert len(per_frame["lab_003"]) == 4  # no files: drawn from products.zarr
     assert len(per_frame["lab_001"]) == 1  # failed in depth: only the reference image
     residual = _decode_png(per_frame["lab_003"][2]["src"])
     assert residual.shape[1] == 2 * 64 + 4  # left - right beside left - pseudo-left
@@ -130,6 +132,7 @@ def test_report_of_a_run_without_rocks(tmp_path):
     text, page = _parse(build_report(run))
     assert "No rocks were described in this run." in text
     assert text.count("No rocks in this frame.") == 2
+    assert text.count("Scene graph: no objects, so no relations.") == 2
     assert "No evaluation" in text
     assert all(i["frame"] for i in page.images)  # no per-archive plots without rocks
 
@@ -260,3 +263,38 @@ def test_report_of_a_read_only_run_directory(tmp_path, readonly_view):
     with pytest.raises(ParamError, match="is not writable .*pass --output FILE"):
         build_report(view)
     assert build_report(view, tmp_path / "r.html").is_file()
+
+
+def _frame_tables(run: Path, frame_id: str) -> tuple[pa.Table, pa.Table]:
+    tables = []
+    for name in ("descriptors", "relations"):
+        table = pq.read_table(run / f"{name}.parquet", partitioning=None)
+        tables.append(table.filter(pa.compute.equal(table["frame_id"], frame_id)))
+    return tables[0], tables[1]
+
+
+def test_each_frame_shows_its_scene_graph_with_the_relation_counts(tmp_path):
+    run = make_run(tmp_path / "lab", frames=2, rocks=5, quicklooks=False)
+    text, page = _parse(build_report(run))
+    group = zarr.open_group(run / "products.zarr", mode="r")
+    for index, fid in enumerate(("lab_000", "lab_001")):
+        nodes, edges = _frame_tables(run, fid)
+        assert edges.num_rows > 0  # the fixture's frames have relations
+        (graph,) = [i for i in page.images if i["frame"] == fid and "scene graph" in i["alt"]]
+        # the figure is the function's picture of this frame's descriptors and relations
+        want = scene_graph_image(np.asarray(group["right"][index]), nodes, edges)
+        np.testing.assert_array_equal(_decode_png(graph["src"])[..., :3], want)
+        caption = scene_graph_caption(relation_counts(edges["relation"].to_pylist()))
+        assert f"<figcaption>{esc(caption)}</figcaption>" in text
+        for name, n in relation_counts(edges["relation"].to_pylist()).items():
+            assert f"{name} {n}" in caption
+
+
+def test_scene_graph_of_a_frame_without_relations(tmp_path):
+    # one object: no pair, so no relations; the figure shows it and says so
+    run = make_run(tmp_path / "lab", frames=1, rocks=1, quicklooks=False)
+    nodes, edges = _frame_tables(run, "lab_000")
+    assert nodes.num_rows == 1 and edges.num_rows == 0
+    text, page = _parse(build_report(run))
+    assert [i["alt"] for i in page.images if i["frame"]][-1] == "lab_000: scene graph"
+    assert "This frame has no relations." in text
