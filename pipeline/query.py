@@ -642,6 +642,20 @@ def _missing_directory(directory: Path) -> str:
     return f"directory {directory} does not exist"
 
 
+def _check_unique_columns(table: pa.Table) -> None:
+    """Raise ParamError when two result columns share a name: the text table failed with a
+    traceback, JSON kept one of them and Parquet wrote a file pyarrow cannot read back."""
+    names = table.column_names
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        listed = ", ".join(repr(n) for n in twice)
+        first = twice[0]
+        raise ParamError(
+            f"the query's result has more than one column named {listed}; give each a name "
+            f"of its own with AS, e.g. SELECT a.{first} AS a_{first}, b.{first} AS b_{first}"
+        )
+
+
 def query_command(
     rundirs: Sequence[str | os.PathLike[str]],
     sql: str,
@@ -692,6 +706,7 @@ def query_command(
                 f"--output {target}: directory {target.parent} is not writable (read-only?)"
             )
     table = query_runs(rundirs, sql, allow_running=allow_running)
+    _check_unique_columns(table)
     if output is not None:
         try:
             atomic_write_bytes(Path(output), _encode(table, fmt))

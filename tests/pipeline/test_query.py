@@ -662,3 +662,26 @@ def test_regression_table_of_a_stage_no_longer_run_stays_queryable(archive, tmp_
     run(archive, out, scheduler="synchronous", stage_package=package.name)
     with pytest.raises(ParamError, match="tallies does not exist"):
         query_runs(out, "SELECT * FROM tallies")
+
+
+@pytest.mark.parametrize("fmt", ["table", "csv", "json", "parquet"])
+def test_regression_duplicate_result_column_names_crashed_or_lost_a_column(
+    two_runs, tmp_path, capsys, fmt
+):
+    # a self-join selecting a.area_px, b.area_px: the text table raised a KeyError
+    # traceback, JSON kept one of the two columns, Parquet wrote a file pyarrow cannot read
+    lab, _ = two_runs
+    sql = (
+        "SELECT a.area_px, b.area_px FROM descriptors a JOIN descriptors b "
+        "ON a.run = b.run AND a.frame_id = b.frame_id AND a.object_id = b.object_id"
+    )
+    target = tmp_path / f"out.{fmt}"
+    code = main(["query", str(lab), sql, "--format", fmt, "--output", str(target)])
+    err = capsys.readouterr().err
+    assert code == 2 and err.startswith("arroyo: error:")
+    assert "'area_px'" in err and "AS a_area_px" in err
+    assert not target.exists()
+    # named apart, the same join works
+    named = sql.replace("a.area_px, b.area_px", "a.area_px AS a_area_px, b.area_px AS b_px")
+    assert main(["query", str(lab), named, "--format", fmt, "--output", str(target)]) == 0
+    assert target.exists()
