@@ -38,6 +38,8 @@ _DISPLAY: tuple[tuple[str, str, str, str], ...] = (
     ("descriptors", "near_width_rel_err_median", "  width err median (%)", "pct"),
     ("descriptors", "near_range_rel_err_median", "  range err median (%)", "pct"),
     ("descriptors", "near_class_accuracy", "  sample/obstacle accuracy (%)", "pct"),
+    ("descriptors", "near_borderline_fraction", "  borderline class (%)", "pct"),
+    ("descriptors", "near_decided_class_accuracy", "  accuracy, borderline out (%)", "pct"),
     ("relations", "agreement", "edges agreeing with truth (%)", "pct"),
     ("relations", "n_checked", "edges checked", "int"),
     ("size-frequency", "k", "Golombek-Rapp k", "f3"),

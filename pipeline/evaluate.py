@@ -26,9 +26,10 @@ Output: a tidy long table (one row per archive, frame, product, method and metri
 ``'*'`` is the aggregate over the archive's frames, pooled over pixels/objects/rocks rather than
 averaged over frames), written atomically to ``RUNDIR/evaluation.parquet``. The aggregates of
 the proportions over counts (segmentation ``precision`` and ``recall``, descriptors
-``class_accuracy`` and ``near_class_accuracy``, relations ``agreement``) come with
-``<metric>_low`` and ``<metric>_high``: the 95 % Wilson score interval
-(:func:`metrics.wilson_interval`) of the pooled proportion.
+``class_accuracy`` and ``near_class_accuracy``, and ``decided_class_accuracy`` and
+``near_decided_class_accuracy`` where the descriptors have ``size_class_borderline``,
+relations ``agreement``) come with ``<metric>_low`` and ``<metric>_high``: the 95 % Wilson
+score interval (:func:`metrics.wilson_interval`) of the pooled proportion.
 """
 
 from __future__ import annotations
@@ -273,7 +274,16 @@ def _columns(rows: list[dict[str, Any]], names: Iterable[str]) -> dict[str, np.n
     return out
 
 
-_PRED_COLUMNS = ("height_max_m", "height_m", "width_m", "range_m", "size_class")
+#: ``size_class_borderline`` gives the decided-class figures of :func:`metrics.descriptor_errors`
+#: (NaN, so none, for descriptors of describe < 11, without it)
+_PRED_COLUMNS = (
+    "height_max_m",
+    "height_m",
+    "width_m",
+    "range_m",
+    "size_class",
+    "size_class_borderline",
+)
 #: ``touches_border`` gives the border / interior breakdown of :func:`metrics.descriptor_errors`
 #: (NaN, so no breakdown, for rock tables without it)
 _TRUE_COLUMNS = ("height_m", "width_m", "range_m", "size_class", "touches_border")
@@ -514,11 +524,13 @@ def _proportion_counts(product: str, values: Mapping[str, float]) -> dict[str, t
         return {"precision": (tp, tp + fp), "recall": (tp, tp + fn)}
     if product == "descriptors":
         return {
-            f"{prefix}class_accuracy": (
-                _successes(values[f"{prefix}class_accuracy"], values[f"{prefix}n_rocks"]),
-                values[f"{prefix}n_rocks"],
+            f"{prefix}{share}class_accuracy": (
+                _successes(values[f"{prefix}{share}class_accuracy"], values[f"{prefix}{n}"]),
+                values[f"{prefix}{n}"],
             )
             for prefix in ("", "near_")
+            for share, n in (("", "n_rocks"), ("decided_", "decided_n_rocks"))
+            if f"{prefix}{n}" in values  # decided_*: descriptors with size_class_borderline
         }
     if product == "relations":
         return {"agreement": (values["n_agree"], values["n_checked"])}

@@ -403,7 +403,8 @@ def descriptor_errors(
         Descriptor columns of the matched predicted objects, row i matching truth row i:
         ``height_max_m``, ``height_m`` (the study's height of the farthest perceivable point),
         ``width_m``, ``range_m`` (float, NaN where unknown) and ``size_class``
-        ({'sample', 'obstacle'}).
+        ({'sample', 'obstacle'}); optionally ``size_class_borderline`` (bool, or 0/1
+        floats): the measurement could not decide the class (the describe column).
     truth : mapping of str to (K,) array
         Truth rock columns: ``height_m`` (highest point above ground), ``width_m``,
         ``range_m``, ``size_class``; optionally ``touches_border`` (bool, or 0/1 floats):
@@ -424,7 +425,11 @@ def descriptor_errors(
         ``touches_border`` column, a breakdown of the ``near_`` rocks follows: the same keys
         prefixed ``near_interior_`` (rocks seen whole) and ``near_border_`` (rocks cut by
         the image border, whose truth width and class are of the whole rock while only a
-        part of it can be measured). The headline keys do not change.
+        part of it can be measured). With a finite pred ``size_class_borderline`` column,
+        every block (prefix ``''``, ``near_``, ...) also has ``borderline_fraction`` (share
+        of its rocks whose class is borderline), ``decided_class_accuracy`` (class accuracy
+        over the others) and ``decided_n_rocks`` (their count). The headline keys do not
+        change.
     """
     if not isinstance(pred, Mapping) or not isinstance(truth, Mapping):
         raise TypeError(
@@ -447,6 +452,10 @@ def descriptor_errors(
         "t_r": t_range,
         "t_c": _coerce_column(truth, "size_class", "truth", n).astype(str),
     }
+    if "size_class_borderline" in pred:
+        borderline = _coerce_column(pred, "size_class_borderline", "pred", n).astype(np.float64)
+        if np.isfinite(borderline).all():  # NaN: a run from before the column (describe < 11)
+            cols["p_b"] = borderline != 0
     out = _descriptor_block(cols, np.ones(n, dtype=bool), "")
     near = t_range <= near_range_m
     out.update(_descriptor_block(cols, near, "near_"))
@@ -472,6 +481,13 @@ def _descriptor_block(c: dict[str, np.ndarray], keep: np.ndarray, prefix: str) -
     n = int(keep.sum())
     out[f"{prefix}class_accuracy"] = _ratio(int(np.count_nonzero(s["p_c"] == s["t_c"])), n)
     out[f"{prefix}n_rocks"] = float(n)
+    if "p_b" in s:
+        decided = ~s["p_b"]
+        n_decided = int(np.count_nonzero(decided))
+        right = np.count_nonzero((s["p_c"] == s["t_c"]) & decided)
+        out[f"{prefix}borderline_fraction"] = _ratio(n - n_decided, n)
+        out[f"{prefix}decided_class_accuracy"] = _ratio(int(right), n_decided)
+        out[f"{prefix}decided_n_rocks"] = float(n_decided)
     return out
 
 

@@ -87,6 +87,7 @@ def describe_frame(
     fringe_reach_px: int = 3,
     fringe_smoothing_px: int = 7,
     border_height_quantile: float = 0.9,
+    borderline_fraction: float = 0.1,
 ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict[str, Any]]:
     """Descriptors, relations and per-frame figures of one frame.
 
@@ -131,6 +132,10 @@ def describe_frame(
         In [0, 1): objects cut by the image border are classed with their width bounded
         from below by their height over this quantile of height / width of the frame's
         objects seen whole (0: their visible width alone; see :mod:`stages._border`).
+    borderline_fraction : float
+        In [0, 1]: ``size_class_borderline`` is true when a size that decided the class
+        lies within this share of its limit, or is unknown (0: never; see
+        :func:`stages._descriptors.size_class_borderline`).
 
     Returns
     -------
@@ -161,6 +166,7 @@ def describe_frame(
         fringe_reach_px=fringe_reach_px,
         fringe_smoothing_px=fringe_smoothing_px,
         border_height_quantile=border_height_quantile,
+        borderline_fraction=borderline_fraction,
         object_slices=slices,
     )
     rel = relate_objects(
@@ -266,7 +272,7 @@ def run_describe(
 
 STAGE = Stage(
     name="describe",
-    version="10",
+    version="11",
     inputs=("left", "right", "labels", "disparity", "range", "height", "ground_plane"),
     outputs=(
         Product(
@@ -366,6 +372,14 @@ STAGE = Stage(
             "border-cut rocks: width >= height / this quantile of whole rocks' h/w (0: off)",
             minimum=0,
             maximum=0.99,
+        ),
+        Param(
+            "borderline_fraction",
+            float,
+            0.1,
+            "size_class_borderline: a deciding size within this share of its limit (0: never)",
+            minimum=0,
+            maximum=1,
         ),
     ),
     run=run_describe,

@@ -1,6 +1,7 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -194,6 +195,11 @@ _PROPORTIONS = (
     ("descriptors", "near_class_accuracy"),
     ("relations", "agreement"),
 )
+#: ... and those of descriptors with ``size_class_borderline`` (describe >= 11)
+_DECIDED = (
+    ("descriptors", "decided_class_accuracy"),
+    ("descriptors", "near_decided_class_accuracy"),
+)
 
 
 def _interval_counts(aggregate: dict, product: str, method: str, metric: str):
@@ -226,9 +232,12 @@ def _assert_intervals_match_counts(table: pa.Table) -> int:
         for r in rows
         if r["frame_id"] == AGGREGATE
     }
+    proportions = _PROPORTIONS
+    if any(m == "decided_n_rocks" for _, _, m in aggregate):
+        proportions += _DECIDED
     checked = 0
     for product, method, metric in list(aggregate):
-        if (product, metric) not in _PROPORTIONS:
+        if (product, metric) not in proportions:
             continue
         counts = _interval_counts(aggregate, product, method, metric)
         low = aggregate[(product, method, f"{metric}_low")]
@@ -238,7 +247,7 @@ def _assert_intervals_match_counts(table: pa.Table) -> int:
             assert low <= aggregate[(product, method, metric)] <= high
         checked += 1
     intervals = {m for _, _, m in aggregate if m.endswith(("_low", "_high"))}
-    assert len(intervals) == len({f"{m}_{s}" for _, m in _PROPORTIONS for s in ("low", "high")})
+    assert len(intervals) == len({f"{m}_{s}" for _, m in proportions for s in ("low", "high")})
     return checked
 
 
@@ -364,6 +373,65 @@ def test_evaluate_intervals_leave_every_other_metric_unchanged(rundir: Path, mon
         with_intervals[~is_interval].reset_index(drop=True), without, check_exact=True
     )
     assert is_interval.sum() == 2 * 7
+
+
+def _set_descriptor(rundir: Path, changes: dict[tuple[str, int], dict]) -> None:
+    """Rewrite the fixture's descriptors: ``changes[(frame_id, object_id)]`` into that row."""
+    part = rundir / "descriptors.parquet" / "part-0.parquet"
+    rows = pq.read_table(part).to_pylist()
+    for row in rows:
+        row.update(changes.get((row["frame_id"], row["object_id"]), {}))
+    pq.write_table(pa.Table.from_pylist(rows), part)
+
+
+def test_evaluate_class_accuracy_without_the_borderline_rocks(rundir: Path):
+    """size_class_borderline: its share and the class accuracy over the other rocks."""
+    # f1 reads rock 1 (1.6 m, near) as an obstacle, with a borderline size; every other
+    # rock decided and right: 2 frames x 2 rocks, 2 of them near (rock 1 of f0 and f1)
+    _set_descriptor(rundir, {("f1", 1): {"size_class": "obstacle"}})
+    before = evaluate_run(rundir).to_pandas()
+    changes = {
+        (fid, rock): {"size_class_borderline": (fid, rock) == ("f1", 1)}
+        for fid in ("f0", "f1", "f3")
+        for rock in (1, 2)
+    }
+    _set_descriptor(rundir, changes)
+    table = evaluate_run(rundir)
+
+    def v(metric, frame_id=AGGREGATE):
+        return _value(
+            table, frame_id=frame_id, product="descriptors", method="arroyo", metric=metric
+        )
+
+    assert v("near_class_accuracy") == 1 / 2  # as before: 1 of the 2 near rocks right
+    assert v("near_borderline_fraction") == 1 / 2
+    assert v("near_decided_class_accuracy") == 1.0 and v("near_decided_n_rocks") == 1
+    assert v("borderline_fraction") == 1 / 4
+    assert v("decided_class_accuracy") == 1.0 and v("decided_n_rocks") == 3
+    assert v("near_borderline_fraction", "f0") == 0.0
+    assert v("near_borderline_fraction", "f1") == 1.0
+    assert math.isnan(v("near_decided_class_accuracy", "f1"))  # no decided near rock
+    for metric, counts in (
+        ("decided_class_accuracy", (3, 3)),
+        ("near_decided_class_accuracy", (1, 1)),
+    ):
+        assert (v(f"{metric}_low"), v(f"{metric}_high")) == wilson_interval(*counts)
+    assert _assert_intervals_match_counts(table) == 9
+    # every metric of before is unchanged (SGBM's seconds are timed here)
+    after = table.to_pandas()
+    after = after[after["metric"].isin(set(before["metric"]))].reset_index(drop=True)
+    keep = before["metric"] != "seconds_per_frame"
+    pd.testing.assert_frame_equal(
+        after[keep].reset_index(drop=True), before[keep].reset_index(drop=True), check_exact=True
+    )
+    # the printed table shows the near figures under the near class accuracy
+    text = format_evaluation(table, width=120)
+    lines = text.splitlines()
+    (row,) = [i for i, line in enumerate(lines) if "borderline class (%)" in line]
+    assert "sample/obstacle accuracy" in lines[row - 1] and "50.0" in lines[row]
+    low, _ = wilson_interval(1, 1)
+    assert f"100.0 ({100 * low:.1f}-100.0)" in lines[row + 1]
+    assert "borderline out" in lines[row + 1]
 
 
 def test_evaluate_size_frequency_against_the_truth_rocks(rundir: Path):

@@ -269,6 +269,38 @@ def test_descriptor_errors_border_breakdown():
     assert "near_border_n_rocks" not in descriptor_errors(pred, truth)
 
 
+def test_descriptor_errors_decided_class_leaves_the_borderline_rocks_out():
+    truth = _rock_columns()  # classes sample, sample, obstacle x 3; the first 3 within 2 m
+    pred = {k: np.array(v, copy=True) for k, v in truth.items()}
+    # rocks 0 and 3 borderline; wrong: 0 and 3 (borderline) and 2 (decided)
+    pred["size_class"] = np.array(["obstacle", "sample", "sample", "sample", "obstacle"])
+    headline = descriptor_errors(pred, truth)
+    assert not any("borderline" in k or "decided" in k for k in headline)
+    pred["size_class_borderline"] = np.array([True, False, False, True, False])
+    e = descriptor_errors(pred, truth)
+    assert {k: v for k, v in e.items() if k in headline} == headline  # headline unchanged
+    assert e["class_accuracy"] == pytest.approx(2 / 5)
+    assert e["borderline_fraction"] == pytest.approx(2 / 5)
+    assert e["decided_class_accuracy"] == pytest.approx(2 / 3)  # rocks 1, 2, 4
+    assert e["decided_n_rocks"] == 3
+    assert e["near_borderline_fraction"] == pytest.approx(1 / 3)
+    assert e["near_decided_class_accuracy"] == pytest.approx(1 / 2)  # rocks 1, 2
+    assert e["near_decided_n_rocks"] == 2
+    # 0/1 floats as the evaluation reads them from Parquet
+    pred["size_class_borderline"] = np.array([1.0, 0.0, 0.0, 1.0, 0.0])
+    assert descriptor_errors(pred, truth) == e
+    # every rock borderline: nothing decided
+    pred["size_class_borderline"] = np.ones(5, dtype=bool)
+    e = descriptor_errors(pred, truth)
+    assert e["borderline_fraction"] == 1.0 and e["decided_n_rocks"] == 0
+    assert math.isnan(e["decided_class_accuracy"])
+    # unknown (descriptors of a describe without the column): no decided figures
+    pred["size_class_borderline"] = np.array([0.0, np.nan, 0.0, 1.0, 0.0])
+    assert descriptor_errors(pred, truth) == headline
+    with pytest.raises(ValueError, match="size_class_borderline"):
+        descriptor_errors({**pred, "size_class_borderline": np.zeros(4)}, truth)
+
+
 def test_descriptor_errors_no_pairs_and_bad_input():
     empty = {k: v[:0] for k, v in _rock_columns().items()}
     e = descriptor_errors(empty, empty)

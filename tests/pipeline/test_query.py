@@ -120,6 +120,7 @@ def _describe(labels, right, rng_m, height, shape) -> tuple[dict, dict]:
             "ellipse_minor_px": float(ys.max() - ys.min() + 1),
             "ellipse_angle_deg": 0.0,
             "size_class": "obstacle" if height[ys, xs].max() >= 0.1 else "sample",
+            "size_class_borderline": bool(abs(height[ys, xs].max() - 0.1) <= 0.01),
             "touches_border": bool(xs.min() == 0 or xs.max() == w - 1),
             "occluded": False,
             "depth_unreliable": False,

@@ -288,7 +288,7 @@ def test_size_frequency_figures():
 
 
 def test_stage_declaration_and_run():
-    assert STAGE.name == "describe" and STAGE.version == "10"
+    assert STAGE.name == "describe" and STAGE.version == "11"
     assert STAGE.inputs == (
         "left", "right", "labels", "disparity", "range", "height", "ground_plane"
     )
@@ -359,6 +359,44 @@ def test_border_cut_rock_is_classed_from_its_height():
         assert not _row(desc, k)["touches_border"] and _row(desc, k)["size_class"] == "sample"
     (desc, _, _), _ = _run([*whole, (-0.80, 1.6, 0.14, 0.07, 60)], border_height_quantile=0)
     assert _row(desc, 6)["size_class"] == "sample"
+
+
+def test_size_class_borderline_of_plates_near_and_far_from_the_limits():
+    # a band of 0.3 x 0.10 m = 3 cm around each limit, pixels of 8 mm at 1.6 m: a plate
+    # 5 cm wide and 3 cm high (a sure sample), one 10 cm wide (its width at the limit: its
+    # class is chance), one 10 cm high (its height at the limit), one 30 x 20 cm (a sure
+    # obstacle)
+    plates = [
+        (-0.4, 1.6, 0.05, 0.03, 60),
+        (-0.1, 1.6, 0.10, 0.05, 60),
+        (0.2, 1.6, 0.05, 0.10, 60),
+        (0.5, 1.6, 0.30, 0.20, 60),
+    ]
+    (desc, _, _), _ = _run(plates, borderline_fraction=0.3)
+    assert not desc["touches_border"].any()
+    np.testing.assert_array_equal(desc["size_class_borderline"], [False, True, True, False])
+    assert desc["size_class"][0] == "sample" and desc["size_class"][3] == "obstacle"
+    (desc, _, _), _ = _run(plates, borderline_fraction=0)
+    assert not desc["size_class_borderline"].any()
+    assert DESCRIPTOR_SCHEMA.field("size_class_borderline").type == pa.bool_()
+
+
+def test_size_class_borderline_of_a_border_cut_rock_is_of_its_bound():
+    # the scene of test_border_cut_rock_is_classed_from_its_height: the cut plate's visible
+    # width (about 3 cm) and height (about 6 cm) lie within a band of 0.5 x 0.10 m around
+    # a limit, but its width bound from the height (over 15 cm) lies beyond it: a sure
+    # obstacle once classed on the bound
+    heights = (0.024, 0.028, 0.032, 0.036, 0.040)
+    xs = (-0.4, -0.2, 0.0, 0.2, 0.4)
+    plates = [(x, 1.6, 0.08, h, 60) for x, h in zip(xs, heights, strict=True)]
+    plates.append((-0.80, 1.6, 0.14, 0.07, 60))
+    (desc, _, _), _ = _run(plates, borderline_fraction=0.5)
+    cut = _row(desc, 6)
+    assert cut["touches_border"] and cut["size_class"] == "obstacle"
+    assert not cut["size_class_borderline"]
+    (desc, _, _), _ = _run(plates, borderline_fraction=0.5, border_height_quantile=0)
+    cut = _row(desc, 6)
+    assert cut["size_class"] == "sample" and cut["size_class_borderline"]
 
 
 def test_regression_frame_without_a_ground_frame_gave_obstacles_without_a_note():

@@ -20,6 +20,7 @@ from stages._descriptors import (
     frame_ground,
     polarity_against,
     second_moment_ellipse,
+    size_class_borderline,
     top_height,
 )
 
@@ -169,6 +170,79 @@ def test_classify_size(largest, height, expected):
     assert got == expected
 
 
+def _borderline(largest, height, fraction=0.25, limit=0.5):
+    # limits and fractions that are powers of two: the band's edges are exact floats
+    return size_class_borderline(
+        largest,
+        height,
+        sample_max_m=limit,
+        rover_clearance_m=limit,
+        borderline_fraction=fraction,
+    )
+
+
+@pytest.mark.parametrize(
+    "largest, height, expected",
+    [
+        (0.25, 0.25, False),  # well inside both limits: a sure sample
+        (0.375, 0.25, True),  # width at the band's lower edge (0.5 - 0.125)
+        (0.374, 0.25, False),  # just inside it
+        (0.5, 0.25, True),  # width at its limit
+        (0.625, 0.25, True),  # width at the band's upper edge (0.5 + 0.125)
+        (0.626, 0.25, False),  # beyond: a sure obstacle
+        (0.25, 0.375, True),  # height at the band's lower edge
+        (0.25, 0.625, True),  # height at the upper edge
+        (0.25, 0.7, False),  # height beyond it: a sure obstacle
+        (0.5, 0.7, False),  # a width at its limit does not matter: too high anyway
+        (0.7, 0.5, False),  # nor a height at its limit: too wide anyway
+        (1.0, 1.0, False),
+        (math.nan, 0.25, True),  # unknown sizes: classed obstacle by rule, not measured
+        (0.25, math.nan, True),
+        (math.nan, math.nan, True),
+        (math.nan, 0.7, False),  # the known height alone makes it an obstacle
+    ],
+)
+def test_size_class_borderline(largest, height, expected):
+    assert _borderline(largest, height) is expected
+
+
+def test_size_class_borderline_at_the_default_limits_and_fraction():
+    kw = {"sample_max_m": 0.10, "rover_clearance_m": 0.10}
+    assert size_class_borderline(0.095, 0.02, **kw)  # 5 mm under the width limit
+    assert size_class_borderline(0.105, 0.02, **kw)  # 5 mm over it
+    assert size_class_borderline(0.05, 0.098, **kw)  # 2 mm under the clearance
+    assert not size_class_borderline(0.08, 0.02, **kw)  # 2 cm under: a sure sample
+    assert not size_class_borderline(0.12, 0.02, **kw)  # 2 cm over: a sure obstacle
+    # the same sizes, other limits: the band scales with the limit
+    assert not size_class_borderline(0.095, 0.02, sample_max_m=0.2, rover_clearance_m=0.10)
+
+
+def test_size_class_borderline_fraction_zero_is_never():
+    for largest, height in ((0.5, 0.25), (0.25, 0.5), (math.nan, 0.25), (math.nan, math.nan)):
+        assert _borderline(largest, height, fraction=0.0) is False
+    assert _borderline(0.25, 0.25, fraction=1.0) is True  # the band reaches down to 0
+    assert _borderline(1.0, 0.25, fraction=1.0) is True  # and up to twice the limit
+
+
+@pytest.mark.parametrize(
+    "kwargs, error, message",
+    [
+        ({"borderline_fraction": -0.1}, ValueError, r"borderline_fraction .* \[0, 1\].*-0.1"),
+        ({"borderline_fraction": 1.5}, ValueError, r"borderline_fraction .* \[0, 1\].*1.5"),
+        ({"borderline_fraction": math.nan}, ValueError, "borderline_fraction"),
+        ({"borderline_fraction": "0.1"}, TypeError, "borderline_fraction must be a number"),
+        ({"borderline_fraction": True}, TypeError, "borderline_fraction must be a number"),
+        ({"sample_max_m": -0.1}, ValueError, "sample_max_m must be a finite size >= 0"),
+        ({"rover_clearance_m": math.inf}, ValueError, "rover_clearance_m must be a finite"),
+        ({"rover_clearance_m": None}, TypeError, "rover_clearance_m must be a number"),
+    ],
+)
+def test_size_class_borderline_rejects_bad_settings(kwargs, error, message):
+    settings = {"sample_max_m": 0.10, "rover_clearance_m": 0.10, "borderline_fraction": 0.1}
+    with pytest.raises(error, match=message):
+        size_class_borderline(0.05, 0.05, **{**settings, **kwargs})
+
+
 def test_background_jump_fraction():
     labels = np.zeros((10, 10), dtype=np.int32)
     labels[3:7, 3:7] = 1
@@ -206,6 +280,8 @@ def test_describe_objects_validates_inputs():
         describe_objects(labels, ok, ok, ok, ok, camera={"focal_px": 1})
     with pytest.raises(ValueError, match="fringe_dark_ratio"):
         describe_objects(labels, ok, ok, ok, ok, camera=CAMERA, fringe_dark_ratio=1.0)
+    with pytest.raises(ValueError, match="borderline_fraction"):  # also without objects
+        describe_objects(labels, ok, ok, ok, ok, camera=CAMERA, borderline_fraction=2.0)
 
 
 def test_describe_objects_empty_gives_typed_columns():
@@ -271,3 +347,7 @@ def test_describe_objects_image_fields_and_appearance():
     np.testing.assert_array_equal(cols["depth_valid_fraction"], [0.0, 0.0])
     np.testing.assert_array_equal(cols["depth_unreliable"], [True, True])
     np.testing.assert_array_equal(cols["size_class"], ["obstacle", "obstacle"])
+    # ... an obstacle by rule, not by measurement: borderline
+    np.testing.assert_array_equal(cols["size_class_borderline"], [True, True])
+    off = describe_objects(labels, gray, nan, nan, nan, camera=no_pose, borderline_fraction=0)
+    np.testing.assert_array_equal(off["size_class_borderline"], [False, False])
