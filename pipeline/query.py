@@ -779,6 +779,22 @@ def _check_unique_columns(table: pa.Table) -> None:
         )
 
 
+def _check_argument_order(
+    rundirs: Sequence[str | os.PathLike[str]] | str | os.PathLike[str], sql: Any
+) -> None:
+    """``arroyo query "SQL" RUNDIR`` said "run directory SELECT ... does not exist"."""
+    given = [rundirs] if isinstance(rundirs, str | os.PathLike) else list(rundirs)
+    if (
+        isinstance(sql, str)
+        and (Path(sql) / "run.json").is_file()
+        and any(not Path(r).exists() and " " in str(r) for r in given)
+    ):
+        raise ParamError(
+            f"the SQL comes last, after the run directories, got the run directory {sql} "
+            f'last; pass arroyo query RUNDIR... "SQL"'
+        )
+
+
 def _check_output(
     target: Path, rundirs: Sequence[str | os.PathLike[str]] | str | os.PathLike[str]
 ) -> None:
@@ -837,6 +853,7 @@ def query_command(
         0. Errors raise ParamError / RunDirError (exit code 2 in the CLI) before anything
         is written.
     """
+    _check_argument_order(rundirs, sql)
     if output is not None and str(output) == "-":  # wrote a file named '-'
         output = None
     fmt = _coerce_format(fmt, output)

@@ -863,3 +863,12 @@ def test_regression_garbled_run_json_said_nothing_of_the_fix(tmp_path):
     (run / "run.json").write_text('{"run_id": ')
     with pytest.raises(RunDirError, match="cannot read .*run.json.*rerun the catalog"):
         query_runs(run, "SELECT 1")
+
+
+def test_regression_sql_before_the_run_directory_said_the_sql_does_not_exist(two_runs, capsys):
+    # `arroyo query "SELECT ..." RUNDIR`: "run directory SELECT ... does not exist"
+    lab, _ = two_runs
+    assert main(["query", "SELECT count(*) FROM frames", str(lab)]) == 2
+    err = capsys.readouterr().err
+    assert "the SQL comes last" in err and 'RUNDIR... "SQL"' in err
+    assert "does not exist" not in err
