@@ -207,8 +207,14 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("query", help="SQL (DuckDB) over the Parquet products of runs")
     p.add_argument("rundirs", nargs="+", metavar="RUNDIR")
     p.add_argument("sql")
-    p.add_argument("--format", choices=("table", "csv", "parquet", "json"), default="table")
-    p.add_argument("--output", "-o", help="file to write (default stdout)")
+    p.add_argument(
+        "--format",
+        choices=("table", "csv", "parquet", "json"),
+        help="default: from --output's suffix (.csv, .json, .parquet), else table",
+    )
+    p.add_argument(
+        "--output", "-o", help="file to write, outside the run directories (default or -: stdout)"
+    )
     p.add_argument(
         "--allow-running",
         action="store_true",

@@ -40,8 +40,9 @@ holder of ``RUNDIR/.arroyo.lock``) is refused unless ``allow_running=True``, whi
 what the last finished run published plus the current ``frames.parquet``.
 
 Only one read-only statement (``SELECT``, ``WITH ... SELECT``, ``DESCRIBE``, ``SHOW``,
-``EXPLAIN``, ``SUMMARIZE``) is accepted by :func:`query_runs`; use :func:`open_runs` for a
-full DuckDB connection in a notebook.
+``EXPLAIN``, ``SUMMARIZE``) is accepted by :func:`query_runs`, and it reads the runs' files
+only (no other file, no URL, no extension download); use :func:`open_runs` for a full DuckDB
+connection in a notebook.
 """
 
 from __future__ import annotations
@@ -89,6 +90,9 @@ VIEWS = ("descriptors", "relations", "frames", "evaluation")
 FORMATS = ("table", "csv", "parquet", "json")
 EVALUATION_NAME = "evaluation.parquet"
 _TABLE_ROWS_SHOWN = 500
+_JSON_BATCH_ROWS = 10_000
+_SUFFIX_FORMATS = {".csv": "csv", ".json": "json", ".parquet": "parquet", ".pq": "parquet"}
+_FORMAT_SUFFIXES = {"csv": ".csv", "json": ".json", "parquet": ".parquet"}
 _READ_ONLY = {"SELECT", "EXPLAIN"}
 _IDENTIFIER = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
 _READ_ONLY_PRAGMAS = ("describe", "show", "summarize", "pragma show", "pragma table_info")
@@ -165,7 +169,10 @@ def _load_run_json(rundir: Path) -> dict[str, Any]:
     try:
         meta = json.loads(path.read_text())
     except (OSError, json.JSONDecodeError) as exc:
-        raise RunDirError(f"cannot read {path}: {exc}") from None
+        raise RunDirError(
+            f"cannot read {path}: {exc}; `arroyo run` writes it anew: remove the file and "
+            "rerun the catalog into this directory (with the same --products, if any)"
+        ) from None
     if not isinstance(meta, dict):
         raise RunDirError(f"{path} does not hold a JSON object; it is not an arroyo run.json")
     return meta
@@ -189,13 +196,25 @@ def _check_not_running(rundir: Path, meta: Mapping[str, Any]) -> None:
 
 def _published_files(rundir: Path, product: str) -> list[Path]:
     link = published_path(rundir, product)
-    if not link.exists():
+    if not link.exists() and not link.is_symlink():
         return []
     # resolve the symlink once: a later swap by a new run must not change what we read
     target = link.resolve()
     if target.is_file():
         return [target]
-    return sorted(target.glob("archive=*/*.parquet")) or sorted(target.rglob("*.parquet"))
+    files = []
+    if target.is_dir():
+        files = sorted(target.glob("archive=*/*.parquet")) or sorted(target.rglob("*.parquet"))
+    if not files:
+        # a publication holds at least one (typed, maybe empty) file: with its files deleted
+        # the view was silently empty
+        raise RunDirError(
+            f"{link} of run {rundir} points to {target}, which holds no Parquet file (deleted "
+            f"or lost?), so the {product} view would be silently empty; the next `arroyo run "
+            f"CATALOG --out {rundir}` publishes it again (`arroyo status --verify {rundir}` "
+            "lists what else is damaged)"
+        )
+    return files
 
 
 def _other_tables(rundir: Path) -> list[str]:
@@ -220,6 +239,19 @@ def _written_by_current_stage(files: Sequence[Path], meta: Mapping[str, Any]) ->
         return True  # unreadable: _branch_sql names the file
     stage = metadata.get(b"arroyo.stage", b"").decode()
     return not stage or stage in (meta.get("stages") or {})
+
+
+def _check_frames_table(rundir: Path, files: Mapping[str, Sequence[Path]]) -> None:
+    """A run with published rows but no ``frames.parquet`` lost it (the file is written when
+    a run starts): its ``frames`` view was silently empty while ``descriptors`` had rows."""
+    if files["frames"] or not (files["descriptors"] or files["relations"]):
+        return
+    raise RunDirError(
+        f"{rundir} has published descriptors and relations but no {FRAMES_NAME} (deleted or "
+        "lost?), so the frames view would be silently empty; rerun the catalog into it "
+        f"(`arroyo run CATALOG --out {rundir}`): it writes {FRAMES_NAME} again and recomputes "
+        "only results that are not current"
+    )
 
 
 def _view_names(runs: Sequence[RunInfo]) -> list[str]:
@@ -265,6 +297,7 @@ def load_runs(rundirs: Any, *, allow_running: bool = False) -> list[RunInfo]:
             "frames": [path / FRAMES_NAME] if (path / FRAMES_NAME).is_file() else [],
             "evaluation": [path / EVALUATION_NAME] if (path / EVALUATION_NAME).is_file() else [],
         }
+        _check_frames_table(path, files)
         for product in _other_tables(path):
             published = _published_files(path, product)
             if _written_by_current_stage(published, meta):
@@ -397,6 +430,23 @@ def open_runs(rundirs: Any, *, allow_running: bool = False) -> duckdb.DuckDBPyCo
     return con
 
 
+def _restrict_to_runs(con: duckdb.DuckDBPyConnection, runs: Sequence[RunInfo]) -> None:
+    """Let the connection read the runs' files only: ``read_csv('/etc/passwd')``,
+    ``glob('/root/*')`` and ``read_text`` read any file, and a URL made DuckDB download an
+    extension from the network. Locked, so no statement can lift it."""
+    folders: set[str] = set()
+    for run in runs:
+        for path in (run.path, *(p.parent for files in run.files.values() for p in files)):
+            folders.add(os.path.abspath(path))
+            folders.add(str(Path(path).resolve()))
+    listed = ", ".join(_sql_str(folder.rstrip(os.sep) + os.sep) for folder in sorted(folders))
+    con.execute(f"SET allowed_directories = [{listed}]")
+    con.execute("SET autoinstall_known_extensions = false")
+    con.execute("SET autoload_known_extensions = false")
+    con.execute("SET enable_external_access = false")
+    con.execute("SET lock_configuration = true")
+
+
 def _check_read_only(con: duckdb.DuckDBPyConnection, sql: str) -> None:
     if not isinstance(sql, str):
         raise TypeError(f"sql must be a str, got {type(sql).__name__}")
@@ -415,7 +465,7 @@ def _check_read_only(con: duckdb.DuckDBPyConnection, sql: str) -> None:
     if kind not in _READ_ONLY and not text.startswith(_READ_ONLY_PRAGMAS):
         raise ParamError(
             f"only read-only queries (SELECT, WITH ... SELECT, DESCRIBE, SUMMARIZE, EXPLAIN) "
-            f"are allowed, got a {kind} statement; arroyo query never changes a run. Use "
+            f"are allowed, got a statement of type {kind}; arroyo query never changes a run. Use "
             "--format/--output to save results"
         )
 
@@ -448,12 +498,20 @@ def query_runs(rundirs: Any, sql: str, *, allow_running: bool = False) -> pa.Tab
     con = duckdb.connect(":memory:")
     try:
         _create_views(con, runs)
+        _restrict_to_runs(con, runs)
         _check_read_only(con, sql)
         try:
             relation = con.sql(sql)
             if relation is None:
                 return pa.table({})
             return relation.to_arrow_table()
+        except duckdb.PermissionException as exc:
+            raise ParamError(
+                "arroyo query reads the products of the runs given and nothing else (no other "
+                f"file, no URL), and the query asked for more: {exc}. To join files of your "
+                "own, open the runs in Python with pipeline.query.open_runs(RUNDIRS), a full "
+                "DuckDB connection"
+            ) from None
         except duckdb.IOException as exc:
             raise RunDirError(f"cannot read the run's Parquet files: {exc}") from None
         except duckdb.Error as exc:
@@ -595,9 +653,24 @@ def _rich_table(table: pa.Table, *, max_rows: int) -> Any:
     return out
 
 
+def _narrowest_rich_width(table: pa.Table, *, max_rows: int) -> int:
+    """Terminal columns the rich table needs with every cell wrapped at its spaces: rich
+    cuts a word that does not fit to '…', losing the value."""
+    shown = table.slice(0, max_rows)
+    total = 1  # the left border
+    for name in table.column_names:
+        cells = shown.column(name).to_pylist()
+        words = [name, *(w for v in cells for w in _format_cell(v).split())]
+        total += max(len(w) for w in words) + 3  # padding both sides, the right border
+    return total
+
+
 def _json_value(value: Any) -> Any:
     if isinstance(value, Decimal):
-        value = float(value)
+        # sum() of an integer column is a HUGEINT, a decimal of scale 0: 61902, not 61902.0,
+        # and exact beyond 2**53
+        exponent = value.as_tuple().exponent
+        value = int(value) if isinstance(exponent, int) and exponent >= 0 else float(value)
     if isinstance(value, float) and not math.isfinite(value):
         return None
     if isinstance(value, dict):
@@ -605,6 +678,22 @@ def _json_value(value: Any) -> Any:
     if isinstance(value, list):
         return [_json_value(v) for v in value]
     return value
+
+
+def _encode_json(table: pa.Table) -> bytes:
+    """``json.dumps(rows, indent=1)``, built batch by batch: the whole table as Python rows
+    took ~10 times the output's size in memory (5.4 GB for 524,000 rows of descriptors)."""
+    chunks: list[bytes] = []
+    for batch in table.to_batches(max_chunksize=_JSON_BATCH_ROWS):
+        rows = [
+            json.dumps(_json_value(row), indent=1, default=str, allow_nan=False)
+            for row in batch.to_pylist()
+        ]
+        if rows:  # each row one level deeper, as in the list json.dumps would indent
+            chunks.append((" " + ",\n".join(rows).replace("\n", "\n ")).encode())
+    if not chunks:
+        return b"[]\n"
+    return b"[\n" + b",\n".join(chunks) + b"\n]\n"
 
 
 def _encode(table: pa.Table, fmt: str) -> bytes:
@@ -615,8 +704,7 @@ def _encode(table: pa.Table, fmt: str) -> bytes:
         pacsv.write_csv(table, sink)
         return sink.getvalue().to_pybytes()
     if fmt == "json":
-        rows = [_json_value(r) for r in table.to_pylist()]
-        return (json.dumps(rows, indent=1, default=str, allow_nan=False) + "\n").encode()
+        return _encode_json(table)
     if fmt == "parquet":
         sink = pa.BufferOutputStream()
         pq.write_table(table, sink, compression="zstd")
@@ -624,9 +712,44 @@ def _encode(table: pa.Table, fmt: str) -> bytes:
     return format_text_table(table).encode()
 
 
-def _coerce_format(fmt: Any) -> str:
-    if fmt not in FORMATS:
+def _encode_checked(table: pa.Table, fmt: str) -> bytes:
+    """:func:`_encode`, with a column pyarrow cannot write in ``fmt`` (an INTERVAL in CSV or
+    Parquet, a list in CSV) named in a ParamError; it was a traceback (exit 1)."""
+    try:
+        return _encode(table, fmt)
+    except (pa.ArrowNotImplementedError, pa.ArrowInvalid, pa.ArrowTypeError) as exc:
+        failing = []
+        for name in table.column_names:
+            try:
+                _encode(table.select([name]).slice(0, 1), fmt)
+            except (pa.ArrowNotImplementedError, pa.ArrowInvalid, pa.ArrowTypeError):
+                failing.append(name)
+        if not failing:
+            raise ParamError(f"--format {fmt} cannot hold the query's result: {exc}") from None
+        described = ", ".join(f"{n!r} ({table.schema.field(n).type})" for n in failing)
+        first = failing[0]
+        raise ParamError(
+            f"--format {fmt} cannot hold column{'s' if len(failing) > 1 else ''} "
+            f"{described}; convert it in the query, e.g. "
+            f'CAST("{first}" AS VARCHAR) AS "{first}", or use --format json, which takes '
+            "every type"
+        ) from None
+
+
+def _coerce_format(fmt: Any, output: str | os.PathLike[str] | None) -> str:
+    """The format given, else the one ``output``'s suffix names, else ``table``; a suffix
+    naming another format is refused (``-o x.parquet`` wrote a text table into x.parquet)."""
+    if fmt is not None and fmt not in FORMATS:
         raise ParamError(f"--format must be one of {', '.join(FORMATS)}, got {fmt!r}")
+    implied = _SUFFIX_FORMATS.get(Path(output).suffix.lower()) if output is not None else None
+    if fmt is None:
+        return implied or "table"
+    if implied is not None and implied != fmt:
+        raise ParamError(
+            f"--output {output} names a {implied} file but --format is {fmt}; pass "
+            f"--format {implied}, or an output name ending in "
+            f"{_FORMAT_SUFFIXES.get(fmt, '.txt')}"
+        )
     return str(fmt)
 
 
@@ -656,11 +779,51 @@ def _check_unique_columns(table: pa.Table) -> None:
         )
 
 
+def _check_argument_order(
+    rundirs: Sequence[str | os.PathLike[str]] | str | os.PathLike[str], sql: Any
+) -> None:
+    """``arroyo query "SQL" RUNDIR`` said "run directory SELECT ... does not exist"."""
+    given = [rundirs] if isinstance(rundirs, str | os.PathLike) else list(rundirs)
+    if (
+        isinstance(sql, str)
+        and (Path(sql) / "run.json").is_file()
+        and any(not Path(r).exists() and " " in str(r) for r in given)
+    ):
+        raise ParamError(
+            f"the SQL comes last, after the run directories, got the run directory {sql} "
+            f'last; pass arroyo query RUNDIR... "SQL"'
+        )
+
+
+def _check_output(
+    target: Path, rundirs: Sequence[str | os.PathLike[str]] | str | os.PathLike[str]
+) -> None:
+    """Raise ParamError, before the query runs, for an output no file can be written to or
+    one inside a queried run directory (``-o RUNDIR/frames.parquet`` replaced the run's own
+    frames table: "arroyo query never changes a run")."""
+    if target.is_dir():
+        raise ParamError(f"--output {target} is a directory; pass a file name")
+    if not target.parent.is_dir():
+        raise ParamError(f"--output {target}: {_missing_directory(target.parent)}")
+    if not os.access(target.parent, os.W_OK):
+        raise ParamError(
+            f"--output {target}: directory {target.parent} is not writable (read-only?)"
+        )
+    where = target.resolve()
+    for rundir in _coerce_rundirs(rundirs):
+        if where.is_relative_to(rundir.resolve()):
+            raise ParamError(
+                f"--output {target} is inside the queried run directory {rundir}, which "
+                "arroyo query never changes (it could replace the run's own files); write "
+                "the result outside it"
+            )
+
+
 def query_command(
     rundirs: Sequence[str | os.PathLike[str]],
     sql: str,
     *,
-    fmt: str = "table",
+    fmt: str | None = None,
     output: str | os.PathLike[str] | None = None,
     allow_running: bool = False,
     stdout: IO[str] | None = None,
@@ -671,11 +834,14 @@ def query_command(
     ----------
     rundirs : sequence of paths
     sql : str
-    fmt : {'table', 'csv', 'parquet', 'json'}
-        ``table``: a rich table on a terminal, plain text otherwise. ``parquet`` needs
-        ``output`` unless stdout is redirected.
+    fmt : {'table', 'csv', 'parquet', 'json'}, optional
+        ``table``: a rich table on a terminal (plain text when it is wider than the
+        terminal), plain text otherwise. ``parquet`` needs ``output`` unless stdout is
+        redirected. Default: the format ``output``'s suffix names (``.csv``, ``.json``,
+        ``.parquet``), else ``table``; a suffix naming another format is refused.
     output : path, optional
-        File to write (atomically); default stdout.
+        File to write (atomically), outside the queried run directories; default (or
+        ``'-'``) stdout.
     allow_running : bool
         Accept runs still in progress.
     stdout : text stream, optional
@@ -687,7 +853,10 @@ def query_command(
         0. Errors raise ParamError / RunDirError (exit code 2 in the CLI) before anything
         is written.
     """
-    fmt = _coerce_format(fmt)
+    _check_argument_order(rundirs, sql)
+    if output is not None and str(output) == "-":  # wrote a file named '-'
+        output = None
+    fmt = _coerce_format(fmt, output)
     stream = stdout if stdout is not None else sys.stdout
     tty = bool(getattr(stream, "isatty", lambda: False)())
     if fmt == "parquet" and output is None and tty:
@@ -696,38 +865,40 @@ def query_command(
             "stdout to a file"
         )
     if output is not None:
-        target = Path(output)
-        if target.is_dir():
-            raise ParamError(f"--output {target} is a directory; pass a file name")
-        if not target.parent.is_dir():
-            raise ParamError(f"--output {target}: {_missing_directory(target.parent)}")
-        if not os.access(target.parent, os.W_OK):
-            raise ParamError(
-                f"--output {target}: directory {target.parent} is not writable (read-only?)"
-            )
+        _check_output(Path(output), rundirs)
     table = query_runs(rundirs, sql, allow_running=allow_running)
     _check_unique_columns(table)
     if output is not None:
+        data = _encode_checked(table, fmt)
         try:
-            atomic_write_bytes(Path(output), _encode(table, fmt))
+            atomic_write_bytes(Path(output), data)
         except OSError as exc:  # was a traceback (exit 1)
             raise ParamError(f"--output {output}: cannot write: {exc.strerror or exc}") from None
         return 0
     if fmt == "table" and tty:
         from rich.console import Console
 
-        Console(file=stream).print(_rich_table(table, max_rows=_TABLE_ROWS_SHOWN))
-        return 0
-    if fmt == "table":
+        console = Console(file=stream)
+        if _narrowest_rich_width(table, max_rows=_TABLE_ROWS_SHOWN) <= console.width:
+            console.print(_rich_table(table, max_rows=_TABLE_ROWS_SHOWN))
+            return 0
+        # too wide: rich cut every cell to '…' (36 columns of `SELECT * FROM descriptors`)
+        stream.write(format_text_table(table, max_rows=_TABLE_ROWS_SHOWN))
+        stream.write(
+            f"(wider than the terminal's {console.width} columns: pipe it to `less -S`, or "
+            "select fewer columns)\n"
+        )
+    elif fmt == "table":
         stream.write(format_text_table(table, max_rows=_TABLE_ROWS_SHOWN))
     elif fmt == "parquet":
+        data = _encode_checked(table, fmt)
         stream.flush()
         buffer = getattr(stream, "buffer", None)
         if buffer is None:
             raise ParamError("stdout takes no binary data here; pass --output FILE.parquet")
-        buffer.write(_encode(table, fmt))
+        buffer.write(data)
         buffer.flush()
     else:
-        stream.write(_encode(table, fmt).decode())
+        stream.write(_encode_checked(table, fmt).decode())
     stream.flush()
     return 0

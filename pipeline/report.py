@@ -39,7 +39,7 @@ import pyarrow as pa
 from . import _report_figures as figs
 from ._report_html import Raw, esc, fmt, html_table, key_values, page, png_img, stat_cards
 from .errors import ParamError
-from .query import RunInfo, load_runs, open_runs
+from .query import RunInfo, _missing_directory, load_runs, open_runs
 from .store import open_products_group, products_root
 
 __all__ = ["REPORT_NAME", "build_report", "render_report"]
@@ -63,18 +63,27 @@ _FLAGS = ("touches_border", "occluded", "depth_unreliable")
 
 def _coerce_max_frames(max_frames: Any) -> int:
     if isinstance(max_frames, bool) or not isinstance(max_frames, int) or max_frames < 0:
-        raise ValueError(f"max_frames must be an int >= 0, got {max_frames!r}")
+        raise ValueError(
+            f"max_frames must be an int >= 0 (--max-frames), got {max_frames!r}; pass 0 for "
+            "a report without frame images"
+        )
     return max_frames
 
 
 def _target(rundir: Path, output: str | os.PathLike[str] | None) -> Path:
     if output is None:
         return rundir / REPORT_NAME
+    if str(output) == "-":  # wrote a file named '-' into the working directory
+        raise ParamError(
+            "--output -: the report is a file (HTML with embedded images), not stdout; pass "
+            "a file name such as report.html, or a directory"
+        )
     target = Path(output)
     if target.is_dir():
         return target / REPORT_NAME
     if not target.parent.is_dir():
-        raise ParamError(f"--output {target}: directory {target.parent} does not exist")
+        # `-o /etc/passwd/r.html` said "directory /etc/passwd does not exist"
+        raise ParamError(f"--output {target}: {_missing_directory(target.parent)}")
     return target
 
 

@@ -8,6 +8,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import pyarrow as pa
 import pyarrow.parquet as pq
 
 from .errors import RunDirError, RunLockedError
@@ -63,11 +64,8 @@ def status(rundir: str | os.PathLike[str], *, verify: bool = False) -> RunStatus
             f"{rundir} has no frames.parquet: its run stopped before recording its frames; "
             "rerun `arroyo run CATALOG --out DIR` to resume it"
         )
-    columns = set(pq.read_schema(rundir / "frames.parquet").names)
-    frames_table = pq.read_table(
-        rundir / "frames.parquet",
-        columns=[c for c in ("frame_id", "index", "left", "right") if c in columns],
-    )
+    frames_table = _read_frames_table(rundir)
+    columns = set(frames_table.column_names)
     image_files = [
         str(p) for c in ("left", "right") if c in columns for p in frames_table[c].to_pylist()
     ]
@@ -157,6 +155,23 @@ def status(rundir: str | os.PathLike[str], *, verify: bool = False) -> RunStatus
     )
 
 
+def _read_frames_table(rundir: Path) -> pa.Table:
+    """The columns of ``frames.parquet`` that status needs; a truncated or garbled file
+    printed pyarrow's "Parquet magic bytes not found" without the file or the fix."""
+    path = rundir / "frames.parquet"
+    try:
+        names = pq.read_schema(path).names
+        return pq.read_table(
+            path, columns=[c for c in ("frame_id", "index", "left", "right") if c in names]
+        )
+    except (OSError, pa.ArrowInvalid) as exc:
+        raise RunDirError(
+            f"cannot read {path}: {exc}; the frames table of a run is written anew when a "
+            "run starts: rerun the catalog into this directory (`arroyo run CATALOG --out "
+            f"{rundir}`), which recomputes only results that are not current"
+        ) from None
+
+
 @contextmanager
 def _verify_lock(rundir: Path) -> Iterator[bool]:
     """Hold the run lock while verifying, with a message of its own when a run holds it;
@@ -221,6 +236,11 @@ def _verify(
         state.drop_parts(bad_parts)
     for published in rundir.glob("*.parquet"):
         if published.is_symlink() or published.is_dir():
+            if not any(published.rglob("*.parquet")):  # verify said every checksum matched
+                damaged.append(
+                    f"published table {published} holds no Parquet file (deleted?; published "
+                    "again by next run)"
+                )
             for file in published.rglob("*.parquet"):
                 try:
                     pq.read_metadata(file)

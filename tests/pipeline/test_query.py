@@ -686,3 +686,190 @@ def test_regression_duplicate_result_column_names_crashed_or_lost_a_column(
     named = sql.replace("a.area_px, b.area_px", "a.area_px AS a_area_px, b.area_px AS b_px")
     assert main(["query", str(lab), named, "--format", fmt, "--output", str(target)]) == 0
     assert target.exists()
+
+
+# -- found by the audit of query / report / status (each test names the bug) ------------------
+class _Tty(io.StringIO):
+    def isatty(self) -> bool:
+        return True
+
+
+def test_regression_output_inside_the_queried_run_replaced_its_frames_table(tmp_path, capsys):
+    # `arroyo query RUN ... -o RUN/frames.parquet --format parquet` replaced the run's own
+    # frames table with the query's two rows: "arroyo query never changes a run"
+    run = make_run(tmp_path / "lab", frames=2)
+    (tmp_path / "link").symlink_to(run)
+    before = (run / "frames.parquet").read_bytes()
+    inside = (run / "frames.parquet", run / "quicklooks" / ".." / "x.csv", tmp_path / "link" / "y")
+    for target in inside:
+        code = main(["query", str(run), "SELECT frame_id FROM frames", "-o", str(target)])
+        err = capsys.readouterr().err
+        assert code == 2 and "inside the queried run directory" in err and "outside" in err
+    assert (run / "frames.parquet").read_bytes() == before
+    assert not (run / "x.csv").exists() and not (run / "y").exists()
+    assert main(["query", str(run), "SELECT 1 AS x", "-o", str(tmp_path / "x.csv")]) == 0
+
+
+def test_regression_query_read_any_file_and_reached_for_the_network(tmp_path):
+    # "read-only" held for writes only: read_csv('/etc/passwd'), glob('/root/*') and
+    # read_text() answered, and a URL made DuckDB try to download the httpfs extension
+    run = make_run(tmp_path / "lab", frames=1)
+    secret = tmp_path / "secret.csv"
+    secret.write_text("a,b\n1,2\n")
+    for sql in (
+        f"SELECT * FROM read_csv('{secret}')",
+        f"SELECT * FROM read_text('{secret}')",
+        f"SELECT * FROM glob('{tmp_path}/*')",
+        f"SELECT * FROM read_parquet('{run}/../secret.parquet')",
+        "SELECT * FROM 'https://example.invalid/x.parquet'",
+    ):
+        with pytest.raises(ParamError, match="the runs given and nothing else.*open_runs"):
+            query_runs(run, sql)
+    # the runs' own files stay readable, through every view and directly
+    assert query_runs(run, "SELECT count(*) AS n FROM frames").to_pylist() == [{"n": 1}]
+    direct = query_runs(run, f"SELECT count(*) AS n FROM read_parquet('{run}/frames.parquet')")
+    assert direct.to_pylist() == [{"n": 1}]
+    # the notebook connection stays a full DuckDB connection
+    assert open_runs(run).sql(f"SELECT count(*) FROM read_csv('{secret}')").fetchall() == [(1,)]
+
+
+def test_regression_output_dash_wrote_a_file_named_dash(two_runs, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    out = io.StringIO()
+    query_command([two_runs[0]], "SELECT 1 AS x", fmt="csv", output="-", stdout=out)
+    assert out.getvalue().splitlines() == ['"x"', "1"]
+    assert not (tmp_path / "-").exists()
+
+
+def test_regression_output_suffix_was_ignored_and_a_text_table_written_to_x_parquet(
+    two_runs, tmp_path, capsys
+):
+    lab, _ = two_runs
+    for suffix in ("parquet", "csv", "json"):
+        target = tmp_path / f"out.{suffix}"
+        assert main(["query", str(lab), SQL, "-o", str(target)]) == 0
+        if suffix == "parquet":
+            assert pq.read_table(target).equals(query_runs(lab, SQL))
+        elif suffix == "json":
+            assert len(json.loads(target.read_text())) == query_runs(lab, SQL).num_rows
+        else:
+            assert target.read_text().startswith('"archive","run"')
+    assert main(["query", str(lab), SQL, "-o", str(tmp_path / "t.txt")]) == 0
+    assert (tmp_path / "t.txt").read_text().splitlines()[1].startswith("-------")
+    # a suffix naming another format than --format is refused, nothing written
+    code = main(["query", str(lab), SQL, "-o", str(tmp_path / "x.json"), "--format", "csv"])
+    err = capsys.readouterr().err
+    assert code == 2 and "names a json file but --format is csv" in err
+    assert not (tmp_path / "x.json").exists()
+
+
+@pytest.mark.parametrize(
+    ("fmt", "sql", "columns"),
+    [
+        ("csv", "SELECT 1 AS n, INTERVAL 3 DAY AS i, [1, 2] AS l", "columns 'i'"),
+        ("csv", "SELECT frame_id, list(object_id) AS ids FROM descriptors GROUP BY 1", "'ids'"),
+        ("parquet", "SELECT 1 AS n, INTERVAL 3 DAY AS i", "column 'i'"),
+    ],
+)
+def test_regression_a_column_the_format_cannot_hold_was_a_traceback(
+    two_runs, tmp_path, capsys, fmt, sql, columns
+):
+    # INTERVAL in CSV or Parquet: an ArrowNotImplementedError traceback (exit 1); a list in
+    # CSV: "arroyo: error: Unsupported Type:list<l: int32>" without the column or a fix
+    lab, _ = two_runs
+    target = tmp_path / f"out.{fmt}"
+    assert main(["query", str(lab), sql, "--format", fmt, "-o", str(target)]) == 2
+    err = capsys.readouterr().err
+    assert columns in err and "CAST(" in err and "--format json" in err
+    assert not target.exists()
+    out = io.StringIO()
+    query_command([lab], sql, fmt="json", stdout=out)  # json takes every type
+    assert json.loads(out.getvalue())
+
+
+def test_regression_json_integer_sums_were_floats(two_runs):
+    # sum() of an integer column is a HUGEINT (a decimal of scale 0 in Arrow): JSON printed
+    # 61902.0, and lost digits beyond 2**53
+    lab, _ = two_runs
+    out = io.StringIO()
+    sql = (
+        "SELECT sum(object_id) AS s, 12345678901234567891::HUGEINT AS big, "
+        "1.25::DECIMAL(6, 2) AS d FROM descriptors"
+    )
+    query_command([lab], sql, fmt="json", stdout=out)
+    expected = sum(_expected(lab, "descriptors")["object_id"].to_pylist())
+    row = json.loads(out.getvalue())[0]
+    assert row == {"s": expected, "big": 12345678901234567891, "d": 1.25}
+    assert isinstance(row["s"], int)
+
+
+def test_json_written_batch_by_batch_is_the_whole_list_dumped_at_once(two_runs, monkeypatch):
+    # JSON of 524,000 rows took 5.4 GB: the rows are now encoded a batch at a time
+    import pipeline.query as query
+
+    table = query_runs(list(two_runs), "SELECT * FROM descriptors ORDER BY ALL")
+    whole = json.dumps(
+        [query._json_value(r) for r in table.to_pylist()], indent=1, default=str, allow_nan=False
+    )
+    for rows in (1, 3, table.num_rows + 1):
+        monkeypatch.setattr(query, "_JSON_BATCH_ROWS", rows)
+        assert query._encode(table, "json").decode() == whole + "\n"
+    assert query._encode(table.slice(0, 0), "json") == b"[]\n"
+
+
+def test_regression_a_wide_table_on_a_terminal_was_all_ellipses(two_runs, monkeypatch):
+    # `SELECT * FROM descriptors` on a 120-column terminal: rich squeezed 36 columns until
+    # every cell read '…'; a table too wide is printed as plain text instead
+    lab, _ = two_runs
+    monkeypatch.setenv("COLUMNS", "120")
+    out = _Tty()
+    query_command([lab], "SELECT * FROM descriptors ORDER BY ALL", stdout=out)
+    text = out.getvalue()
+    expected = query_runs(lab, "SELECT * FROM descriptors ORDER BY ALL")
+    assert text.splitlines()[0].split() == expected.column_names
+    assert "wider than the terminal's 120 columns" in text and "less -S" in text
+    out = _Tty()  # a narrow result is still the rich table
+    query_command([lab], "SELECT frame_id, status FROM frames", stdout=out)
+    assert "┃" in out.getvalue() and "wider" not in out.getvalue()
+
+
+def test_regression_lost_frames_table_gave_an_empty_frames_view(two_runs):
+    # frames.parquet deleted: `SELECT count(*) FROM frames` said 0 while descriptors had rows
+    lab, dunes = two_runs
+    (lab / "frames.parquet").unlink()
+    for rundirs in ([lab], [dunes, lab]):
+        with pytest.raises(RunDirError, match="no frames.parquet.*silently empty.*arroyo run"):
+            query_runs(rundirs, "SELECT count(*) FROM frames")
+
+
+@pytest.mark.parametrize("damage", ["files", "generation"])
+def test_regression_deleted_published_files_gave_an_empty_view(two_runs, damage):
+    # the published generation's part files (or the whole generation) deleted: the
+    # relations view was silently empty, the symlink left dangling
+    import shutil
+
+    lab, _ = two_runs
+    generation = (lab / "relations.parquet").resolve()
+    if damage == "files":
+        for part in generation.rglob("*.parquet"):
+            part.unlink()
+    else:
+        shutil.rmtree(generation)
+    with pytest.raises(RunDirError, match="holds no Parquet file.*relations view.*arroyo run"):
+        query_runs(lab, "SELECT count(*) FROM relations")
+
+
+def test_regression_garbled_run_json_said_nothing_of_the_fix(tmp_path):
+    run = make_run(tmp_path / "lab", frames=1)
+    (run / "run.json").write_text('{"run_id": ')
+    with pytest.raises(RunDirError, match="cannot read .*run.json.*rerun the catalog"):
+        query_runs(run, "SELECT 1")
+
+
+def test_regression_sql_before_the_run_directory_said_the_sql_does_not_exist(two_runs, capsys):
+    # `arroyo query "SELECT ..." RUNDIR`: "run directory SELECT ... does not exist"
+    lab, _ = two_runs
+    assert main(["query", "SELECT count(*) FROM frames", str(lab)]) == 2
+    err = capsys.readouterr().err
+    assert "the SQL comes last" in err and 'RUNDIR... "SQL"' in err
+    assert "does not exist" not in err

@@ -298,3 +298,26 @@ def test_scene_graph_of_a_frame_without_relations(tmp_path):
     text, page = _parse(build_report(run))
     assert [i["alt"] for i in page.images if i["frame"]][-1] == "lab_000: scene graph"
     assert "This frame has no relations." in text
+
+
+def test_regression_report_output_dash_and_output_under_a_file(tmp_path, monkeypatch):
+    # `-o -` wrote a file named '-' into the working directory; `-o FILE/r.html` said
+    # "directory FILE does not exist"
+    run = make_run(tmp_path / "lab", frames=1)
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(ParamError, match="not stdout; pass a file name"):
+        build_report(run, "-", max_frames=0)
+    assert not (tmp_path / "-").exists()
+    plain = tmp_path / "plain.txt"
+    plain.write_text("x")
+    with pytest.raises(ParamError, match=f"{plain} is a file, not a directory"):
+        build_report(run, plain / "r.html", max_frames=0)
+
+
+def test_regression_report_of_a_run_without_its_frames_table_was_written(tmp_path):
+    # frames.parquet deleted: the report was written with no frame at all
+    run = make_run(tmp_path / "lab", frames=2)
+    (run / "frames.parquet").unlink()
+    with pytest.raises(RunDirError, match="no frames.parquet"):
+        build_report(run, tmp_path / "r.html", max_frames=0)
+    assert not (tmp_path / "r.html").exists()

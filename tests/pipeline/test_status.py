@@ -160,3 +160,33 @@ def test_a_run_directory_made_before_shards_keeps_its_chunk_files(archive, tmp_p
     assert status(out, verify=True).damaged == []
     _frame_files(out, "blend", 3)[0].unlink()
     assert status(out, verify=True).damaged == ["blend of frame f003 does not match its checksum"]
+
+
+def test_regression_truncated_frames_table_printed_a_bare_pyarrow_error(archive, tmp_path):
+    # `arroyo status` of a run whose frames.parquet was cut short printed "Parquet magic
+    # bytes not found in footer" without the file or what to do
+    out = tmp_path / "run"
+    _run(archive, out)
+    frames = out / "frames.parquet"
+    frames.write_bytes(frames.read_bytes()[:300])
+    for verify in (False, True):
+        with pytest.raises(RunDirError, match=f"cannot read {frames}: .*rerun the catalog"):
+            status(out, verify=verify)
+    assert _run(archive, out).done == 4  # the way out the message gives
+    assert status(out).frames == 4
+
+
+def test_regression_verify_missed_deleted_published_files(archive, tmp_path):
+    # the published generation's files deleted (or the generation with them): `--verify`
+    # said "every recorded checksum matches" while `arroyo query` read an empty table
+    out = tmp_path / "run"
+    _run(archive, out)
+    generation = (out / "tallies.parquet").resolve()
+    for part in generation.rglob("*.parquet"):
+        part.unlink()
+    report = status(out, verify=True)
+    assert [d for d in report.damaged if "tallies.parquet holds no Parquet file" in d], report
+    shutil.rmtree(generation)
+    assert any("holds no Parquet file" in d for d in status(out, verify=True).damaged)
+    _run(archive, out)  # the next run publishes it again
+    assert status(out, verify=True).damaged == []
