@@ -40,9 +40,9 @@ holder of ``RUNDIR/.arroyo.lock``) is refused unless ``allow_running=True``, whi
 what the last finished run published plus the current ``frames.parquet``.
 
 Only one read-only statement (``SELECT``, ``WITH ... SELECT``, ``DESCRIBE``, ``SHOW``,
-``EXPLAIN``, ``SUMMARIZE``) is accepted by :func:`query_runs`, and it reads the runs' files
-only (no other file, no URL, no extension download); use :func:`open_runs` for a full DuckDB
-connection in a notebook.
+``EXPLAIN``, ``SUMMARIZE``) is accepted by :func:`query_runs`; it may read local files of
+the user's own (``read_csv('picked.csv')``) but loads no DuckDB extension (no URL); use
+:func:`open_runs` for a full DuckDB connection in a notebook.
 """
 
 from __future__ import annotations
@@ -430,20 +430,13 @@ def open_runs(rundirs: Any, *, allow_running: bool = False) -> duckdb.DuckDBPyCo
     return con
 
 
-def _restrict_to_runs(con: duckdb.DuckDBPyConnection, runs: Sequence[RunInfo]) -> None:
-    """Let the connection read the runs' files only: ``read_csv('/etc/passwd')``,
-    ``glob('/root/*')`` and ``read_text`` read any file, and a URL made DuckDB download an
-    extension from the network. Locked, so no statement can lift it."""
-    folders: set[str] = set()
-    for run in runs:
-        for path in (run.path, *(p.parent for files in run.files.values() for p in files)):
-            folders.add(os.path.abspath(path))
-            folders.add(str(Path(path).resolve()))
-    listed = ", ".join(_sql_str(folder.rstrip(os.sep) + os.sep) for folder in sorted(folders))
-    con.execute(f"SET allowed_directories = [{listed}]")
+def _offline(con: duckdb.DuckDBPyConnection) -> None:
+    """No extension is downloaded or loaded behind the user's back: a URL in a query made
+    DuckDB try to fetch httpfs from the network (a hang offline). Local files stay readable,
+    so a scientist can join a table of their own (``read_csv('picked.csv')``); writes are
+    refused by :func:`_check_read_only`. Locked, so no statement can lift it."""
     con.execute("SET autoinstall_known_extensions = false")
     con.execute("SET autoload_known_extensions = false")
-    con.execute("SET enable_external_access = false")
     con.execute("SET lock_configuration = true")
 
 
@@ -498,27 +491,27 @@ def query_runs(rundirs: Any, sql: str, *, allow_running: bool = False) -> pa.Tab
     con = duckdb.connect(":memory:")
     try:
         _create_views(con, runs)
-        _restrict_to_runs(con, runs)
+        _offline(con)
         _check_read_only(con, sql)
         try:
             relation = con.sql(sql)
             if relation is None:
                 return pa.table({})
             return relation.to_arrow_table()
-        except duckdb.PermissionException as exc:
-            raise ParamError(
-                "arroyo query reads the products of the runs given and nothing else (no other "
-                f"file, no URL), and the query asked for more: {exc}. To join files of your "
-                "own, open the runs in Python with pipeline.query.open_runs(RUNDIRS), a full "
-                "DuckDB connection"
-            ) from None
         except duckdb.IOException as exc:
             raise RunDirError(f"cannot read the run's Parquet files: {exc}") from None
         except duckdb.Error as exc:
+            needed = re.search(r"requires the extension (\w+)", str(exc))
+            if needed:  # DuckDB's advice (INSTALL, LOAD, SET) is refused here
+                raise ParamError(
+                    f"the query needs DuckDB's {needed.group(1)} extension (a URL, or a format "
+                    "DuckDB does not read by itself), and arroyo query loads none; copy the "
+                    "file to a local path, or use pipeline.query.open_runs(RUNDIRS) in Python, "
+                    "a full DuckDB connection"
+                ) from None
             raise ParamError(
                 f"query failed: {exc}\nviews: {', '.join(_view_names(runs))} (DESCRIBE "
-                "descriptors lists "
-                "the columns)"
+                "descriptors lists the columns)"
             ) from None
     finally:
         con.close()
