@@ -52,7 +52,7 @@ import math
 import os
 import re
 import sys
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from decimal import Decimal
 from pathlib import Path
@@ -772,6 +772,15 @@ def _check_unique_columns(table: pa.Table) -> None:
         )
 
 
+def _quietly(test: Callable[[], bool]) -> bool:
+    """A path test that is False, not an OSError, for a string no path can be: a whole SQL
+    query is longer than a file name may be (ENAMETOOLONG crashed the README's query)."""
+    try:
+        return test()
+    except (OSError, ValueError):
+        return False
+
+
 def _check_argument_order(
     rundirs: Sequence[str | os.PathLike[str]] | str | os.PathLike[str], sql: Any
 ) -> None:
@@ -779,8 +788,8 @@ def _check_argument_order(
     given = [rundirs] if isinstance(rundirs, str | os.PathLike) else list(rundirs)
     if (
         isinstance(sql, str)
-        and (Path(sql) / "run.json").is_file()
-        and any(not Path(r).exists() and " " in str(r) for r in given)
+        and _quietly(lambda: (Path(sql) / "run.json").is_file())
+        and any(" " in str(r) and not _quietly(Path(r).exists) for r in given)
     ):
         raise ParamError(
             f"the SQL comes last, after the run directories, got the run directory {sql} "

@@ -867,3 +867,19 @@ def test_regression_sql_before_the_run_directory_said_the_sql_does_not_exist(two
     err = capsys.readouterr().err
     assert "the SQL comes last" in err and 'RUNDIR... "SQL"' in err
     assert "does not exist" not in err
+
+
+def test_regression_sql_longer_than_a_file_name_crashed_the_argument_order_check(
+    two_runs, capsys
+):
+    # the check above asked the file system about the SQL as a path: a query of more than
+    # 255 bytes (the README's second question) raised OSError ENAMETOOLONG, exit 1
+    lab, _ = two_runs
+    sql = "SELECT frame_id FROM frames WHERE " + " OR ".join(
+        f"frame_id = 'lab_{i:03d}'" for i in range(40)
+    )
+    assert len(sql) > 300
+    assert main(["query", str(lab), sql, "--format", "csv"]) == 0
+    assert '"frame_id"' in capsys.readouterr().out
+    assert main(["query", sql, str(lab)]) == 2
+    assert "the SQL comes last" in capsys.readouterr().err
