@@ -190,8 +190,24 @@ def write_frames_table(plan: RunPlan, state: RunState) -> None:
         for name, value in frame.metadata.items():
             if name not in taken:
                 out.setdefault(name, [None] * n)[i] = value
+    # the engine's own columns keep one type whatever this run's values: all-None columns
+    # (no frame failed, no notes yet) were Arrow's null type, a schema that changed between
+    # runs of one archive
+    fixed: dict[str, pa.DataType] = {
+        **dict.fromkeys(
+            ("frame_id", "status", "failed_stage", "error", "left", "right"), pa.string()
+        ),
+        "notes": pa.string(),
+        "index": pa.int64(),
+        **{f"{s.name}_seconds": pa.float64() for s in plan.graph.stages},
+    }
     write_parquet_atomic(
-        pa.table({name: _column(values) for name, values in out.items()}),
+        pa.table(
+            {
+                name: pa.array(values, fixed[name]) if name in fixed else _column(values)
+                for name, values in out.items()
+            }
+        ),
         plan.rundir / FRAMES_NAME,
     )
 

@@ -33,6 +33,22 @@ def test_a_short_run_writes_frames_table_at_start_and_end_only(archive, tmp_path
 
 
 
+def test_regression_frames_table_columns_of_null_type_when_no_frame_failed(archive, tmp_path):
+    # with no failure (and no note) the all-None columns were Arrow's null type, and a run
+    # with one failure wrote them as strings: one archive's frames table changed schema
+    import pyarrow as pa
+
+    out = tmp_path / "run"
+    assert run(archive, out, scheduler="synchronous", stage_package=FAKE).done == 4
+    schema = pq.read_schema(out / "frames.parquet")
+    for name in ("status", "failed_stage", "error", "notes", "left", "right"):
+        assert schema.field(name).type == pa.string(), name
+    assert schema.field("index").type == pa.int64()
+    assert all(
+        schema.field(f"{s}_seconds").type == pa.float64() for s in ("ingest", "blend", "tally")
+    )
+
+
 def test_frame_failed_on_rerun_has_no_stale_stage_figures(archive, tmp_path):
     """Regression: a frame that failed at ingest on a rerun (its file cut short) kept the
     earlier run's `<stage>_seconds`, figures and notes in frames.parquet, so `arroyo
