@@ -4,6 +4,7 @@ records (parts first, records last), keep ``frames.parquet`` current, publish ta
 from __future__ import annotations
 
 import json
+import math
 import time
 from collections.abc import Mapping
 from pathlib import Path
@@ -214,7 +215,11 @@ def write_frames_table(plan: RunPlan, state: RunState) -> None:
 
 def _column(values: list[Any]) -> pa.Array:
     """One frames.parquet column; a figure that is a number in one frame and a str in
-    another (a user's stage) is stored as text rather than stopping the run."""
+    another (a user's stage) is stored as text rather than stopping the run. A NaN figure
+    (describe's size-frequency fit of a frame with too few rocks) is stored as NULL, SQL's
+    unknown: ``avg(describe_sfd_k)`` over an archive was NaN as soon as one frame had no
+    fit."""
+    values = [None if isinstance(v, float) and math.isnan(v) else v for v in values]
     try:
         return pa.array(values)
     except (pa.ArrowInvalid, pa.ArrowTypeError):

@@ -49,6 +49,27 @@ def test_regression_frames_table_columns_of_null_type_when_no_frame_failed(archi
     )
 
 
+def test_regression_nan_figure_made_sql_averages_nan(archive, tmp_path, monkeypatch):
+    # describe's size-frequency k of a frame with too few rocks is NaN: stored as NaN, it
+    # made avg(describe_sfd_k) NaN for the whole archive; stored as NULL, avg skips it
+    package = tmp_path / "arroyo_nan_figure_stages"
+    package.mkdir()
+    (package / "__init__.py").write_text("")
+    for name in ("load", "blend"):
+        (package / f"{name}.py").write_text(f"from {FAKE}.{name} import STAGE  # noqa: F401\n")
+    (package / "fit.py").write_text(
+        "from pipeline.stage import Product, Stage, StageResult\n"
+        "def run(inputs, *, frame, params):\n"
+        "    k = float('nan') if frame.frame_id.endswith('0') else 0.5\n"
+        "    return StageResult(arrays={'flag': inputs['blend'] > 0}, figures={'k': k})\n"
+        "STAGE = Stage('fit', '1', ('blend',), (Product('flag', dtype='bool'),), (), run)\n"
+    )
+    monkeypatch.syspath_prepend(str(tmp_path))
+    out = tmp_path / "run"
+    assert run(archive, out, scheduler="synchronous", stage_package=package.name).done == 4
+    assert pq.read_table(out / "frames.parquet")["fit_k"].to_pylist() == [None, 0.5, 0.5, 0.5]
+
+
 def test_frame_failed_on_rerun_has_no_stale_stage_figures(archive, tmp_path):
     """Regression: a frame that failed at ingest on a rerun (its file cut short) kept the
     earlier run's `<stage>_seconds`, figures and notes in frames.parquet, so `arroyo
