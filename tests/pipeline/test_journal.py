@@ -11,6 +11,25 @@ from pipeline.runner import run
 FAKE = "arroyo_fake_stages"
 
 
+def _figure_stage_package(tmp_path, monkeypatch, name: str, figure_expr: str) -> str:
+    """A stage package of the fake load and blend stages plus a stage ``name`` whose one
+    figure is ``figure_expr`` (Python, of ``frame``), importable for this test."""
+    package = tmp_path / f"arroyo_{name}_figure_stages"
+    package.mkdir()
+    (package / "__init__.py").write_text("")
+    for stage in ("load", "blend"):
+        (package / f"{stage}.py").write_text(f"from {FAKE}.{stage} import STAGE  # noqa: F401\n")
+    (package / f"{name}.py").write_text(
+        "from pipeline.stage import Product, Stage, StageResult\n"
+        "def run(inputs, *, frame, params):\n"
+        f"    figures = {figure_expr}\n"
+        "    return StageResult(arrays={'flag': inputs['blend'] > 0}, figures=figures)\n"
+        f"STAGE = Stage('{name}', '1', ('blend',), (Product('flag', dtype='bool'),), (), run)\n"
+    )
+    monkeypatch.syspath_prepend(str(tmp_path))
+    return package.name
+
+
 def test_a_short_run_writes_frames_table_at_start_and_end_only(archive, tmp_path, monkeypatch):
     # the run's last flush wrote frames.parquet and the runner rewrote it right after, the
     # whole table twice in a row; the flush before publishing now leaves it to the runner
@@ -32,7 +51,6 @@ def test_a_short_run_writes_frames_table_at_start_and_end_only(archive, tmp_path
     assert all(f["blend_seconds"] is not None for f in frames)
 
 
-
 def test_regression_frames_table_columns_of_null_type_when_no_frame_failed(archive, tmp_path):
     # with no failure (and no note) the all-None columns were Arrow's null type, and a run
     # with one failure wrote them as strings: one archive's frames table changed schema
@@ -52,21 +70,11 @@ def test_regression_frames_table_columns_of_null_type_when_no_frame_failed(archi
 def test_regression_nan_figure_made_sql_averages_nan(archive, tmp_path, monkeypatch):
     # describe's size-frequency k of a frame with too few rocks is NaN: stored as NaN, it
     # made avg(describe_sfd_k) NaN for the whole archive; stored as NULL, avg skips it
-    package = tmp_path / "arroyo_nan_figure_stages"
-    package.mkdir()
-    (package / "__init__.py").write_text("")
-    for name in ("load", "blend"):
-        (package / f"{name}.py").write_text(f"from {FAKE}.{name} import STAGE  # noqa: F401\n")
-    (package / "fit.py").write_text(
-        "from pipeline.stage import Product, Stage, StageResult\n"
-        "def run(inputs, *, frame, params):\n"
-        "    k = float('nan') if frame.frame_id.endswith('0') else 0.5\n"
-        "    return StageResult(arrays={'flag': inputs['blend'] > 0}, figures={'k': k})\n"
-        "STAGE = Stage('fit', '1', ('blend',), (Product('flag', dtype='bool'),), (), run)\n"
+    package = _figure_stage_package(
+        tmp_path, monkeypatch, "fit", "{'k': float('nan') if frame.frame_id.endswith('0') else 0.5}"
     )
-    monkeypatch.syspath_prepend(str(tmp_path))
     out = tmp_path / "run"
-    assert run(archive, out, scheduler="synchronous", stage_package=package.name).done == 4
+    assert run(archive, out, scheduler="synchronous", stage_package=package).done == 4
     assert pq.read_table(out / "frames.parquet")["fit_k"].to_pylist() == [None, 0.5, 0.5, 0.5]
 
 
@@ -90,21 +98,11 @@ def test_frame_failed_on_rerun_has_no_stale_stage_figures(archive, tmp_path):
 def test_regression_figure_of_mixed_types_stopped_the_run(archive, tmp_path, monkeypatch):
     # a user's figure that was a number in one frame and a str in another made
     # pa.table(frames columns) raise: the run stopped (exit 2) and frames.parquet went stale
-    package = tmp_path / "arroyo_mixed_figure_stages"
-    package.mkdir()
-    (package / "__init__.py").write_text("")
-    for name in ("load", "blend"):
-        (package / f"{name}.py").write_text(f"from {FAKE}.{name} import STAGE  # noqa: F401\n")
-    (package / "mixed.py").write_text(
-        "from pipeline.stage import Product, Stage, StageResult\n"
-        "def run(inputs, *, frame, params):\n"
-        "    value = 'many' if frame.frame_id.endswith('1') else 3\n"
-        "    return StageResult(arrays={'flag': inputs['blend'] > 0}, figures={'n': value})\n"
-        "STAGE = Stage('mixed', '1', ('blend',), (Product('flag', dtype='bool'),), (), run)\n"
+    package = _figure_stage_package(
+        tmp_path, monkeypatch, "mixed", "{'n': 'many' if frame.frame_id.endswith('1') else 3}"
     )
-    monkeypatch.syspath_prepend(str(tmp_path))
     out = tmp_path / "run"
-    summary = run(archive, out, scheduler="synchronous", stage_package=package.name)
+    summary = run(archive, out, scheduler="synchronous", stage_package=package)
     assert (summary.done, summary.failed) == (4, 0)
     rows = pq.read_table(out / "frames.parquet").to_pylist()
     assert [r["mixed_n"] for r in rows] == ["3", "many", "3", "3"]
